@@ -1,0 +1,210 @@
+"""Wavy Lagrangian dynamics of a planar chain, derived by CasADi automatic differentiation.
+
+From the Lagrangian L = T - V of `planner.model`, with q the absolute joint angles:
+    M(q) = d2T/ddq2,    h(q, dq) = d/dq(dT/ddq) dq - dT/dq + dV/dq,
+so that M(q) ddq + h(q, dq) = B tau. Only the terms a structure needs are built:
+no wave terms for a waveless joint, no gravity for g = 0, no rotational terms for a
+zero inertia. Functions are cached per `Structure`, the numbers enter as parameters.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import casadi as ca
+import numpy as np
+
+from planner.model import Robot, Structure, parameters
+
+
+@dataclass(frozen=True)
+class Symbols:
+    """Symbolic quantities of one structure, shared by every function built from it."""
+
+    q: ca.SX
+    dq: ca.SX
+    p: ca.SX
+    radius: list[ca.SX]
+    tips: ca.SX
+    kinetic: ca.SX
+    potential: ca.SX
+    mass: ca.SX
+    bias: ca.SX
+    gravity: ca.SX
+
+
+def _unpack(s: Structure, p: ca.SX) -> dict[str, list]:
+    """Split the symbolic parameter vector (layout of `planner.model.parameters`)."""
+    n, k = s.n, 2 * s.n
+    out: dict[str, list] = {"l": [p[i] for i in range(n)], "m": [p[n + i] for i in range(n)]}
+    out["I"] = []
+    for on in s.inertial:
+        out["I"].append(p[k] if on else None)
+        k += int(on)
+    out["wave"] = []
+    for on in s.wavy:
+        out["wave"].append((p[k], p[k + 1], p[k + 2]) if on else None)
+        k += 3 * int(on)
+    out["g"] = [p[k]] if s.gravity else []
+    return out
+
+
+def derive(s: Structure) -> Symbols:
+    """Derive tips, energies, M, h and the gravity term for a structure."""
+    q, dq = ca.SX.sym("q", s.n), ca.SX.sym("dq", s.n)
+    p = ca.SX.sym("p", s.n_params)
+    par = _unpack(s, p)
+
+    radius = []
+    for i in range(s.n):
+        wave = par["wave"][i]
+        r = par["l"][i] if wave is None else par["l"][i] + wave[0] * ca.sin(wave[1] * q[i] + wave[2])
+        radius.append(r)
+
+    tip, tips = ca.SX.zeros(2), []
+    for i in range(s.n):
+        tip = tip + radius[i] * ca.vertcat(ca.cos(q[i]), ca.sin(q[i]))
+        tips.append(tip)
+
+    kinetic = 0
+    for k in range(s.n):
+        velocity = ca.jtimes(tips[k], q, dq)
+        kinetic += 0.5 * par["m"][k] * ca.sumsqr(velocity)
+    for k, inertia in enumerate(par["I"]):
+        if inertia is None:
+            continue
+        rate = ca.sum1(dq[: k + 1]) if s.rotational == "cumulative" else dq[k]
+        kinetic += 0.5 * inertia * rate**2
+
+    potential = 0
+    if s.gravity:
+        g = par["g"][0]
+        potential = -g * sum(par["m"][k] * tips[k][0] for k in range(s.n))
+    potential = ca.SX(potential)
+
+    momentum = ca.gradient(kinetic, dq)
+    mass = ca.jacobian(momentum, dq)
+    gravity = ca.gradient(potential, q) if s.gravity else ca.SX.zeros(s.n)
+    bias = ca.jtimes(momentum, q, dq) - ca.gradient(kinetic, q) + gravity
+    return Symbols(q, dq, p, radius, ca.horzcat(*tips), kinetic, potential,
+                   ca.simplify(mass), bias, gravity)
+
+
+def selection(s: Structure) -> np.ndarray:
+    """B (n x n_active): maps the active joints' torques to generalized forces."""
+    B = np.zeros((s.n, len(s.active_idx)))
+    for col, joint in enumerate(s.active_idx):
+        B[joint, col] = 1.0
+    return B
+
+
+@lru_cache(maxsize=128)
+def functions(s: Structure) -> dict[str, ca.Function]:
+    """Compiled dynamics functions of a structure (cached: built once per structure).
+
+    Keys and signatures (p is the parameter vector of `planner.model.parameters`):
+      M(q, p), h(q, dq, p), gravity(q, p), energy(q, dq, p) -> [T, V], tips(q, p) -> 2 x n,
+      fd(q, dq, tau, p) -> ddq, id(q, dq, ddq, p) -> Q = M ddq + h,
+      residual(q, dq, ddq, tau, p) -> M ddq + h - B tau, Mpa(q, p), ode(x, tau, p) -> dx.
+    """
+    sym = derive(s)
+    q, dq, p = sym.q, sym.dq, sym.p
+    ddq = ca.SX.sym("ddq", s.n)
+    tau = ca.SX.sym("tau", len(s.active_idx))
+    B = ca.DM(selection(s))
+    generalized = ca.mtimes(sym.mass, ddq) + sym.bias
+    accel = ca.solve(sym.mass, ca.mtimes(B, tau) - sym.bias)
+    x = ca.vertcat(q, dq)
+    mpa = sym.mass[s.passive_idx, s.active_idx] if s.passive_idx else ca.SX(0, len(s.active_idx))
+    return {
+        "M": ca.Function("M", [q, p], [sym.mass], ["q", "p"], ["M"]),
+        "h": ca.Function("h", [q, dq, p], [sym.bias], ["q", "dq", "p"], ["h"]),
+        "gravity": ca.Function("gravity", [q, p], [sym.gravity], ["q", "p"], ["G"]),
+        "energy": ca.Function("energy", [q, dq, p], [sym.kinetic, sym.potential],
+                              ["q", "dq", "p"], ["T", "V"]),
+        "tips": ca.Function("tips", [q, p], [sym.tips], ["q", "p"], ["tips"]),
+        "fd": ca.Function("fd", [q, dq, tau, p], [accel], ["q", "dq", "tau", "p"], ["ddq"]),
+        "id": ca.Function("id", [q, dq, ddq, p], [generalized], ["q", "dq", "ddq", "p"], ["Q"]),
+        "residual": ca.Function("residual", [q, dq, ddq, tau, p],
+                                [generalized - ca.mtimes(B, tau)],
+                                ["q", "dq", "ddq", "tau", "p"], ["r"]),
+        "Mpa": ca.Function("Mpa", [q, p], [mpa], ["q", "p"], ["Mpa"]),
+        "ode": ca.Function("ode", [x, tau, p], [ca.vertcat(dq, accel)], ["x", "tau", "p"], ["dx"]),
+    }
+
+
+@dataclass(frozen=True)
+class Coupling:
+    """Measures of the inertial coupling block M_pa at one configuration.
+
+    det: determinant (square M_pa only, else None); sigma_min, sigma_max: extreme
+    singular values; condition: sigma_max / sigma_min (None where sigma_min == 0).
+    """
+
+    det: float | None
+    sigma_min: float
+    sigma_max: float
+    condition: float | None
+
+
+def coupling_measures(mpa: np.ndarray) -> Coupling:
+    """det, extreme singular values and condition number of a coupling block."""
+    rows, cols = mpa.shape
+    if rows == 0:
+        return Coupling(det=None, sigma_min=float("inf"), sigma_max=float("inf"), condition=1.0)
+    sv = np.linalg.svd(mpa, compute_uv=False)
+    smin = float(sv[-1]) if len(sv) == min(rows, cols) and rows <= cols else 0.0
+    smax = float(sv[0])
+    det = float(np.linalg.det(mpa)) if rows == cols else None
+    return Coupling(det=det, sigma_min=smin, sigma_max=smax,
+                    condition=smax / smin if smin > 0.0 else None)
+
+
+class Dynamics:
+    """Numpy-facing dynamics of one robot (vectors in, arrays out; SI units)."""
+
+    def __init__(self, robot: Robot, structure: Structure | None = None):
+        self.robot = robot
+        self.structure = structure or Structure.of(robot)
+        self.p = parameters(robot, self.structure)
+        self.f = functions(self.structure)
+        self.B = selection(self.structure)
+
+    def mass_matrix(self, q) -> np.ndarray:
+        """M(q) [kg m^2], n x n."""
+        return np.array(self.f["M"](q, self.p))
+
+    def bias(self, q, dq) -> np.ndarray:
+        """h(q, dq) [N m]: Coriolis, centrifugal and gravity terms."""
+        return np.array(self.f["h"](q, dq, self.p)).ravel()
+
+    def gravity(self, q) -> np.ndarray:
+        """Gravity term dV/dq [N m]."""
+        return np.array(self.f["gravity"](q, self.p)).ravel()
+
+    def energy(self, q, dq) -> tuple[float, float]:
+        """Kinetic and potential energy [J]."""
+        T, V = self.f["energy"](q, dq, self.p)
+        return float(T), float(V)
+
+    def tips(self, q) -> np.ndarray:
+        """Tip position of every link, n x 2 [m]."""
+        return np.array(self.f["tips"](q, self.p)).T
+
+    def forward(self, q, dq, tau) -> np.ndarray:
+        """Joint accelerations [rad/s^2] for the active torques tau [N m]."""
+        return np.array(self.f["fd"](q, dq, tau, self.p)).ravel()
+
+    def inverse(self, q, dq, ddq) -> np.ndarray:
+        """Generalized forces M ddq + h [N m]."""
+        return np.array(self.f["id"](q, dq, ddq, self.p)).ravel()
+
+    def coupling_block(self, q) -> np.ndarray:
+        """M_pa(q): passive rows, active columns of M."""
+        return np.array(self.f["Mpa"](q, self.p)).reshape(
+            len(self.structure.passive_idx), len(self.structure.active_idx))
+
+    def coupling(self, q) -> Coupling:
+        """det, sigma_min and condition of M_pa(q)."""
+        return coupling_measures(self.coupling_block(q))
