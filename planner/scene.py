@@ -1,0 +1,177 @@
+"""A planning scene: robot, task, transcription and solver settings (pydantic, SI units).
+
+One schema serves the library and the HTTP service. Joint indices are 0-based; vectors
+hold one entry per joint unless said otherwise; `null` entries of a final state are free.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from planner.model import Robot
+from planner.profiles import PassiveMotion
+
+_STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+class State(BaseModel):
+    """Joint angles q [rad] and rates dq [rad/s]; None entries are left free."""
+
+    model_config = _STRICT
+
+    q: list[float | None]
+    dq: list[float | None]
+
+
+class FixedState(BaseModel):
+    """A fully given state: joint angles q [rad] and rates dq [rad/s]."""
+
+    model_config = _STRICT
+
+    q: list[float]
+    dq: list[float]
+
+
+class DurationRange(BaseModel):
+    """Bounds [s] of a free final time."""
+
+    model_config = _STRICT
+
+    min: float = Field(gt=0.0)
+    max: float = Field(gt=0.0)
+
+    @model_validator(mode="after")
+    def _ordered(self) -> DurationRange:
+        if self.min > self.max:
+            raise ValueError(f"min: must not exceed max ({self.min:g} > {self.max:g})")
+        return self
+
+
+class Objective(BaseModel):
+    """Weights of the cost terms: effort int |tau|^2 dt, time T, smoothness int |dtau/dt|^2 dt."""
+
+    model_config = _STRICT
+
+    effort: float = Field(default=1.0, ge=0.0)
+    time: float = Field(default=0.0, ge=0.0)
+    smoothness: float = Field(default=0.0, ge=0.0)
+
+
+class Tracking(BaseModel):
+    """Follow a prescribed passive motion exactly (equality) or in least squares (weight)."""
+
+    model_config = _STRICT
+
+    motion: PassiveMotion
+    mode: Literal["exact", "weighted"] = "exact"
+    weight: float = Field(default=100.0, gt=0.0, description="weight of int |q_p - q_ref|^2 dt")
+
+
+class TipTarget(BaseModel):
+    """Position [m] that the last link's tip must reach at the final time."""
+
+    model_config = _STRICT
+
+    x: float
+    y: float
+
+
+class Bounds(BaseModel):
+    """Per-joint lower and upper bounds (None: unbounded)."""
+
+    model_config = _STRICT
+
+    lower: list[float | None]
+    upper: list[float | None]
+
+
+class WaveCoDesign(BaseModel):
+    """Let the planner choose the active joints' wave amplitudes and phases (frequency fixed)."""
+
+    model_config = _STRICT
+
+    amplitude_max: float = Field(gt=0.0, description="upper bound on every amplitude [m]")
+    frequency: list[float] = Field(description="fixed frequency of each active joint's wave")
+
+
+class Task(BaseModel):
+    """What the motion must do and what it costs."""
+
+    model_config = _STRICT
+
+    duration: float | DurationRange = Field(description="fixed T [s] or bounds of a free T")
+    initial: FixedState
+    final: State
+    tracking: Tracking | None = None
+    tip_target: TipTarget | None = None
+    torque_limit: list[float] | float | None = Field(
+        default=None, description="|tau| bound [N m], per active joint or one for all")
+    position_bounds: Bounds | None = None
+    velocity_bounds: Bounds | None = None
+    objective: Objective = Objective()
+    coupling_margin: float | None = Field(
+        default=None, gt=0.0, description="sigma_min(M_pa) >= margin along the path")
+    co_design: WaveCoDesign | None = None
+
+
+Method = Literal["trapezoidal", "hermite-simpson", "legendre", "radau", "multiple-shooting"]
+
+
+class Transcription(BaseModel):
+    """How the continuous problem becomes an NLP."""
+
+    model_config = _STRICT
+
+    method: Method = "legendre"
+    intervals: int = Field(default=50, ge=1, le=5000)
+    degree: int = Field(default=3, ge=1, le=9, description="collocation degree (legendre, radau)")
+    integrator: Literal["rk4", "cvodes"] = Field(
+        default="rk4", description="multiple shooting's integrator")
+    steps: int = Field(default=4, ge=1, le=100, description="RK4 steps per shooting interval")
+    form: Literal["implicit", "explicit"] = Field(
+        default="implicit", description="implicit: ddq are variables with M ddq + h = B tau")
+
+
+class SolverSettings(BaseModel):
+    """Ipopt settings."""
+
+    model_config = _STRICT
+
+    max_iter: int = Field(default=500, ge=1, le=100000)
+    tol: float = Field(default=1e-8, gt=0.0)
+    max_wall_time: float = Field(default=60.0, gt=0.0, description="[s]")
+    initial_guess: Literal["interpolation", "inverse-dynamics"] = "interpolation"
+    jit: bool = Field(default=False, description="compile the NLP to C (cached on disk)")
+
+
+class Scene(BaseModel):
+    """A robot, a task, a transcription and solver settings."""
+
+    model_config = _STRICT
+
+    robot: Robot
+    task: Task
+    transcription: Transcription = Transcription()
+    solver: SolverSettings = SolverSettings()
+
+    @model_validator(mode="after")
+    def _sizes_agree(self) -> Scene:
+        n, na = self.robot.n, len(self.robot.active)
+        task = self.task
+        for name, state in (("initial", task.initial), ("final", task.final)):
+            for field in ("q", "dq"):
+                if len(getattr(state, field)) != n:
+                    raise ValueError(f"task.{name}.{field}: needs {n} entries, one per joint")
+        if isinstance(task.torque_limit, list) and len(task.torque_limit) != na:
+            raise ValueError(f"task.torque_limit: needs {na} entries, one per active joint")
+        for name in ("position_bounds", "velocity_bounds"):
+            bounds = getattr(task, name)
+            if bounds is not None and (len(bounds.lower) != n or len(bounds.upper) != n):
+                raise ValueError(f"task.{name}: lower and upper need {n} entries each")
+        if task.co_design is not None and len(task.co_design.frequency) != na:
+            raise ValueError(f"task.co_design.frequency: needs {na} entries, one per active joint")
+        if task.tracking is not None and isinstance(task.duration, DurationRange):
+            raise ValueError("task.tracking: a prescribed motion needs a fixed duration")
+        return self
