@@ -1,0 +1,438 @@
+"""Inertial coupling analysis: det, sigma_min and condition of M_pa over many configurations.
+
+M_pa(q) is the block of the mass matrix with the passive joints' rows and the active
+joints' columns [kg m^2]. Prescribing the passive motion needs M_pa of full row rank;
+configurations where it loses rank are inertial coupling singularities.
+
+Evaluation is batched: one CasADi `Function.map` evaluates M_pa at a chunk of
+configurations, numpy takes the determinants and singular values of the whole batch.
+Singular points are found by sign changes of det between neighbouring configurations
+(square blocks), refined by Brent's method on the straight segment between them, and by
+local minima of sigma_min below the threshold, refined by a local minimisation.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+from typing import Literal
+
+import casadi as ca
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+from scipy.optimize import brentq, minimize, minimize_scalar
+
+from planner.dynamics import functions
+from planner.model import Robot, Structure, parameters
+
+MAX_POINTS = 200_000
+"""Largest number of configurations one request may evaluate."""
+MAX_RESULTS = 20_000
+"""Largest number of per-configuration results a report lists (the rest are counted)."""
+MAX_SINGULAR = 1_000
+"""Largest number of singular points a report refines and lists."""
+CHUNK = 4096
+"""Configurations per mapped CasADi call."""
+
+_STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+SplitKind = Literal["square", "fewer-active", "more-active"]
+
+
+# --------------------------------------------------------------------------- requests
+
+
+class Grid(BaseModel):
+    """A box of configurations [rad]: `points` per axis (one number for all axes, or one
+    per joint); an axis with lower == upper is a single point."""
+
+    model_config = _STRICT
+
+    lower: list[float] = Field(min_length=1, description="lower corner, one angle per joint [rad]")
+    upper: list[float] = Field(min_length=1, description="upper corner, one angle per joint [rad]")
+    points: int | list[int] = Field(default=51, description="grid points per axis (>= 2)")
+
+    @model_validator(mode="after")
+    def _consistent(self) -> Grid:
+        if len(self.upper) != len(self.lower):
+            raise ValueError(f"upper: needs {len(self.lower)} entries, as many as lower")
+        if any(u < lo for lo, u in zip(self.lower, self.upper)):
+            raise ValueError("upper: every entry must be >= the matching entry of lower")
+        counts = self.points if isinstance(self.points, list) else [self.points] * len(self.lower)
+        if len(counts) != len(self.lower):
+            raise ValueError(f"points: needs 1 or {len(self.lower)} entries")
+        if any(c < 2 for c in counts):
+            raise ValueError("points: every axis needs at least 2 points")
+        return self
+
+    def axes(self) -> list[np.ndarray]:
+        """Grid coordinates of every axis; a degenerate axis holds its single value."""
+        counts = self.points if isinstance(self.points, list) else [self.points] * len(self.lower)
+        return [np.array([lo]) if u == lo else np.linspace(lo, u, c)
+                for lo, u, c in zip(self.lower, self.upper, counts)]
+
+    @property
+    def size(self) -> int:
+        """Number of grid points."""
+        return math.prod(len(axis) for axis in self.axes())
+
+
+class CouplingRequest(BaseModel):
+    """Configurations to analyse: an explicit list (read as a path) or a grid box."""
+
+    model_config = _STRICT
+
+    robot: Robot
+    configurations: list[list[float]] | None = Field(
+        default=None, description="joint angles [rad], one row per configuration; "
+                                  "consecutive rows are joined by straight segments")
+    grid: Grid | None = None
+    threshold: float = Field(
+        default=1e-3, ge=0.0,
+        description="local minima of sigma_min below this [kg m^2] are reported as singular")
+
+    @model_validator(mode="after")
+    def _consistent(self) -> CouplingRequest:
+        check_split(self.robot)
+        n = self.robot.n
+        if (self.configurations is None) == (self.grid is None):
+            raise ValueError("configurations: give exactly one of configurations and grid")
+        if self.configurations is not None:
+            if not self.configurations:
+                raise ValueError("configurations: needs at least one configuration")
+            if len(self.configurations) > MAX_POINTS:
+                raise ValueError(f"configurations: {len(self.configurations):,} exceed the "
+                                 f"limit of {MAX_POINTS:,}")
+            if any(len(row) != n for row in self.configurations):
+                raise ValueError(f"configurations: every row needs {n} entries, one per joint")
+        else:
+            if len(self.grid.lower) != n:
+                raise ValueError(f"grid.lower: needs {n} entries, one per joint")
+            if self.grid.size > MAX_POINTS:
+                raise ValueError(f"grid: {self.grid.size:,} points exceed the limit of "
+                                 f"{MAX_POINTS:,}; use fewer points per axis")
+        return self
+
+
+def check_split(robot: Robot) -> None:
+    """Raise ValueError when the robot has no coupling block (no passive joint)."""
+    if not robot.passive:
+        raise ValueError("robot: has no passive joint, so there is no coupling block "
+                         "(the arm is fully actuated)")
+
+
+# --------------------------------------------------------------------------- results
+
+
+class Split(BaseModel):
+    """Passive and active joints (0-based) and the shape of M_pa."""
+
+    passive: list[int]
+    active: list[int]
+    kind: SplitKind
+    note: str
+
+
+class PointResult(BaseModel):
+    """Coupling measures at one configuration; det only for a square block, condition
+    None where sigma_min is zero."""
+
+    q: list[float]
+    det: float | None
+    sigma_min: float
+    condition: float | None
+
+
+class SingularPoint(BaseModel):
+    """A configuration where M_pa loses rank (refined sign change of det) or sigma_min has
+    a local minimum below the threshold."""
+
+    q: list[float]
+    det: float | None
+    sigma_min: float
+    source: Literal["det-sign-change", "sigma-minimum"]
+
+
+class MinSigma(BaseModel):
+    """Smallest sigma_min met [kg m^2] and where."""
+
+    q: list[float]
+    sigma_min: float
+
+
+class CouplingReport(BaseModel):
+    """Coupling measures at every configuration, the singular points and the minimum.
+
+    For grids larger than MAX_RESULTS points `results` is empty and `results_omitted`
+    counts the points left out (the singular points and the minimum are still complete).
+    Grid results are listed in row-major order (the last joint varies fastest).
+    """
+
+    split: Split
+    results: list[PointResult]
+    results_omitted: int = 0
+    singular_points: list[SingularPoint]
+    singular_points_omitted: int = 0
+    min_sigma: MinSigma
+
+
+def split_of(robot: Robot) -> Split:
+    """Classify M_pa: square, fewer active than passive joints, or more."""
+    passive, active = robot.passive, robot.active
+    if len(active) == len(passive):
+        kind: SplitKind = "square"
+        note = (f"M_pa is {len(passive)} x {len(active)}: the active accelerations follow "
+                "uniquely from the passive motion where det M_pa != 0")
+    elif len(active) < len(passive):
+        kind = "fewer-active"
+        note = (f"only {len(active)} active joints for {len(passive)} passive: M_pa cannot "
+                "have full row rank, so the passive motion cannot be prescribed in full "
+                "(sigma_min is 0 everywhere)")
+    else:
+        kind = "more-active"
+        note = (f"{len(active)} active joints for {len(passive)} passive: the inverse "
+                "dynamics uses the minimum-norm active accelerations; singular where "
+                "M_pa loses row rank (sigma_min = 0)")
+    return Split(passive=passive, active=active, kind=kind, note=note)
+
+
+# --------------------------------------------------------------------------- batch evaluation
+
+
+@lru_cache(maxsize=64)
+def _mapped(structure: Structure, size: int) -> ca.Function:
+    """M_pa mapped over `size` configurations (columns); the parameters are shared."""
+    return functions(structure)["Mpa"].map(size)
+
+
+def blocks(robot: Robot, configurations, structure: Structure | None = None) -> np.ndarray:
+    """M_pa at every configuration: (K, n_passive, n_active) [kg m^2] for q of shape (K, n)."""
+    s = structure or Structure.of(robot)
+    p = parameters(robot, s)
+    Q = np.atleast_2d(np.asarray(configurations, dtype=float))
+    rows, cols = len(s.passive_idx), len(s.active_idx)
+    K = Q.shape[0]
+    out = np.empty((K, rows, cols))
+    size = min(CHUNK, max(K, 1))
+    f = _mapped(s, size)
+    for start in range(0, K, size):
+        chunk = Q[start:start + size]
+        pad = size - len(chunk)
+        if pad:
+            chunk = np.vstack([chunk, np.repeat(chunk[-1:], pad, axis=0)])
+        flat = np.array(f(chunk.T, p))  # (rows, cols * size), blocks side by side
+        stacked = flat.reshape(rows, cols, size, order="F").transpose(2, 0, 1)
+        out[start:start + size - pad] = stacked[:size - pad] if pad else stacked
+    return out
+
+
+def measures(mpa: np.ndarray) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
+    """det (square blocks only, else None), sigma_min and sigma_max of a batch (K, r, c).
+
+    sigma_min is the r-th singular value (0 when r > c: no full row rank is possible).
+    """
+    K, rows, cols = mpa.shape
+    sv = np.linalg.svd(mpa, compute_uv=False)
+    smax = sv[:, 0]
+    smin = sv[:, rows - 1] if rows <= cols else np.zeros(K)
+    det = np.linalg.det(mpa) if rows == cols else None
+    return det, smin, smax
+
+
+def sigma_min(robot: Robot, configurations, structure: Structure | None = None) -> np.ndarray:
+    """sigma_min(M_pa) [kg m^2] at every configuration (K, n)."""
+    return measures(blocks(robot, configurations, structure))[1]
+
+
+def _condition(smin: np.ndarray, smax: np.ndarray) -> list[float | None]:
+    return [float(b / a) if a > 0.0 else None for a, b in zip(smin, smax)]
+
+
+# --------------------------------------------------------------------------- singular points
+
+
+def _edges(shape: tuple[int, ...]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Pairs of flat indices of neighbouring grid points, one pair of arrays per axis."""
+    index = np.arange(math.prod(shape)).reshape(shape)
+    pairs = []
+    for axis, length in enumerate(shape):
+        if length < 2:
+            continue
+        lo = np.take(index, np.arange(length - 1), axis=axis).ravel()
+        hi = np.take(index, np.arange(1, length), axis=axis).ravel()
+        pairs.append((lo, hi))
+    return pairs
+
+
+def _det_along(robot: Robot, s: Structure, a: np.ndarray, b: np.ndarray):
+    """det M_pa on the segment q(u) = a + u (b - a), u in [0, 1]."""
+    f, p = functions(s)["Mpa"], parameters(robot, s)
+    rows = len(s.passive_idx)
+
+    def det(u: float) -> float:
+        return float(np.linalg.det(np.array(f(a + u * (b - a), p)).reshape(rows, rows)))
+    return det
+
+
+def _sign_changes(robot: Robot, s: Structure, Q: np.ndarray, det: np.ndarray,
+                  pairs) -> list[SingularPoint]:
+    """Refine every sign change of det between neighbours with Brent's method."""
+    found: list[SingularPoint] = []
+    zero = np.flatnonzero(det == 0.0)
+    for k in zero:
+        found.append(_singular(robot, s, Q[k], "det-sign-change"))
+    for lo, hi in pairs:
+        change = np.flatnonzero(det[lo] * det[hi] < 0.0)
+        for e in change:
+            a, b = Q[lo[e]], Q[hi[e]]
+            u = brentq(_det_along(robot, s, a, b), 0.0, 1.0, xtol=1e-15, rtol=1e-15,
+                       maxiter=200)
+            found.append(_singular(robot, s, a + u * (b - a), "det-sign-change"))
+    return found
+
+
+def _singular(robot: Robot, s: Structure, q: np.ndarray, source) -> SingularPoint:
+    det, smin, _ = measures(blocks(robot, q[None, :], s))
+    return SingularPoint(q=q.tolist(), det=None if det is None else float(det[0]),
+                         sigma_min=float(smin[0]), source=source)
+
+
+def _local_minima(smin: np.ndarray, pairs, threshold: float, exclude: np.ndarray) -> np.ndarray:
+    """Indices whose sigma_min is below threshold and not above any neighbour's."""
+    is_min = smin < threshold
+    for lo, hi in pairs:
+        is_min[lo] &= smin[lo] <= smin[hi]
+        is_min[hi] &= smin[hi] <= smin[lo]
+    is_min &= ~exclude
+    return np.flatnonzero(is_min)
+
+
+def _near_sign_change(det: np.ndarray | None, pairs, size: int) -> np.ndarray:
+    """Points at an edge across which det changes sign (already found by Brent)."""
+    near = np.zeros(size, dtype=bool)
+    if det is None:
+        return near
+    near[det == 0.0] = True
+    for lo, hi in pairs:
+        change = det[lo] * det[hi] < 0.0
+        near[lo[change]] = True
+        near[hi[change]] = True
+    return near
+
+
+def _refine_minimum(robot: Robot, s: Structure, lower: np.ndarray, upper: np.ndarray,
+                    q0: np.ndarray) -> np.ndarray:
+    """Local minimum of sigma_min in the box [lower, upper] around q0 (free axes only)."""
+    free = upper > lower
+    if not free.any():
+        return q0
+
+    def objective(x: np.ndarray) -> float:
+        q = q0.copy()
+        q[free] = x
+        return float(sigma_min(robot, q[None, :], s)[0])
+
+    if free.sum() == 1:
+        (i,) = np.flatnonzero(free)
+        res = minimize_scalar(objective, bounds=(lower[i], upper[i]), method="bounded",
+                              options={"xatol": 1e-12})
+        x = np.array([res.x])
+    else:
+        res = minimize(objective, q0[free], method="Nelder-Mead",
+                       bounds=list(zip(lower[free], upper[free])),
+                       options={"xatol": 1e-11, "fatol": 1e-15, "maxiter": 4000})
+        x = res.x
+    q = q0.copy()
+    q[free] = x
+    return q
+
+
+def _minima_points(robot: Robot, s: Structure, Q: np.ndarray, idx: np.ndarray,
+                   boxes) -> list[SingularPoint]:
+    found = []
+    for k in idx:
+        lower, upper = boxes(k)
+        q = _refine_minimum(robot, s, lower, upper, Q[k])
+        found.append(_singular(robot, s, q, "sigma-minimum"))
+    return found
+
+
+# --------------------------------------------------------------------------- analysis
+
+
+def _points(request: CouplingRequest):
+    """Configurations (K, n), neighbour pairs, and the local box of each point."""
+    if request.configurations is not None:
+        Q = np.asarray(request.configurations, dtype=float)
+        K = len(Q)
+        pairs = [(np.arange(K - 1), np.arange(1, K))] if K > 1 else []
+
+        def boxes(k: int):
+            lo, hi = Q[max(k - 1, 0)], Q[min(k + 1, K - 1)]
+            return np.minimum(lo, hi), np.maximum(lo, hi)
+        return Q, pairs, boxes, True
+
+    axes = request.grid.axes()
+    shape = tuple(len(axis) for axis in axes)
+    mesh = np.meshgrid(*axes, indexing="ij")
+    Q = np.stack([m.ravel() for m in mesh], axis=1)
+    steps = np.array([axis[1] - axis[0] if len(axis) > 1 else 0.0 for axis in axes])
+    lower_all, upper_all = np.array(request.grid.lower), np.array(request.grid.upper)
+
+    def boxes(k: int):
+        return (np.maximum(Q[k] - steps, lower_all), np.minimum(Q[k] + steps, upper_all))
+    return Q, _edges(shape), boxes, False
+
+
+def analyse(request: CouplingRequest) -> CouplingReport:
+    """det, sigma_min and condition of M_pa at the requested configurations, the singular
+    points between them, and the smallest sigma_min met."""
+    robot = request.robot
+    s = Structure.of(robot)
+    split = split_of(robot)
+    Q, pairs, boxes, is_path = _points(request)
+    det, smin, smax = measures(blocks(robot, Q, s))
+
+    singular: list[SingularPoint] = []
+    if split.kind != "fewer-active":
+        if det is not None:
+            singular += _sign_changes(robot, s, Q, det, pairs)
+        near = _near_sign_change(det, pairs, len(Q))
+        idx = _local_minima(smin.copy(), pairs, request.threshold, near)
+        budget = max(MAX_SINGULAR - len(singular), 0)
+        if is_path:
+            singular += _path_minima(robot, s, Q, idx[:budget])
+        else:
+            singular += _minima_points(robot, s, Q, idx[:budget], boxes)
+    omitted_singular = max(len(singular) - MAX_SINGULAR, 0)
+    singular = singular[:MAX_SINGULAR]
+
+    k = int(np.argmin(smin))
+    best = MinSigma(q=Q[k].tolist(), sigma_min=float(smin[k]))
+    for point in singular:
+        if point.sigma_min < best.sigma_min:
+            best = MinSigma(q=point.q, sigma_min=point.sigma_min)
+
+    listed = len(Q) if len(Q) <= MAX_RESULTS else 0
+    cond = _condition(smin[:listed], smax[:listed])
+    results = [PointResult(q=Q[i].tolist(), det=None if det is None else float(det[i]),
+                           sigma_min=float(smin[i]), condition=cond[i]) for i in range(listed)]
+    return CouplingReport(split=split, results=results, results_omitted=len(Q) - listed,
+                          singular_points=singular, singular_points_omitted=omitted_singular,
+                          min_sigma=best)
+
+
+def _path_minima(robot: Robot, s: Structure, Q: np.ndarray, idx: np.ndarray) -> list[SingularPoint]:
+    """Refine local minima of sigma_min along the polyline through the configurations."""
+    found = []
+    K = len(Q)
+    for k in idx:
+        prev, nxt = Q[max(k - 1, 0)], Q[min(k + 1, K - 1)]
+
+        def along(u: float) -> np.ndarray:
+            return Q[k] + u * (Q[k] - prev) if u < 0 else Q[k] + u * (nxt - Q[k])
+
+        res = minimize_scalar(lambda u: float(sigma_min(robot, along(u)[None, :], s)[0]),
+                              bounds=(-1.0, 1.0), method="bounded", options={"xatol": 1e-12})
+        found.append(_singular(robot, s, along(float(res.x)), "sigma-minimum"))
+    return found

@@ -1,0 +1,217 @@
+"""Classical inverse dynamics of an underactuated arm for a prescribed passive motion.
+
+The passive joints follow q_p(t) of a reference profile. Their rows of the equations of
+motion carry no torque,
+
+    M_pp(q) ddq_p + M_pa(q) ddq_a + h_p(q, dq) = 0,
+
+and are solved for the active accelerations ddq_a (uniquely when M_pa is square and
+regular; the minimum-norm solution M_pa^T (M_pa M_pa^T)^-1 (...) when there are more
+active than passive joints). The active state is integrated with scipy's DOP853 at the
+requested tolerances and stops as soon as sigma_min(M_pa) falls to `sigma_threshold`:
+there the active accelerations, and the torques, would grow without bound. The active
+torques are then the active rows of M ddq + h.
+
+Feeding the torques forward: the samples are exact point values (to the integration
+tolerance) of a smooth torque. Interpolate them with the not-a-knot cubic spline of
+`planner.simulate.torque_coefficients(t, tau, "cubic")`; its error falls as h^4 with the
+sample spacing h, so the reproduced passive motion converges at fourth order.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from typing import Literal
+
+import casadi as ca
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+from scipy.integrate import solve_ivp
+
+from planner.coupling import blocks, check_split, measures
+from planner.dynamics import derive, functions
+from planner.model import Robot, Structure, parameters
+from planner.profiles import PassiveMotion, SampledProfile
+
+_STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+class ActiveState(BaseModel):
+    """Angles [rad] and rates [rad/s] of the active joints only, in joint order."""
+
+    model_config = _STRICT
+
+    q: list[float]
+    dq: list[float]
+
+
+class InverseDynamicsRequest(BaseModel):
+    """A prescribed passive motion over [0, duration] and the active joints' initial state."""
+
+    model_config = _STRICT
+
+    robot: Robot
+    passive_motion: PassiveMotion
+    duration: float = Field(gt=0.0, le=1e4, description="T [s]")
+    active_initial: ActiveState
+    samples: int = Field(default=201, ge=2, le=100_000,
+                         description="output samples, evenly spaced over [0, T]")
+    sigma_threshold: float = Field(default=1e-3, gt=0.0,
+                                   description="stop where sigma_min(M_pa) < this [kg m^2]")
+    rtol: float = Field(default=1e-10, ge=1e-13, le=1e-3, description="relative tolerance")
+    atol: float = Field(default=1e-10, ge=1e-13, le=1e-3, description="absolute tolerance")
+
+    @model_validator(mode="after")
+    def _consistent(self) -> InverseDynamicsRequest:
+        check_split(self.robot)
+        check_prescribable(self.robot)
+        n_p, n_a = len(self.robot.passive), len(self.robot.active)
+        if self.passive_motion.n != n_p:
+            raise ValueError(f"passive_motion: needs {n_p} angles per time, one per passive joint")
+        if isinstance(self.passive_motion, SampledProfile) and not np.isclose(
+                self.passive_motion.t[-1], self.duration, rtol=1e-12, atol=0.0):
+            raise ValueError(f"passive_motion.t: must end at duration ({self.duration:g} s)")
+        if len(self.active_initial.q) != n_a or len(self.active_initial.dq) != n_a:
+            raise ValueError(f"active_initial: q and dq need {n_a} entries each, "
+                             "one per active joint")
+        return self
+
+
+def check_prescribable(robot: Robot) -> None:
+    """Raise ValueError when fewer active than passive joints make M_pa rank-deficient."""
+    n_p, n_a = len(robot.passive), len(robot.active)
+    if n_a < n_p:
+        raise ValueError(f"robot: {n_a} active joints cannot prescribe the motion of "
+                         f"{n_p} passive joints (M_pa never has full row rank)")
+
+
+class Singularity(BaseModel):
+    """Where the motion reached sigma_min(M_pa) = threshold: time [s], all angles [rad]."""
+
+    time: float
+    q: list[float]
+    sigma_min: float
+
+
+class InverseDynamicsResult(BaseModel):
+    """The motion and active torques at the samples reached, time-major.
+
+    q, dq, ddq hold every joint; tau the active joints' torques [N m]; sigma_min the
+    coupling measure [kg m^2] at each sample. On a singular stop the samples end at the
+    last sample before the stop plus the stop itself (none if the start is singular).
+    """
+
+    status: Literal["completed", "singular"]
+    t: list[float]
+    q: list[list[float]]
+    dq: list[list[float]]
+    ddq: list[list[float]]
+    tau: list[list[float]]
+    sigma_min: list[float]
+    singularity: Singularity | None
+    interpolation: Literal["cubic"] = Field(
+        default="cubic", description="how to interpolate tau when feeding it forward")
+    message: str
+
+
+@lru_cache(maxsize=64)
+def active_acceleration(s: Structure) -> ca.Function:
+    """ddq_a(q, dq, ddq_p, p) from the passive rows (minimum norm when non-square)."""
+    sym = derive(s)
+    P, A = s.passive_idx, s.active_idx
+    ddq_p = ca.SX.sym("ddq_p", len(P))
+    mpa = sym.mass[P, A]
+    rhs = -(ca.mtimes(sym.mass[P, P], ddq_p) + sym.bias[P])
+    if len(P) == len(A):
+        ddq_a = ca.solve(mpa, rhs)
+    else:
+        ddq_a = ca.mtimes(mpa.T, ca.solve(ca.mtimes(mpa, mpa.T), rhs))
+    return ca.Function("ddq_a", [sym.q, sym.dq, ddq_p, sym.p], [ddq_a],
+                       ["q", "dq", "ddq_p", "p"], ["ddq_a"])
+
+
+class _Problem:
+    """The active-state ODE x_a' = (dq_a, ddq_a) along the prescribed passive motion."""
+
+    def __init__(self, request: InverseDynamicsRequest):
+        self.robot = request.robot
+        self.s = Structure.of(self.robot)
+        self.p = parameters(self.robot, self.s)
+        self.P, self.A = self.s.passive_idx, self.s.active_idx
+        self.motion, self.T = request.passive_motion, request.duration
+        self.accel = active_acceleration(self.s)
+        self.threshold = request.sigma_threshold
+
+    def full(self, t, xa: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """All joints' q, dq and the passive ddq at times t (K,) for active states (K, 2 na)."""
+        qp, dqp, ddqp = self.motion.evaluate(np.atleast_1d(t), self.T)
+        na, K = len(self.A), len(qp)
+        q, dq = np.empty((K, self.s.n)), np.empty((K, self.s.n))
+        q[:, self.P], dq[:, self.P] = qp, dqp
+        q[:, self.A], dq[:, self.A] = xa[:, :na], xa[:, na:]
+        return q, dq, ddqp
+
+    def rhs(self, t: float, x: np.ndarray) -> np.ndarray:
+        q, dq, ddqp = self.full(t, x[None, :])
+        ddq_a = np.array(self.accel(q[0], dq[0], ddqp[0], self.p)).ravel()
+        return np.concatenate([x[len(self.A):], ddq_a])
+
+    def sigma(self, t: float, x: np.ndarray) -> float:
+        q, _, _ = self.full(t, x[None, :])
+        return float(measures(blocks(self.robot, q, self.s))[1][0])
+
+
+def solve(request: InverseDynamicsRequest) -> InverseDynamicsResult:
+    """Active motion and torques for the prescribed passive motion, or the singular stop."""
+    pb = _Problem(request)
+    x0 = np.concatenate([request.active_initial.q, request.active_initial.dq])
+    grid = np.linspace(0.0, request.duration, request.samples)
+    sigma0 = pb.sigma(0.0, x0)
+    if sigma0 < pb.threshold:
+        q0, _, _ = pb.full(0.0, x0[None, :])
+        return _result("singular", pb, np.empty(0), np.empty((0, len(x0))),
+                       Singularity(time=0.0, q=q0[0].tolist(), sigma_min=sigma0),
+                       f"sigma_min(M_pa) = {sigma0:.3g} < {pb.threshold:.3g} at the start")
+
+    def event(t: float, x: np.ndarray) -> float:
+        return pb.sigma(t, x) - pb.threshold
+    event.terminal, event.direction = True, -1.0
+    sol = solve_ivp(pb.rhs, (0.0, request.duration), x0, method="DOP853", dense_output=True,
+                    rtol=request.rtol, atol=request.atol, events=event)
+    if sol.status == 0:
+        return _result("completed", pb, grid, sol.sol(grid).T, None, "completed")
+
+    t_stop = float(sol.t[-1])
+    x_stop = sol.y[:, -1]
+    times = np.append(grid[grid < t_stop], t_stop)
+    states = np.vstack([sol.sol(times[:-1]).T, x_stop]) if len(times) > 1 else x_stop[None, :]
+    q_stop, _, _ = pb.full(t_stop, x_stop[None, :])
+    sigma_stop = pb.sigma(t_stop, x_stop)
+    why = ("sigma_min(M_pa) fell to the threshold" if sol.status == 1 else
+           f"the integrator stopped ({sol.message}) as the accelerations grew")
+    singular = Singularity(time=t_stop, q=q_stop[0].tolist(), sigma_min=sigma_stop)
+    return _result("singular", pb, times, states, singular,
+                   f"{why} at t = {t_stop:.6g} s (sigma_min = {sigma_stop:.3g})")
+
+
+def _result(status, pb: _Problem, t: np.ndarray, xa: np.ndarray,
+            singularity: Singularity | None, message: str) -> InverseDynamicsResult:
+    """Complete the samples with the passive motion, accelerations, torques and sigma_min."""
+    if len(t) == 0:
+        return InverseDynamicsResult(status=status, t=[], q=[], dq=[], ddq=[], tau=[],
+                                     sigma_min=[], singularity=singularity, message=message)
+    q, dq, ddqp = pb.full(t, xa)
+    K = len(t)
+    ddq = np.empty((K, pb.s.n))
+    ddq[:, pb.P] = ddqp
+    accel = pb.accel.map(K)
+    ddq[:, pb.A] = np.array(accel(q.T, dq.T, ddqp.T, pb.p)).T
+    generalized = np.array(functions(pb.s)["id"].map(K)(q.T, dq.T, ddq.T, pb.p)).T
+    tau = generalized[:, pb.A]
+    sigma = measures(blocks(pb.robot, q, pb.s))[1]
+    arrays = (q, dq, ddq, tau, sigma)
+    if not all(np.all(np.isfinite(a)) for a in arrays):
+        raise FloatingPointError("inverse dynamics produced a non-finite value")
+    return InverseDynamicsResult(status=status, t=t.tolist(), q=q.tolist(), dq=dq.tolist(),
+                                 ddq=ddq.tolist(), tau=tau.tolist(), sigma_min=sigma.tolist(),
+                                 singularity=singularity, message=message)
