@@ -1,0 +1,143 @@
+"""RFC 9457 problem details (application/problem+json) for every error the service returns.
+
+Each problem has type, title, status, detail and instance, the request id, and for
+validation errors `errors: [{loc, msg, type}]`, one entry per offending field. Library
+messages of the form "field.path: what is wrong" are split so that `loc` names the field.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+from collections.abc import Sequence
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from pydantic import BaseModel, Field, ValidationError
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+log = logging.getLogger("undertow.errors")
+
+MEDIA_TYPE = "application/problem+json"
+TYPE_PREFIX = "urn:undertow:problem:"
+_FIELD_PREFIX = re.compile(r"^(?P<path>[A-Za-z_]\w*(?:\.\w+)*): (?P<msg>.+)$", re.S)
+_PYDANTIC_PREFIXES = ("Value error, ", "Assertion failed, ")
+
+Loc = list[str | int]
+
+
+class FieldError(BaseModel):
+    """One offending field: where it is (`loc`, from "body" or "query") and what is wrong."""
+
+    loc: Loc
+    msg: str
+    type: str = Field(description="machine-readable kind, e.g. greater_than, value_error")
+
+
+class Problem(BaseModel):
+    """An RFC 9457 problem detail."""
+
+    type: str = Field(description="URI naming the kind of problem", examples=[
+        TYPE_PREFIX + "validation"])
+    title: str
+    status: int
+    detail: str
+    instance: str = Field(description="path of the request that failed")
+    request_id: str | None = Field(default=None, description="the X-Request-ID of the request")
+    errors: list[FieldError] | None = None
+
+
+class ApiError(Exception):
+    """An error with a known problem type; raised by routes and dependencies."""
+
+    def __init__(self, status: int, slug: str, title: str, detail: str,
+                 errors: Sequence[FieldError] | None = None,
+                 headers: dict[str, str] | None = None):
+        super().__init__(detail)
+        self.status, self.slug, self.title, self.detail = status, slug, title, detail
+        self.errors = list(errors) if errors is not None else None
+        self.headers = headers
+
+
+def _split(loc: Sequence[str | int], message: str) -> tuple[Loc, str]:
+    """Move a leading "field.path: " of a message into the location."""
+    for prefix in _PYDANTIC_PREFIXES:
+        if message.startswith(prefix):
+            message = message[len(prefix):]
+    match = _FIELD_PREFIX.match(message)
+    if not match:
+        return list(loc), message
+    extra = [int(p) if p.isdigit() else p for p in match["path"].split(".")]
+    return [*loc, *extra], match["msg"]
+
+
+def field_error(loc: Sequence[str | int], message: str, kind: str = "value_error") -> FieldError:
+    """A field error, with a "field.path: " message prefix moved into `loc`."""
+    where, msg = _split(loc, message)
+    return FieldError(loc=where, msg=msg, type=kind)
+
+
+def invalid(errors: Sequence[FieldError]) -> ApiError:
+    """A 422 validation problem listing the offending fields."""
+    lines = [f"{'.'.join(map(str, e.loc))}: {e.msg}" for e in errors]
+    detail = "; ".join(lines[:3]) + (f"; and {len(lines) - 3} more" if len(lines) > 3 else "")
+    return ApiError(422, "validation", "The request is not valid", detail, errors)
+
+
+def from_value_error(exc: ValueError, loc: Sequence[str | int] = ("body",)) -> ApiError:
+    """A 422 for a library ValueError (or pydantic ValidationError) about the request body."""
+    if isinstance(exc, ValidationError):
+        return from_pydantic(exc.errors(), prefix=loc)
+    return invalid([field_error(loc, str(exc))])
+
+
+def from_pydantic(errors: Sequence[dict[str, Any]], prefix: Sequence[str | int] = ()) -> ApiError:
+    """A 422 for pydantic error dicts."""
+    return invalid([field_error([*prefix, *e["loc"]], e["msg"], e["type"]) for e in errors])
+
+
+def problem(request: Request, error: ApiError) -> JSONResponse:
+    """The problem+json response of an error."""
+    body = Problem(type=TYPE_PREFIX + error.slug, title=error.title, status=error.status,
+                   detail=error.detail, instance=request.url.path,
+                   request_id=getattr(request.state, "request_id", None), errors=error.errors)
+    return JSONResponse(body.model_dump(mode="json", exclude_none=True), status_code=error.status,
+                        media_type=MEDIA_TYPE, headers=error.headers)
+
+
+_HTTP_SLUGS = {401: "unauthorized", 404: "not-found", 405: "method-not-allowed",
+               413: "request-too-large", 429: "queue-full"}
+
+
+async def _on_api_error(request: Request, exc: ApiError) -> JSONResponse:
+    return problem(request, exc)
+
+
+async def _on_validation(request: Request, exc: RequestValidationError) -> JSONResponse:
+    return problem(request, from_pydantic(exc.errors()))
+
+
+async def _on_http(request: Request, exc: StarletteHTTPException) -> JSONResponse:
+    title = {413: "Request body too large"}.get(exc.status_code, str(exc.detail))
+    detail = str(exc.detail)
+    if exc.status_code == 413:
+        detail = "the request body exceeds the limit (UNDERTOW_MAX_BODY_BYTES)"
+    slug = _HTTP_SLUGS.get(exc.status_code, "http-error")
+    return problem(request, ApiError(exc.status_code, slug, title, detail,
+                                     headers=getattr(exc, "headers", None)))
+
+
+async def _on_unexpected(request: Request, exc: Exception) -> JSONResponse:
+    log.exception("unhandled error on %s", request.url.path)
+    return problem(request, ApiError(500, "internal", "Internal server error",
+                                     "an unexpected error occurred; see the server log"))
+
+
+def install(app: FastAPI) -> None:
+    """Register the problem+json handlers on an app."""
+    app.add_exception_handler(ApiError, _on_api_error)
+    app.add_exception_handler(RequestValidationError, _on_validation)
+    app.add_exception_handler(StarletteHTTPException, _on_http)
+    app.add_exception_handler(Exception, _on_unexpected)

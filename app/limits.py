@@ -1,0 +1,83 @@
+"""Server-side limits on what one request may ask for (each set by an UNDERTOW_* variable).
+
+Violations become 422 problems naming the field and the limit; the body size is limited
+by the app itself (413) and the job queue by the runner (429).
+"""
+
+from __future__ import annotations
+
+from pydantic import BaseModel
+
+from app.errors import FieldError, field_error, invalid
+from app.settings import Settings
+from planner.scene import DurationRange, Scene, Transcription
+
+
+def nodes(transcription: Transcription) -> int:
+    """Time nodes of a transcription: intervals * (degree + 1) for collocation, the grid
+    points (and midpoints) otherwise, intervals * steps for multiple shooting."""
+    k = transcription.intervals
+    return {
+        "legendre": k * (transcription.degree + 1),
+        "radau": k * (transcription.degree + 1),
+        "hermite-simpson": 2 * k + 1,
+        "trapezoidal": k + 1,
+        "multiple-shooting": k * transcription.steps,
+    }[transcription.method]
+
+
+def _request_errors(body: BaseModel, settings: Settings) -> list[FieldError]:
+    """Links of the robot and the length of every top-level list of a request."""
+    errors = []
+    robot = getattr(body, "robot", None)
+    if robot is not None and robot.n > settings.max_links:
+        errors.append(field_error(["body", "robot", "links"],
+                                  f"at most {settings.max_links} links on this server "
+                                  f"(UNDERTOW_MAX_LINKS), got {robot.n}", "limit"))
+    for name in type(body).model_fields:
+        value = getattr(body, name)
+        if isinstance(value, list) and len(value) > settings.max_states:
+            errors.append(field_error(["body", name],
+                                      f"at most {settings.max_states} entries on this server "
+                                      f"(UNDERTOW_MAX_STATES), got {len(value)}", "limit"))
+    return errors
+
+
+def check_request(body: BaseModel, settings: Settings) -> None:
+    """422 when a request exceeds the server's limits on links or list lengths."""
+    errors = _request_errors(body, settings)
+    if errors:
+        raise invalid(errors)
+
+
+def check_scene(scene: Scene, settings: Settings) -> Scene:
+    """The scene with its wall time capped, or 422 when it exceeds a limit.
+
+    A wall time the client did not set is lowered to the cap; one it set above the cap
+    is refused."""
+    errors = _request_errors(scene, settings)
+    count = nodes(scene.transcription)
+    if count > settings.max_nodes:
+        errors.append(field_error(["body", "transcription", "intervals"],
+                                  f"{count} nodes exceed this server's limit of "
+                                  f"{settings.max_nodes} (UNDERTOW_MAX_NODES)", "limit"))
+    duration = scene.task.duration
+    horizon = duration.max if isinstance(duration, DurationRange) else duration
+    if horizon > settings.max_horizon:
+        loc = ["body", "task", "duration"] + (["max"] if isinstance(duration, DurationRange) else [])
+        errors.append(field_error(loc, f"{horizon:g} s exceeds this server's horizon limit of "
+                                       f"{settings.max_horizon:g} s (UNDERTOW_MAX_HORIZON)",
+                                  "limit"))
+    wall = scene.solver.max_wall_time
+    explicit = "max_wall_time" in scene.solver.model_fields_set
+    if explicit and wall > settings.max_wall_time:
+        errors.append(field_error(["body", "solver", "max_wall_time"],
+                                  f"{wall:g} s exceeds this server's limit of "
+                                  f"{settings.max_wall_time:g} s (UNDERTOW_MAX_WALL_TIME)",
+                                  "limit"))
+    if errors:
+        raise invalid(errors)
+    if wall > settings.max_wall_time:
+        solver = scene.solver.model_copy(update={"max_wall_time": settings.max_wall_time})
+        scene = scene.model_copy(update={"solver": solver})
+    return scene

@@ -1,0 +1,67 @@
+"""The undertow HTTP service: `app.main:app`.
+
+`create_app(settings, solve)` builds an app; its lifespan opens the job store, recovers
+jobs a previous run left behind, and starts the worker pool.
+"""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+
+from anyio import CapacityLimiter
+from fastapi import Depends, FastAPI
+
+from app import errors
+from app.deps import require_api_key
+from app.jobs import JobRunner, SolveFunction, load_function
+from app.logging import RequestIdMiddleware, configure
+from app.metrics import Metrics, MetricsMiddleware
+from app.openapi import document
+from app.routes import dynamics, health, plans
+from app.settings import Settings, get_settings
+from app.store import SqliteJobStore
+
+DESCRIPTION = """Feed-forward torque planning for underactuated planar manipulators whose
+active joints carry a small-amplitude wave. Angles in radians, SI units, 0-based joint
+indices, time-major trajectories. Errors are RFC 9457 problem details."""
+
+
+def create_app(settings: Settings | None = None, solve: SolveFunction | None = None) -> FastAPI:
+    """An app for `settings` (default: from the environment); `solve` replaces the
+    configured solve function (it must be a module-level function)."""
+    settings = settings or get_settings()
+    configure(settings.log_level)
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        store = SqliteJobStore(settings.db_path)
+        app.state.metrics.watch(store)
+        runner = JobRunner(store, solve or load_function(settings.solve_function),
+                           owner=settings.instance, workers=settings.workers,
+                           max_queued=settings.max_queued, retry_after=settings.retry_after,
+                           on_done=app.state.metrics.job_done)
+        runner.start()
+        app.state.store, app.state.runner = store, runner
+        app.state.limiter = CapacityLimiter(settings.compute_threads)
+        try:
+            yield
+        finally:
+            runner.shutdown()
+
+    app = FastAPI(title="undertow", version="0.1.0", description=DESCRIPTION,
+                  lifespan=lifespan, max_body_size=settings.max_body_bytes)
+    app.state.settings = settings
+    app.state.metrics = Metrics()
+    errors.install(app)
+    app.include_router(health.router)
+    secured = [Depends(require_api_key)]
+    for router in (dynamics.router, plans.router):
+        app.include_router(router, dependencies=secured)
+    app.add_middleware(MetricsMiddleware, metrics=app.state.metrics)
+    app.add_middleware(RequestIdMiddleware)
+    app.openapi = lambda: document(app)
+    return app
+
+
+app = create_app()

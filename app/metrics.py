@@ -1,0 +1,90 @@
+"""Prometheus metrics: requests by route and status, latencies, solve durations, jobs by state.
+
+Each app has its own registry. Worker processes report nothing themselves: the parent
+observes solve durations when a job ends, and reads jobs by state from the store when
+scraped (so the gauge is right across restarts and across instances sharing a store).
+"""
+
+from __future__ import annotations
+
+import time
+
+from prometheus_client import CollectorRegistry, Counter, Histogram
+from prometheus_client.core import GaugeMetricFamily
+from prometheus_client.registry import Collector
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
+from app.jobs import Outcome
+from app.store import JobStore
+
+_LATENCY_BUCKETS = (0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1, 2.5, 5, 10, 30)
+_SOLVE_BUCKETS = (0.1, 0.25, 0.5, 1, 2, 5, 10, 20, 30, 60, 120, 300, 600)
+
+
+class _JobsByState(Collector):
+    def __init__(self, store: JobStore):
+        self.store = store
+
+    def collect(self):
+        family = GaugeMetricFamily("undertow_jobs", "Plan jobs in the store by state",
+                                   labels=["state"])
+        for state, count in self.store.count_by_status().items():
+            family.add_metric([state], count)
+        yield family
+
+    def describe(self):
+        return []
+
+
+class Metrics:
+    """The metrics of one app."""
+
+    def __init__(self):
+        self.registry = CollectorRegistry()
+        self.requests = Counter("undertow_http_requests", "HTTP requests",
+                                ["method", "route", "status"], registry=self.registry)
+        self.latency = Histogram("undertow_http_request_duration_seconds",
+                                 "HTTP request latency", ["method", "route"],
+                                 buckets=_LATENCY_BUCKETS, registry=self.registry)
+        self.solves = Histogram("undertow_solve_duration_seconds",
+                                "Wall time of plan solves by final status", ["status"],
+                                buckets=_SOLVE_BUCKETS, registry=self.registry)
+        self._jobs: _JobsByState | None = None
+
+    def watch(self, store: JobStore) -> None:
+        """Report the jobs of `store` by state (replacing a store watched before)."""
+        if self._jobs is not None:
+            self.registry.unregister(self._jobs)
+        self._jobs = _JobsByState(store)
+        self.registry.register(self._jobs)
+
+    def job_done(self, outcome: Outcome) -> None:
+        """Record a finished job (called in the server process)."""
+        self.solves.labels(outcome.status).observe(outcome.elapsed)
+
+
+class MetricsMiddleware:
+    """Count requests and time them, labelled by route template (not raw path)."""
+
+    def __init__(self, app: ASGIApp, metrics: Metrics):
+        self.app, self.metrics = app, metrics
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        start, status = time.perf_counter(), 500
+
+        async def record_status(message: Message) -> None:
+            nonlocal status
+            if message["type"] == "http.response.start":
+                status = message["status"]
+            await send(message)
+
+        try:
+            await self.app(scope, receive, record_status)
+        finally:
+            route = getattr(scope.get("route"), "path", "unmatched")
+            method = scope["method"]
+            self.metrics.requests.labels(method, route, str(status)).inc()
+            self.metrics.latency.labels(method, route).observe(time.perf_counter() - start)

@@ -1,0 +1,68 @@
+"""The OpenAPI document of the app, with problem+json error responses.
+
+FastAPI documents validation errors as its own JSON shape; the service answers with
+RFC 9457 problems, so every error response is documented as `Problem`.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import FastAPI
+from fastapi.openapi.utils import get_openapi
+
+from app.errors import MEDIA_TYPE, Problem
+
+_REF = {"$ref": "#/components/schemas/Problem"}
+_DESCRIPTIONS = {
+    401: "missing or wrong X-API-Key",
+    404: "no such resource",
+    409: "the resource is in a state that does not allow this",
+    413: "the request body is too large",
+    422: "invalid request: `errors` lists each offending field",
+    429: "the job queue is full; retry after the Retry-After header's seconds",
+}
+
+
+def problem_response(status: int) -> dict[str, Any]:
+    """The OpenAPI response object of a problem with this status."""
+    response: dict[str, Any] = {"description": _DESCRIPTIONS[status],
+                                "content": {MEDIA_TYPE: {"schema": _REF}}}
+    if status == 429:
+        response["headers"] = {"Retry-After": {"description": "seconds to wait",
+                                               "schema": {"type": "integer"}}}
+    return response
+
+
+def problems(*statuses: int) -> dict[int | str, dict[str, Any]]:
+    """`responses=` argument of a route that can answer with these problems."""
+    return {status: problem_response(status) for status in statuses}
+
+
+def _problem_schemas() -> dict[str, Any]:
+    schema = Problem.model_json_schema(ref_template="#/components/schemas/{model}")
+    defs = schema.pop("$defs", {})
+    return {"Problem": schema, **defs}
+
+
+def document(app: FastAPI) -> dict[str, Any]:
+    """The app's OpenAPI document (built once)."""
+    if app.openapi_schema is not None:
+        return app.openapi_schema
+    doc = get_openapi(title=app.title, version=app.version, description=app.description,
+                      routes=app.routes)
+    schemas = doc.setdefault("components", {}).setdefault("schemas", {})
+    for name in ("HTTPValidationError", "ValidationError"):
+        schemas.pop(name, None)
+    schemas.update(_problem_schemas())
+    for operations in doc["paths"].values():
+        for operation in operations.values():
+            responses = operation["responses"]
+            if "422" in responses:
+                responses["422"] = problem_response(422)
+            if "requestBody" in operation:
+                responses["413"] = problem_response(413)
+            if operation.get("security"):
+                responses["401"] = problem_response(401)
+    app.openapi_schema = doc
+    return doc

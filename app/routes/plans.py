@@ -1,0 +1,89 @@
+"""Plan jobs: submit a scene, follow its progress, fetch the plan, cancel it."""
+
+from __future__ import annotations
+
+import uuid
+from typing import Annotated
+
+from fastapi import APIRouter, Query, Response
+from starlette.concurrency import run_in_threadpool
+
+from app.deps import RunnerDep, SettingsDep, StoreDep
+from app.errors import ApiError, field_error, invalid
+from app.jobs import QueueFull
+from app.limits import check_scene
+from app.openapi import problems
+from app.schemas import Job, JobList, JobSummary
+from app.store import FINAL, JobRecord, JobStatus, JobStore
+from planner.scene import Scene
+
+router = APIRouter(prefix="/v1/plans", tags=["plans"])
+
+
+def _found(record: JobRecord | None, job_id: str) -> JobRecord:
+    if record is None:
+        raise ApiError(404, "not-found", "No such plan job", f"there is no plan job {job_id!r}")
+    return record
+
+
+@router.post("", status_code=202, summary="Submit a scene for planning",
+             responses={200: {"model": Job, "description": "the job ended within `wait`"},
+                        202: {"description": "queued; poll the Location"}, **problems(429)})
+async def create_plan(scene: Scene, response: Response, settings: SettingsDep,
+                      runner: RunnerDep, store: StoreDep,
+                      wait: Annotated[float, Query(ge=0.0, description=(
+                          "seconds to wait for the job to end (at most UNDERTOW_MAX_WAIT)"))] = 0.0
+                      ) -> Job:
+    if wait > settings.max_wait:
+        raise invalid([field_error(["query", "wait"], f"at most {settings.max_wait:g} s on "
+                                   "this server (UNDERTOW_MAX_WAIT)", "limit")])
+    scene = check_scene(scene, settings)
+    job_id = uuid.uuid4().hex
+    try:
+        await run_in_threadpool(runner.submit, scene.model_dump(mode="json"), job_id)
+    except QueueFull as exc:
+        raise ApiError(429, "queue-full", "The job queue is full",
+                       f"this server already holds {runner.capacity} unfinished plans; "
+                       f"retry in {exc.retry_after} s",
+                       headers={"Retry-After": str(exc.retry_after)}) from exc
+    if wait > 0.0:
+        await runner.wait(job_id, wait)
+    record = _found(await run_in_threadpool(store.get, job_id), job_id)
+    response.headers["Location"] = f"/v1/plans/{job_id}"
+    response.status_code = 200 if record.status in FINAL else 202
+    return Job.of(record)
+
+
+@router.get("", summary="List plan jobs, newest first")
+async def list_plans(store: StoreDep,
+                     status: Annotated[JobStatus | None, Query()] = None,
+                     limit: Annotated[int, Query(ge=1, le=100)] = 20,
+                     offset: Annotated[int, Query(ge=0)] = 0) -> JobList:
+    records = await run_in_threadpool(store.list, status, limit + 1, offset)
+    items = [JobSummary.of(r) for r in records[:limit]]
+    return JobList(items=items, limit=limit, offset=offset,
+                   next_offset=offset + limit if len(records) > limit else None)
+
+
+@router.get("/{job_id}", summary="A plan job: status, progress, and the plan when done",
+            responses=problems(404))
+async def get_plan(job_id: str, store: StoreDep) -> Job:
+    return Job.of(_found(await run_in_threadpool(store.get, job_id), job_id))
+
+
+def _cancel(store: JobStore, job_id: str) -> JobRecord:
+    before = _found(store.get(job_id), job_id)
+    if before.status in ("succeeded", "failed"):
+        raise ApiError(409, "already-finished", "The job has already ended",
+                       f"plan job {job_id!r} ended as {before.status}; nothing to cancel")
+    return _found(store.request_cancel(job_id), job_id)
+
+
+@router.delete("/{job_id}", summary="Cancel a plan job (Ipopt stops at its next iteration)",
+               responses={200: {"model": Job, "description": "the job is cancelled"},
+                          202: {"description": "cancellation requested; the solver stops "
+                                "at its next iteration"}, **problems(404, 409)})
+async def cancel_plan(job_id: str, store: StoreDep, response: Response) -> Job:
+    record = await run_in_threadpool(_cancel, store, job_id)
+    response.status_code = 200 if record.status in FINAL else 202
+    return Job.of(record)

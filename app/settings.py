@@ -1,0 +1,43 @@
+"""Service settings, read from UNDERTOW_* environment variables (pydantic-settings)."""
+
+from __future__ import annotations
+
+import socket
+from functools import lru_cache
+
+from pydantic import Field
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+from planner.model import MAX_LINKS
+
+
+class Settings(BaseSettings):
+    """Every knob of the service; each field is the env var UNDERTOW_<NAME>."""
+
+    model_config = SettingsConfigDict(env_prefix="UNDERTOW_", frozen=True)
+
+    db_path: str = Field(default="undertow-jobs.sqlite3", description="SQLite job store file")
+    instance: str = Field(default_factory=socket.gethostname,
+                          description="name of this server; jobs it leaves running are "
+                                      "marked interrupted when a server of that name starts")
+    workers: int = Field(default=2, ge=1, le=64, description="solver worker processes")
+    solve_function: str = Field(default="planner.ocp:plan",
+                                description="module:function that plans a scene")
+    api_key: str | None = Field(default=None, description="required X-API-Key when set")
+    max_body_bytes: int = Field(default=1_000_000, ge=1024, description="request body limit")
+    max_links: int = Field(default=MAX_LINKS, ge=1, le=MAX_LINKS)
+    max_nodes: int = Field(default=2000, ge=2, description="collocation nodes of one plan")
+    max_horizon: float = Field(default=60.0, gt=0.0, description="longest plan duration [s]")
+    max_wall_time: float = Field(default=60.0, gt=0.0, description="cap on one solve [s]")
+    max_queued: int = Field(default=32, ge=0, description="plans waiting for a worker")
+    max_wait: float = Field(default=30.0, ge=0.0, description="cap on POST /v1/plans?wait= [s]")
+    max_states: int = Field(default=10_000, ge=1, description="states or samples per request")
+    compute_threads: int = Field(default=4, ge=1, description="concurrent synchronous computations")
+    retry_after: int = Field(default=5, ge=1, description="Retry-After [s] when the queue is full")
+    log_level: str = Field(default="INFO")
+
+
+@lru_cache(maxsize=1)
+def get_settings() -> Settings:
+    """The settings of this process (read once from the environment)."""
+    return Settings()

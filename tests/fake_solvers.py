@@ -1,0 +1,51 @@
+"""Stand-in solve functions for testing the job machinery without Ipopt.
+
+`fake_plan` runs `solver.max_iter` iterations of 20 ms each, reporting progress and
+honouring a stop request like planner.ocp.plan does. `solver.tol` picks the outcome:
+< 0.25 converges, [0.25, 0.5) raises, [0.5, 0.9) fails, >= 0.9 kills the worker process.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+
+from planner.ocp.result import Plan, Progress
+from planner.scene import Scene
+
+ITERATION = 0.02  # [s]
+
+
+def _plan(scene: Scene, status: str, success: bool, iterations: int, elapsed: float) -> Plan:
+    n, na = scene.robot.n, len(scene.robot.active)
+    T = scene.task.duration if isinstance(scene.task.duration, float) else scene.task.duration.max
+    zeros, tau = [[0.0] * n] * 2, [[0.0] * na] * 2
+    return Plan.model_validate({
+        "t": [0.0, T], "q": [scene.task.initial.q, scene.task.initial.q], "dq": zeros,
+        "ddq": zeros, "tau": tau, "dense": {"t": [0.0, T], "q": zeros, "tau": tau},
+        "duration": T, "objective": 1.0, "waves": [],
+        "solver": {"status": status, "success": success, "message": "" if success else status,
+                   "iterations": iterations, "build_time": 0.0, "solve_time": elapsed,
+                   "cache_hit": False},
+        "verification": {"resimulation_error": 0.0, "resimulation_status": "completed",
+                         "defect": 0.0, "min_sigma": None, "waveless_min_sigma": None,
+                         "waveless_singular_crossings": []}})
+
+
+def fake_plan(scene: Scene, progress=None) -> Plan:
+    """A plan after `max_iter` fake iterations; stops early when `progress` returns False."""
+    tol, start = scene.solver.tol, time.monotonic()
+    if tol >= 0.9:
+        os._exit(3)
+    if tol >= 0.25 and tol < 0.5:
+        raise RuntimeError("the fake solver broke")
+    for k in range(scene.solver.max_iter):
+        time.sleep(ITERATION)
+        step = Progress(iteration=k, objective=1.0 / (k + 1), inf_pr=float("nan"),
+                        inf_du=None, elapsed=time.monotonic() - start)
+        if progress is not None and not progress(step):
+            return _plan(scene, "User_Requested_Stop", False, k + 1, time.monotonic() - start)
+    if tol >= 0.5:
+        return _plan(scene, "Maximum_Iterations_Exceeded", False, scene.solver.max_iter,
+                     time.monotonic() - start)
+    return _plan(scene, "Solve_Succeeded", True, scene.solver.max_iter, time.monotonic() - start)
