@@ -26,20 +26,34 @@ def nodes(transcription: Transcription) -> int:
     }[transcription.method]
 
 
+def _points(body: BaseModel) -> list[tuple[list[str], int]]:
+    """How many points each sized field of a request asks for: top-level lists (states,
+    configurations, sample times), a `samples` count, a grid's size."""
+    sizes = []
+    for name in type(body).model_fields:
+        value = getattr(body, name)
+        if isinstance(value, list):
+            sizes.append(([name], len(value)))
+        elif name == "samples" and isinstance(value, int):
+            sizes.append(([name], value))
+        elif name == "grid" and value is not None and hasattr(value, "size"):
+            sizes.append(([name, "points"], value.size))
+    return sizes
+
+
 def _request_errors(body: BaseModel, settings: Settings) -> list[FieldError]:
-    """Links of the robot and the length of every top-level list of a request."""
+    """Links of the robot and the number of points a request asks for."""
     errors = []
     robot = getattr(body, "robot", None)
     if robot is not None and robot.n > settings.max_links:
         errors.append(field_error(["body", "robot", "links"],
                                   f"at most {settings.max_links} links on this server "
                                   f"(UNDERTOW_MAX_LINKS), got {robot.n}", "limit"))
-    for name in type(body).model_fields:
-        value = getattr(body, name)
-        if isinstance(value, list) and len(value) > settings.max_states:
-            errors.append(field_error(["body", name],
-                                      f"at most {settings.max_states} entries on this server "
-                                      f"(UNDERTOW_MAX_STATES), got {len(value)}", "limit"))
+    for loc, size in _points(body):
+        if size > settings.max_points:
+            errors.append(field_error(["body", *loc],
+                                      f"{size} points exceed this server's limit of "
+                                      f"{settings.max_points} (UNDERTOW_MAX_POINTS)", "limit"))
     return errors
 
 

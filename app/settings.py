@@ -31,7 +31,8 @@ class Settings(BaseSettings):
     max_wall_time: float = Field(default=60.0, gt=0.0, description="cap on one solve [s]")
     max_queued: int = Field(default=32, ge=0, description="plans waiting for a worker")
     max_wait: float = Field(default=30.0, ge=0.0, description="cap on POST /v1/plans?wait= [s]")
-    max_states: int = Field(default=10_000, ge=1, description="states or samples per request")
+    max_points: int = Field(default=20_000, ge=2, description="states, configurations, grid "
+                            "points, samples or time steps one request may ask for")
     compute_threads: int = Field(default=4, ge=1, description="concurrent synchronous computations")
     retry_after: int = Field(default=5, ge=1, description="Retry-After [s] when the queue is full")
     log_level: str = Field(default="INFO")

@@ -1,4 +1,5 @@
-"""Synchronous computations: dynamics at states, forward simulation."""
+"""Synchronous computations: dynamics at states, coupling analysis, inverse dynamics,
+forward simulation. Each runs in a worker thread, bounded by the compute limiter."""
 
 from __future__ import annotations
 
@@ -6,7 +7,7 @@ from fastapi import APIRouter
 
 from app.deps import LimiterDep, SettingsDep
 from app.routes._compute import compute
-from planner import evaluation, simulate
+from planner import coupling, evaluation, inverse, simulate
 
 router = APIRouter(prefix="/v1", tags=["dynamics"])
 
@@ -15,6 +16,19 @@ router = APIRouter(prefix="/v1", tags=["dynamics"])
 async def dynamics(request: evaluation.DynamicsRequest, settings: SettingsDep,
                    limiter: LimiterDep) -> evaluation.DynamicsResponse:
     return await compute(evaluation.evaluate, request, settings, limiter)
+
+
+@router.post("/coupling", summary="det, sigma_min and condition of M_pa; singular points")
+async def coupling_analysis(request: coupling.CouplingRequest, settings: SettingsDep,
+                            limiter: LimiterDep) -> coupling.CouplingReport:
+    return await compute(coupling.analyse, request, settings, limiter)
+
+
+@router.post("/inverse-dynamics",
+             summary="Classical inverse dynamics of a prescribed passive motion")
+async def inverse_dynamics(request: inverse.InverseDynamicsRequest, settings: SettingsDep,
+                           limiter: LimiterDep) -> inverse.InverseDynamicsResult:
+    return await compute(inverse.solve, request, settings, limiter)
 
 
 @router.post("/simulate", summary="Forward simulation of given torques (CVODES)")

@@ -1,0 +1,188 @@
+"""POST /v1/dynamics, /v1/coupling, /v1/inverse-dynamics, /v1/simulate through the app."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from conftest import point_mass_dynamics
+from service_fixtures import TWO_LINK, client
+
+from planner.model import Robot
+
+WAVELESS = {**TWO_LINK, "links": [{**TWO_LINK["links"][0], "inertia": 0.0},
+                                  {**TWO_LINK["links"][1], "inertia": 0.0, "wave": None}]}
+
+
+def strict_json(text: str):
+    """Parse JSON refusing NaN and Infinity (which json.loads would accept)."""
+    def refuse(token):
+        raise AssertionError(f"non-finite number {token} in a response")
+    return json.loads(text, parse_constant=refuse)
+
+
+@pytest.fixture(scope="module")
+def api(tmp_path_factory):
+    with client(tmp_path_factory.mktemp("compute")) as c:
+        yield c
+
+
+def errors_of(response) -> list[tuple[list, str]]:
+    assert response.status_code == 422, response.text
+    assert response.headers["content-type"] == "application/problem+json"
+    body = response.json()
+    assert body["type"] == "urn:undertow:problem:validation" and body["status"] == 422
+    return [(e["loc"], e["msg"]) for e in body["errors"]]
+
+
+def test_dynamics_agree_with_an_independent_point_mass_model(api):
+    states = [{"q": [0.3, -1.1], "dq": [0.7, -0.2], "ddq": [1.0, 2.0]},
+              {"q": [2.0, 0.4], "dq": [0.0, 3.0]}]
+    r = api.post("/v1/dynamics", json={"robot": TWO_LINK, "states": states})
+    assert r.status_code == 200, r.text
+    results = strict_json(r.text)["results"]
+    robot = Robot.model_validate(TWO_LINK)
+    for state, result in zip(states, results):
+        M, h = point_mass_dynamics(robot, state["q"], state["dq"])
+        np.testing.assert_allclose(result["M"], M, rtol=1e-12, atol=1e-14)
+        np.testing.assert_allclose(result["h"], h, rtol=1e-12, atol=1e-14)
+        assert result["coupling"]["det"] == pytest.approx(M[0, 1], rel=1e-12)
+        assert result["kinetic_energy"] == pytest.approx(
+            0.5 * np.dot(state["dq"], M @ state["dq"]), rel=1e-12)
+    np.testing.assert_allclose(results[0]["generalized_forces"],
+                               np.array(results[0]["M"]) @ [1.0, 2.0] + results[0]["h"],
+                               rtol=1e-12)
+    assert results[1]["generalized_forces"] is None
+    assert results[1]["tips"][0] == pytest.approx([0.5 * math.cos(2.0), 0.5 * math.sin(2.0)])
+
+
+def test_a_singular_state_gives_finite_or_null_measures(api):
+    # Without wave or inertia, M_pa = m2 l1 l2 cos(q1 - q0) vanishes at q1 - q0 = pi/2.
+    r = api.post("/v1/dynamics", json={"robot": WAVELESS,
+                                       "states": [{"q": [0.0, math.pi / 2], "dq": [0.0, 0.0]}]})
+    coupling = strict_json(r.text)["results"][0]["coupling"]
+    assert abs(coupling["sigma_min"]) < 1e-15 and abs(coupling["det"]) < 1e-15
+    assert coupling["condition"] is None or math.isfinite(coupling["condition"])
+
+
+def test_a_fully_actuated_arm_has_no_coupling_measures(api):
+    robot = {**WAVELESS, "links": [{**link, "joint": "active"} for link in WAVELESS["links"]]}
+    r = api.post("/v1/dynamics", json={"robot": robot, "states": [{"q": [0, 0], "dq": [0, 0]}]})
+    assert strict_json(r.text)["results"][0]["coupling"] == {
+        "det": None, "sigma_min": None, "condition": 1.0}
+
+
+def test_an_overflowing_state_is_refused_not_answered_with_infinity(api):
+    r = api.post("/v1/dynamics", json={"robot": TWO_LINK,
+                                       "states": [{"q": [0, 0], "dq": [1e200, 1e200]}]})
+    assert errors_of(r) == [(["body", "states", 0],
+                             "the dynamics overflow at this state (values too large)")]
+
+
+@pytest.mark.parametrize("change, expected", [
+    (lambda b: b["states"][0].update(q=[0.0]),
+     [(["body", "states", 0, "q"], "needs 2 entries, one per joint")]),
+    (lambda b: b["robot"]["links"][0].update(length=-1),
+     [(["body", "robot", "links", 0, "length"], "Input should be greater than 0")]),
+    (lambda b: b["robot"]["links"][1]["wave"].update(amplitude=0.5),
+     [(["body", "robot", "links", 1, "wave", "amplitude"],
+       "must be smaller than the link length (0.5 >= 0.4)")]),
+    (lambda b: b["robot"]["links"].__setitem__(slice(None), b["robot"]["links"] * 5),
+     [(["body", "robot", "links"], "List should have at most 8 items after validation, not 10")]),
+    (lambda b: b.pop("states"), [(["body", "states"], "Field required")]),
+    (lambda b: b["robot"].update(colour="red"),
+     [(["body", "robot", "colour"], "Extra inputs are not permitted")]),
+])
+def test_dynamics_field_errors_name_the_field(api, change, expected):
+    body = {"robot": json.loads(json.dumps(TWO_LINK)), "states": [{"q": [0, 0], "dq": [0, 0]}]}
+    change(body)
+    assert errors_of(api.post("/v1/dynamics", json=body)) == expected
+
+
+def test_nan_in_the_body_is_refused(api):
+    text = '{"robot": %s, "states": [{"q": [NaN, 0], "dq": [0, 0]}]}' % json.dumps(TWO_LINK)
+    r = api.post("/v1/dynamics", content=text, headers={"content-type": "application/json"})
+    assert errors_of(r) == [(["body", "states", 0, "q", 0], "Input should be a finite number")]
+
+
+def test_the_links_limit_of_the_server(tmp_path):
+    with client(tmp_path, max_links=1) as c:
+        r = c.post("/v1/dynamics", json={"robot": TWO_LINK, "states": [{"q": [0, 0], "dq": [0, 0]}]})
+    assert errors_of(r) == [(["body", "robot", "links"],
+                             "at most 1 links on this server (UNDERTOW_MAX_LINKS), got 2")]
+
+
+def test_the_points_limit_covers_grids(tmp_path):
+    grid = {"lower": [0, 0], "upper": [1, 1], "points": 11}
+    with client(tmp_path, max_points=100) as c:
+        r = c.post("/v1/coupling", json={"robot": TWO_LINK, "grid": grid})
+    assert errors_of(r) == [(["body", "grid", "points"],
+                             "121 points exceed this server's limit of 100 (UNDERTOW_MAX_POINTS)")]
+
+
+def test_coupling_finds_the_waveless_singularity(api):
+    r = api.post("/v1/coupling", json={"robot": WAVELESS,
+                                       "configurations": [[0.0, 1.0], [0.0, 2.0]]})
+    assert r.status_code == 200, r.text
+    report = strict_json(r.text)
+    assert len(report["results"]) == 2
+    (point,) = report["singular_points"]
+    assert point["q"][1] - point["q"][0] == pytest.approx(math.pi / 2, abs=1e-8)
+
+
+def test_coupling_needs_a_passive_joint(api):
+    robot = {**WAVELESS, "links": [{**link, "joint": "active"} for link in WAVELESS["links"]]}
+    r = api.post("/v1/coupling", json={"robot": robot, "configurations": [[0.0, 1.0]]})
+    assert errors_of(r) == [(["body", "robot"], "has no passive joint, so there is no "
+                             "coupling block (the arm is fully actuated)")]
+
+
+def inverse_request(gravity: float) -> dict:
+    return {"robot": {**TWO_LINK, "gravity": gravity}, "duration": 1.0, "samples": 11,
+            "passive_motion": {"profile": "beta", "alpha": 3, "beta": 3,
+                               "start": [0.0], "end": [0.3]},
+            "active_initial": {"q": [0.2], "dq": [0.0]}}
+
+
+def test_inverse_dynamics_torques_satisfy_the_equations_of_motion(api):
+    request = inverse_request(gravity=0.0)
+    r = api.post("/v1/inverse-dynamics", json=request)
+    assert r.status_code == 200, r.text
+    result = strict_json(r.text)
+    assert result["status"] == "completed" and len(result["t"]) == 11
+    states = [{"q": q, "dq": dq, "ddq": ddq}
+              for q, dq, ddq in zip(result["q"], result["dq"], result["ddq"])]
+    forces = api.post("/v1/dynamics", json={"robot": request["robot"], "states": states}).json()
+    Q = np.array([res["generalized_forces"] for res in forces["results"]])
+    np.testing.assert_allclose(Q[:, 0], 0.0, atol=1e-6)  # the passive joint is unforced
+    np.testing.assert_allclose(Q[:, 1], np.array(result["tau"])[:, 0], rtol=1e-6, atol=1e-6)
+
+
+def test_inverse_dynamics_reports_where_it_meets_a_singularity(api):
+    r = api.post("/v1/inverse-dynamics", json=inverse_request(gravity=9.81))
+    result = strict_json(r.text)
+    assert result["status"] == "singular"
+    assert 0.0 < result["singularity"]["time"] < 1.0
+    assert result["singularity"]["sigma_min"] == pytest.approx(1e-3, rel=1e-6)
+
+
+def test_simulation_without_torque_conserves_energy(api):
+    request = {"robot": TWO_LINK, "t": [0.0, 0.5, 1.0], "tau": [[0.0], [0.0], [0.0]],
+               "initial": {"q": [0.4, -0.3], "dq": [1.0, -2.0]}}
+    r = api.post("/v1/simulate", json=request)
+    assert r.status_code == 200, r.text
+    trajectory = strict_json(r.text)
+    assert trajectory["status"] == "completed"
+    ends = [{"q": trajectory["q"][k], "dq": trajectory["dq"][k]} for k in (0, -1)]
+    energy = [res["kinetic_energy"] + res["potential_energy"] for res in
+              api.post("/v1/dynamics", json={"robot": TWO_LINK, "states": ends}).json()["results"]]
+    assert energy[1] == pytest.approx(energy[0], rel=1e-7)
+
+
+def test_simulation_field_errors(api):
+    request = {"robot": TWO_LINK, "t": [0.0, 1.0, 0.5], "tau": [[0.0]] * 3,
+               "initial": {"q": [0, 0], "dq": [0, 0]}}
+    assert errors_of(api.post("/v1/simulate", json=request)) == [
+        (["body", "t"], "must be strictly increasing")]
