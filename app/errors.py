@@ -122,8 +122,6 @@ async def _on_validation(request: Request, exc: RequestValidationError) -> JSONR
 async def _on_http(request: Request, exc: StarletteHTTPException) -> JSONResponse:
     title = {413: "Request body too large"}.get(exc.status_code, str(exc.detail))
     detail = str(exc.detail)
-    if exc.status_code == 413:
-        detail = "the request body exceeds the limit (UNDERTOW_MAX_BODY_BYTES)"
     slug = _HTTP_SLUGS.get(exc.status_code, "http-error")
     return problem(request, ApiError(exc.status_code, slug, title, detail,
                                      headers=getattr(exc, "headers", None)))

@@ -31,7 +31,7 @@ class JsonFormatter(logging.Formatter):
             "logger": record.name,
             "message": record.getMessage(),
         }
-        rid = request_id.get()
+        rid = getattr(record, "request_id", None) or request_id.get()
         if rid is not None:
             entry["request_id"] = rid
         entry.update({k: v for k, v in vars(record).items() if k not in self._RESERVED})
@@ -78,6 +78,6 @@ class RequestIdMiddleware:
             await self.app(scope, receive, send_with_id)
         finally:
             access.info("request", extra={
-                "method": scope["method"], "path": scope["path"], "status": status,
+                "request_id": rid, "method": scope["method"], "path": scope["path"], "status": status,
                 "duration_ms": round(1e3 * (time.perf_counter() - start), 3)})
             request_id.reset(token)

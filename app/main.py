@@ -13,6 +13,7 @@ from anyio import CapacityLimiter
 from fastapi import Depends, FastAPI
 
 from app import errors
+from app.body_limit import BodyLimitMiddleware
 from app.deps import require_api_key
 from app.jobs import JobRunner, SolveFunction, load_function
 from app.logging import RequestIdMiddleware, configure
@@ -50,7 +51,7 @@ def create_app(settings: Settings | None = None, solve: SolveFunction | None = N
             runner.shutdown()
 
     app = FastAPI(title="undertow", version="0.1.0", description=DESCRIPTION,
-                  lifespan=lifespan, max_body_size=settings.max_body_bytes)
+                  lifespan=lifespan)
     app.state.settings = settings
     app.state.metrics = Metrics()
     errors.install(app)
@@ -58,6 +59,7 @@ def create_app(settings: Settings | None = None, solve: SolveFunction | None = N
     secured = [Depends(require_api_key)]
     for router in (dynamics.router, plans.router):
         app.include_router(router, dependencies=secured)
+    app.add_middleware(BodyLimitMiddleware, limit=settings.max_body_bytes)
     app.add_middleware(MetricsMiddleware, metrics=app.state.metrics)
     app.add_middleware(RequestIdMiddleware)
     app.openapi = lambda: document(app)

@@ -37,8 +37,8 @@ def two_link_scene(iterations: int = 3, tol: float = 1e-8, duration: float = 1.0
 @contextlib.contextmanager
 def client(tmp_path: Path, solve=None, **settings) -> Iterator[TestClient]:
     """A TestClient of a fresh app with a temporary store (lifespan run)."""
-    config = Settings(db_path=str(tmp_path / "jobs.sqlite3"), workers=1, instance="test",
-                      **settings)
+    config = Settings(**{"db_path": str(tmp_path / "jobs.sqlite3"), "workers": 1,
+                         "instance": "test", **settings})
     with TestClient(create_app(config, solve=solve)) as c:
         yield c
 

@@ -1,0 +1,113 @@
+"""Service-wide behaviour: health, API key, body limit, request ids, JSON logs, metrics."""
+
+from __future__ import annotations
+
+import json
+import logging
+
+import pytest
+from service_fixtures import TWO_LINK, client
+
+from app.logging import JsonFormatter
+
+DYNAMICS = {"robot": TWO_LINK, "states": [{"q": [0.0, 0.0], "dq": [0.0, 0.0]}]}
+
+
+@pytest.fixture(scope="module")
+def api(tmp_path_factory):
+    with client(tmp_path_factory.mktemp("service"), max_body_bytes=2048) as c:
+        yield c
+
+
+@pytest.fixture(scope="module")
+def keyed(tmp_path_factory):
+    with client(tmp_path_factory.mktemp("keyed"), api_key="s3cret") as c:
+        yield c
+
+
+def test_healthz(api):
+    r = api.get("/healthz")
+    assert (r.status_code, r.json()) == (200, {"status": "ok"})
+
+
+@pytest.mark.parametrize("method, path, body", [
+    ("post", "/v1/dynamics", DYNAMICS), ("post", "/v1/plans", {}), ("get", "/v1/plans", None),
+    ("get", "/v1/plans/x", None), ("delete", "/v1/plans/x", None), ("get", "/metrics", None),
+    ("post", "/v1/simulate", {}), ("post", "/v1/coupling", {}),
+    ("post", "/v1/inverse-dynamics", {})])
+def test_every_endpoint_but_healthz_needs_the_key(keyed, method, path, body):
+    kwargs = {"json": body} if body is not None else {}
+    r = getattr(keyed, method)(path, **kwargs)
+    assert r.status_code == 401 and r.headers["content-type"] == "application/problem+json"
+    assert r.json()["title"] == "Missing or wrong API key"
+    wrong = getattr(keyed, method)(path, headers={"X-API-Key": "guess"}, **kwargs)
+    assert wrong.status_code == 401
+    right = getattr(keyed, method)(path, headers={"X-API-Key": "s3cret"}, **kwargs)
+    assert right.status_code != 401
+    assert keyed.get("/healthz").status_code == 200
+
+
+def test_a_body_over_the_limit_is_413(api):
+    big = {**DYNAMICS, "states": DYNAMICS["states"] * 100}
+    r = api.post("/v1/dynamics", json=big)
+    assert r.status_code == 413 and r.headers["content-type"] == "application/problem+json"
+    body = r.json()
+    assert (body["type"], body["status"], body["instance"]) == (
+        "urn:undertow:problem:request-too-large", 413, "/v1/dynamics")
+    assert "UNDERTOW_MAX_BODY_BYTES" in body["detail"]
+    assert api.post("/v1/dynamics", json=DYNAMICS).status_code == 200
+
+
+def test_a_streamed_body_without_length_is_limited_too(api):
+    chunks = (b" " * 1024 for _ in range(4))
+    r = api.post("/v1/dynamics", content=chunks, headers={"content-type": "application/json"})
+    assert r.status_code == 413
+
+
+def test_request_ids_are_echoed_or_made(api):
+    r = api.get("/healthz", headers={"X-Request-ID": "abc-123"})
+    assert r.headers["x-request-id"] == "abc-123"
+    made = api.get("/healthz").headers["x-request-id"]
+    assert len(made) == 32 and made != api.get("/healthz").headers["x-request-id"]
+    hostile = api.get("/healthz", headers={"X-Request-ID": "a b\tc"}).headers["x-request-id"]
+    assert hostile != "a b\tc" and len(hostile) == 32
+    problem = api.get("/v1/plans/x", headers={"X-Request-ID": "trace-7"}).json()
+    assert problem["request_id"] == "trace-7"
+
+
+def test_unknown_routes_and_methods_are_problems(api):
+    r = api.get("/v1/nothing")
+    assert r.status_code == 404 and r.headers["content-type"] == "application/problem+json"
+    r = api.put("/v1/dynamics", json={})
+    assert r.status_code == 405 and r.json()["type"] == "urn:undertow:problem:method-not-allowed"
+
+
+def test_logs_are_json_lines_with_the_request_id(api, caplog):
+    with caplog.at_level(logging.INFO, logger="undertow.access"):
+        api.get("/healthz", headers={"X-Request-ID": "log-me"})
+    record = next(r for r in caplog.records if r.name == "undertow.access")
+    line = json.loads(JsonFormatter().format(record))
+    assert line["request_id"] == "log-me"
+    assert (line["method"], line["path"], line["status"]) == ("GET", "/healthz", 200)
+    assert line["level"] == "INFO" and line["duration_ms"] >= 0
+
+
+def metric(text: str, prefix: str) -> float:
+    values = [float(line.rsplit(" ", 1)[1]) for line in text.splitlines()
+              if line.startswith(prefix)]
+    assert values, f"no sample {prefix}"
+    return sum(values)
+
+
+def test_metrics_count_requests_by_route_template_and_status(api):
+    before = api.get("/metrics").text
+    for job_id in ("a", "b", "c"):
+        api.get(f"/v1/plans/{job_id}")
+    text = api.get("/metrics").text
+    assert text.startswith("# HELP")
+    sample = 'undertow_http_requests_total{method="GET",route="/v1/plans/{job_id}",status="404"}'
+    old = metric(before, sample) if sample in before else 0.0
+    assert metric(text, sample) == old + 3
+    assert metric(text, 'undertow_http_request_duration_seconds_count{method="GET",'
+                        'route="/v1/plans/{job_id}"}') >= 3
+    assert 'undertow_jobs{state="queued"} 0.0' in text

@@ -1,0 +1,33 @@
+"""The committed OpenAPI document is the app's, and documents errors as problems."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from app.main import app
+from app.openapi_export import render
+
+COMMITTED = Path(__file__).resolve().parents[1] / "openapi" / "openapi.json"
+
+
+def test_the_committed_document_matches_the_app():
+    assert json.loads(COMMITTED.read_text()) == app.openapi(), (
+        "openapi/openapi.json is stale: run `make openapi` and commit it")
+
+
+def test_the_export_is_byte_stable():
+    assert render() == render() == COMMITTED.read_text()
+
+
+def test_every_error_response_is_a_problem():
+    doc = app.openapi()
+    assert "HTTPValidationError" not in doc["components"]["schemas"]
+    for path, operations in doc["paths"].items():
+        for method, operation in operations.items():
+            for status, response in operation["responses"].items():
+                if int(status) >= 400:
+                    assert list(response["content"]) == ["application/problem+json"], (
+                        method, path, status)
+            if path != "/healthz":
+                assert "401" in operation["responses"], (method, path)
