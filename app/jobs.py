@@ -2,8 +2,9 @@
 
 A worker claims its job in the store (queued -> running), solves it and writes the
 verdict itself; its progress callback records each Ipopt iteration (throttled) and asks
-Ipopt to stop when the job's cancel flag is set or the server process has gone. The
-parent process only counts jobs in flight, updates metrics and wakes waiting requests.
+Ipopt to stop when the job's cancel flag is set. A watchdog thread in every worker marks
+its job interrupted and exits when the server process is gone. The parent process only
+counts jobs in flight, updates metrics and wakes waiting requests.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ SolveFunction = Callable[..., Plan]
 """solve(scene, progress=callback) -> Plan; never raises for a solver failure."""
 
 PROGRESS_INTERVAL = 0.2  # [s] between two progress writes of one job
+WATCH_INTERVAL = 0.25  # [s] between two checks of a worker that its server still runs
 WORKER_DIED = "the worker process died during the solve"
 MAX_REQUEUES = 3  # times a queued job is resubmitted after a worker pool broke
 
@@ -62,16 +64,13 @@ def _finite(value: Any) -> Any:
 class _Reporter:
     """The progress callback of one job in a worker: throttled writes, cancel checks."""
 
-    def __init__(self, store: JobStore, job_id: str, parent: int):
-        self.store, self.job_id, self.parent = store, job_id, parent
-        self.last, self.go_on, self.orphaned = -math.inf, True, False
+    def __init__(self, store: JobStore, job_id: str):
+        self.store, self.job_id = store, job_id
+        self.last, self.go_on = -math.inf, True
         self.latest: dict[str, Any] | None = None
         self.written = True
 
     def __call__(self, progress: Progress) -> bool:
-        if os.getppid() != self.parent:
-            self.orphaned, self.go_on = True, False
-            return False
         self.latest = {k: _finite(v) for k, v in dataclasses.asdict(progress).items()}
         self.written = False
         if time.monotonic() - self.last >= PROGRESS_INTERVAL:
@@ -95,21 +94,26 @@ def _verdict(plan: Plan, cancel_requested: bool) -> tuple[str, str | None]:
     return "failed", f"{plan.solver.status}: {message}" if message else plan.solver.status
 
 
-def run_job(store: JobStore, job_id: str, solve: SolveFunction, parent: int) -> Outcome:
+_current: tuple[JobStore, str] | None = None
+"""The job this worker process is solving, for the orphan watchdog."""
+
+
+def run_job(store: JobStore, job_id: str, solve: SolveFunction) -> Outcome:
     """Solve one job inside a worker process and store the verdict."""
+    global _current
     start = time.monotonic()
     record = store.claim(job_id)
     if record is None:
         return Outcome(job_id, "skipped", 0.0)
-    reporter = _Reporter(store, job_id, parent)
+    _current = (store, job_id)
+    reporter = _Reporter(store, job_id)
     try:
         plan = solve(Scene.model_validate(record.scene), progress=reporter)
     except Exception as exc:  # a bug or a library error: the job fails, the worker lives
         store.finish(job_id, "failed", None, f"solver error: {type(exc).__name__}: {exc}")
         return Outcome(job_id, "failed", time.monotonic() - start)
-    if reporter.orphaned or os.getppid() != parent:
-        store.finish(job_id, "failed", plan.model_dump(mode="json"), INTERRUPTED)
-        return Outcome(job_id, "failed", time.monotonic() - start)
+    finally:
+        _current = None
     reporter.flush()
     current = store.get(job_id)
     status, error = _verdict(plan, bool(current and current.cancel_requested))
@@ -117,8 +121,20 @@ def run_job(store: JobStore, job_id: str, solve: SolveFunction, parent: int) -> 
     return Outcome(job_id, status, time.monotonic() - start)
 
 
-def _warm(module: str) -> None:
-    """Worker initializer: import the solver once, before the first job."""
+def _watch(parent: int) -> None:
+    """Exit this worker when the server process is gone (e.g. killed with SIGKILL), first
+    marking its job interrupted: an orphan must not keep solving or hold the store."""
+    while os.getppid() == parent:
+        time.sleep(WATCH_INTERVAL)
+    current = _current
+    if current is not None:
+        current[0].fail(current[1], INTERRUPTED)
+    os._exit(0)
+
+
+def _init_worker(module: str, parent: int) -> None:
+    """Worker initializer: start the orphan watchdog, import the solver once."""
+    threading.Thread(target=_watch, args=(parent,), daemon=True, name="orphan-watch").start()
     importlib.import_module(module)
 
 
@@ -154,7 +170,8 @@ class JobRunner:
 
     def _new_pool(self) -> ProcessPoolExecutor:
         return ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
-                                   initializer=_warm, initargs=(self.solve.__module__,))
+                                   initializer=_init_worker,
+                                   initargs=(self.solve.__module__, os.getpid()))
 
     @property
     def inflight(self) -> int:
@@ -186,10 +203,10 @@ class JobRunner:
         with self._lock:
             self._inflight.add(job_id)
             try:
-                future = self._pool.submit(run_job, self.store, job_id, self.solve, os.getpid())
+                future = self._pool.submit(run_job, self.store, job_id, self.solve)
             except BrokenProcessPool:
                 self._pool = self._new_pool()
-                future = self._pool.submit(run_job, self.store, job_id, self.solve, os.getpid())
+                future = self._pool.submit(run_job, self.store, job_id, self.solve)
         future.add_done_callback(lambda f: self._done(job_id, f))
 
     def _done(self, job_id: str, future: Future) -> None:
