@@ -2,14 +2,37 @@
 
 Joints are numbered 1..4 as in the paper; passive 1 and 3, waves on 2 and 4. These are
 the cross-check, never used by the product. `printed_*` reproduce the print as it
-stands (misprints included); `CORRECTED` holds the right form of each misprinted term.
+stands (misprints included); `CORRECTED` holds the right form of each misprinted term,
+written by hand from the Christoffel symbols of (30):
+    coefficient of dq_j^2 in h_i = dM_ij/dq_j - 1/2 dM_jj/dq_i = dM_ij/dq_j,
+since M_ij depends on q_i and q_j only and M_jj on q_j only (which also leaves h free of
+products dq_i dq_j, i != j). The gravity part of h_i is dV/dq_i.
+
+Angles q and rates dq are indexed 1..4 as printed (index 0 unused: pass np.r_[0, q]);
+`mass_matrix` and `bias_vector` return 0-based numpy arrays.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+
+SEED_ARM = {
+    "links": [
+        {"length": 0.5, "mass": 1.0, "inertia": 0.01, "joint": "passive"},
+        {"length": 0.4, "mass": 0.8, "inertia": 0.008, "joint": "active",
+         "wave": {"amplitude": 0.05, "frequency": 3.0, "phase": 0.3}},
+        {"length": 0.4, "mass": 0.6, "inertia": 0.006, "joint": "passive"},
+        {"length": 0.3, "mass": 0.4, "inertia": 0.004, "joint": "active",
+         "wave": {"amplitude": 0.04, "frequency": 4.0, "phase": 0.1}},
+    ],
+    "gravity": 9.81,
+    "rotational_inertia": "cumulative",
+}
+"""The numbers used for the seed's 4-link arm in tests and benches (the excerpt gives none),
+as a `planner.model.Robot` document: 0-based, passive joints 0 and 2, waves on 1 and 3."""
 
 
 @dataclass(frozen=True)
@@ -124,15 +147,154 @@ def printed_bias(p: Arm, q) -> dict[str, float]:
     }
 
 
-def printed_lagrangian(p: Arm, q, dq) -> float:
-    """L of (28), reading the rotational sum as sum_k I_k (sum_{i<=k} dq_i)^2."""
-    M = printed_mass(p, q)
-    full = np.zeros((5, 5))
-    for key, value in M.items():
-        i, j = int(key[1]), int(key[2])
-        full[i, j] = full[j, i] = value
-    kinetic = 0.5 * dq @ full[1:, 1:] @ dq
-    l, m, g = p.l, p.m, p.g
+def printed_kinetic(p: Arm, q, dq, literal: bool = False) -> float:
+    """T of (28), term by term as printed.
+
+    The rotational sum is printed as 1/2 sum_k I_k (sum_{i<=k} dq_k)^2; `literal` keeps
+    that (= 1/2 sum_k I_k k^2 dq_k^2), otherwise it is read as sum_{i<=k} dq_i.
+    """
+    l, m, I, a, n = p.l, p.m, p.I, p.a, p.n
     s, c, r = _waves(p, q)
-    potential = -sum(m[k] * g * r[i] * np.cos(q[i]) for k in (1, 2, 3, 4) for i in range(1, k + 1))
-    return kinetic - potential
+    m234, m34, mall = m[2] + m[3] + m[4], m[3] + m[4], m[1] + m[2] + m[3] + m[4]
+    cos, sin = np.cos, np.sin
+    terms = [
+        0.5 * mall * l[1] ** 2 * dq[1] ** 2,
+        0.5 * m34 * l[3] ** 2 * dq[3] ** 2,
+        0.5 * m234 * dq[2] ** 2 * (a[2] ** 2 * n[2] ** 2 * c[2] ** 2 + r[2] ** 2),
+        0.5 * m[4] * dq[4] ** 2 * (a[4] ** 2 * n[4] ** 2 * c[4] ** 2 + r[4] ** 2),
+        m234 * dq[1] * dq[2] * (l[1] * r[2] * cos(q[1] - q[2]) + a[2] * n[2] * l[1] * c[2] * sin(q[2] - q[1])),
+        m34 * dq[1] * dq[3] * l[1] * l[3] * cos(q[1] - q[3]),
+        m34 * dq[2] * dq[3] * (l[3] * r[2] * cos(q[2] - q[3]) + a[2] * n[2] * l[3] * c[2] * sin(q[2] - q[3])),
+        m[4] * dq[1] * dq[4] * (l[1] * r[4] * cos(q[1] - q[4]) + a[4] * n[4] * l[1] * c[4] * sin(q[4] - q[1])),
+        m[4] * dq[2] * dq[4] * (
+            r[2] * r[4] * cos(q[2] - q[4])
+            + a[2] * n[2] * a[4] * n[4] * c[2] * c[4] * cos(q[2] - q[4])
+            + a[2] * n[2] * r[4] * c[2] * sin(q[2] - q[4])
+            + a[4] * n[4] * r[2] * c[4] * sin(q[4] - q[2])),
+        m[4] * dq[3] * dq[4] * (l[3] * r[4] * cos(q[3] - q[4]) + a[4] * n[4] * l[3] * c[4] * sin(q[4] - q[3])),
+    ]
+    for k in (1, 2, 3, 4):
+        rate = k * dq[k] if literal else sum(dq[i] for i in range(1, k + 1))
+        terms.append(0.5 * I[k] * rate ** 2)
+    return float(sum(terms))
+
+
+def printed_potential(p: Arm, q) -> float:
+    """V of (28): L carries + sum_k sum_{i<=k} m_k g r_i cos q_i, so V is its negative."""
+    m, g = p.m, p.g
+    s, c, r = _waves(p, q)
+    return float(-sum(m[k] * g * r[i] * np.cos(q[i]) for k in (1, 2, 3, 4) for i in range(1, k + 1)))
+
+
+def printed_lagrangian(p: Arm, q, dq, literal: bool = False) -> float:
+    """L = T - V of (28), term by term (see `printed_kinetic` for `literal`)."""
+    return printed_kinetic(p, q, dq, literal) - printed_potential(p, q)
+
+
+def _corrected_m12(p: Arm, q) -> float:
+    """M12 with the wave of joint 2, as (28) has it: r2 = l2 + a2 sin(n2 q2 + eps2)."""
+    l, m, I, a, n = p.l, p.m, p.I, p.a, p.n
+    s, c, r = _waves(p, q)
+    return I[2] + I[3] + I[4] + (m[2] + m[3] + m[4]) * l[1] * (
+        r[2] * np.cos(q[1] - q[2]) + a[2] * n[2] * c[2] * np.sin(q[2] - q[1]))
+
+
+def _corrected_h2_dq1(p: Arm, q) -> float:
+    """dM12/dq1 = (m2+m3+m4) l1 [r2 sin(q2 - q1) - a2 n2 cos(n2 q2 + eps2) cos(q2 - q1)]."""
+    l, m, a, n = p.l, p.m, p.a, p.n
+    s, c, r = _waves(p, q)
+    return (m[2] + m[3] + m[4]) * l[1] * (
+        r[2] * np.sin(q[2] - q[1]) - a[2] * n[2] * c[2] * np.cos(q[2] - q[1]))
+
+
+def _corrected_h3_dq1(p: Arm, q) -> float:
+    """dM13/dq1 = (m3+m4) l1 l3 sin(q3 - q1)."""
+    l, m = p.l, p.m
+    return (m[3] + m[4]) * l[1] * l[3] * np.sin(q[3] - q[1])
+
+
+def _corrected_h3_dq2(p: Arm, q) -> float:
+    """dM23/dq2 = (m3+m4) l3 [2 a2 n2 c2 cos(q2 - q3) + r2 sin(q3 - q2) - a2 n2^2 s2 sin(q2 - q3)]."""
+    l, m, a, n = p.l, p.m, p.a, p.n
+    s, c, r = _waves(p, q)
+    return (m[3] + m[4]) * l[3] * (
+        2 * a[2] * n[2] * c[2] * np.cos(q[2] - q[3])
+        + r[2] * np.sin(q[3] - q[2])
+        - a[2] * n[2] ** 2 * s[2] * np.sin(q[2] - q[3]))
+
+
+def _corrected_h4_dq1(p: Arm, q) -> float:
+    """dM14/dq1 = m4 l1 [r4 sin(q4 - q1) - a4 n4 c4 cos(q4 - q1)]."""
+    l, m, a, n = p.l, p.m, p.a, p.n
+    s, c, r = _waves(p, q)
+    return m[4] * l[1] * (r[4] * np.sin(q[4] - q[1]) - a[4] * n[4] * c[4] * np.cos(q[4] - q[1]))
+
+
+def _corrected_h4_dq2(p: Arm, q) -> float:
+    """dM24/dq2: the bracket of h2.dq4^2 with joints 2 and 4 exchanged."""
+    m, a, n = p.m, p.a, p.n
+    s, c, r = _waves(p, q)
+    d = q[2] - q[4]
+    return m[4] * (
+        2 * a[2] * n[2] * c[2] * r[4] * np.cos(d)
+        - 2 * a[2] * n[2] * a[4] * n[4] * c[2] * c[4] * np.sin(d)
+        - r[2] * r[4] * np.sin(d)
+        - a[2] * n[2] ** 2 * a[4] * n[4] * s[2] * c[4] * np.cos(d)
+        - a[4] * n[4] * r[2] * c[4] * np.cos(d)
+        - a[2] * n[2] ** 2 * r[4] * s[2] * np.sin(d))
+
+
+def _corrected_h4_dq3(p: Arm, q) -> float:
+    """dM34/dq3 = m4 l3 [r4 sin(q4 - q3) - a4 n4 c4 cos(q4 - q3)]."""
+    l, m, a, n = p.l, p.m, p.a, p.n
+    s, c, r = _waves(p, q)
+    return m[4] * l[3] * (r[4] * np.sin(q[4] - q[3]) - a[4] * n[4] * c[4] * np.cos(q[4] - q[3]))
+
+
+CORRECTED: dict[str, Callable[[Arm, np.ndarray], float]] = {
+    "M12": _corrected_m12,
+    "h2.dq1^2": _corrected_h2_dq1,
+    "h3.dq1^2": _corrected_h3_dq1,
+    "h3.dq2^2": _corrected_h3_dq2,
+    "h4.dq1^2": _corrected_h4_dq1,
+    "h4.dq2^2": _corrected_h4_dq2,
+    "h4.dq3^2": _corrected_h4_dq3,
+}
+"""The right closed form of every term of (30)-(31) that is misprinted."""
+
+
+def corrected_mass(p: Arm, q) -> dict[str, float]:
+    """The entries of M* in (30) with every misprint replaced by its corrected form."""
+    return {**printed_mass(p, q), **{k: f(p, q) for k, f in CORRECTED.items() if k[0] == "M"}}
+
+
+def corrected_bias(p: Arm, q) -> dict[str, float]:
+    """The terms of h* in (31) with every misprint replaced by its corrected form."""
+    return {**printed_bias(p, q), **{k: f(p, q) for k, f in CORRECTED.items() if k[0] == "h"}}
+
+
+def mass_matrix(entries: dict[str, float]) -> np.ndarray:
+    """The symmetric 4 x 4 matrix (0-based) from entries 'Mij' of the upper triangle."""
+    M = np.zeros((4, 4))
+    for key, value in entries.items():
+        i, j = int(key[1]) - 1, int(key[2]) - 1
+        M[i, j] = M[j, i] = value
+    return M
+
+
+def bias_vector(terms: dict[str, float], dq) -> np.ndarray:
+    """h (0-based) from the terms 'h{i}.dq{j}^2' and 'h{i}.g' at rates dq (1-based)."""
+    h = np.zeros(4)
+    for key, value in terms.items():
+        i = int(key[1]) - 1
+        h[i] += value if key.endswith(".g") else value * dq[int(key[5])] ** 2
+    return h
+
+
+def arm_of(robot) -> Arm:
+    """The `Arm` (1-based) of a 4-link `planner.model.Robot`; joints without wave get a = n = eps = 0."""
+    links = robot.links
+    waves = [(w.amplitude, w.frequency, w.phase) if (w := link.wave) else (0.0, 0.0, 0.0) for link in links]
+    return Arm(l=(0.0, *(link.length for link in links)), m=(0.0, *(link.mass for link in links)),
+               I=(0.0, *(link.inertia for link in links)), a=(0.0, *(w[0] for w in waves)),
+               n=(0.0, *(w[1] for w in waves)), e=(0.0, *(w[2] for w in waves)), g=robot.gravity)

@@ -1,0 +1,117 @@
+"""Shared test helpers: seeded randomness, random robots, the seed paper's 4-link arm,
+and an independent point-mass reference of M and h.
+
+Plain functions (importable from a test module as `from conftest import ...`) with thin
+fixtures around them. Every random draw goes through a `numpy.random.Generator` seeded
+from the test's node id, so a failure reproduces whatever the test order or worker.
+"""
+
+from __future__ import annotations
+
+import zlib
+from collections.abc import Callable
+
+import numpy as np
+import pytest
+from seed_printed import SEED_ARM
+
+from planner.model import Robot
+
+
+def seed_arm(gravity: float = 9.81, waves: bool = True,
+             rotational: str = "cumulative") -> Robot:
+    """The seed's 4-link arm, optionally without gravity or without its waves."""
+    robot = Robot.model_validate({**SEED_ARM, "gravity": gravity, "rotational_inertia": rotational})
+    return robot if waves else robot.without_waves()
+
+
+def random_robot(rng: np.random.Generator, n: int, *, waves: bool = True,
+                 gravity: float | None = None, rotational: str | None = None,
+                 inertia: bool = True) -> Robot:
+    """A random n-link robot.
+
+    Lengths 0.2..1 m, masses 0.2..2 kg, inertias 0..0.05 kg m^2 (all zero if not
+    `inertia`); each joint active with probability 1/2, at least one active; with
+    `waves`, every active joint carries a wave of amplitude 0.01..0.3 of its length,
+    frequency 1..5 and phase -pi..pi. gravity None draws 0 or 9.81; rotational None
+    draws the convention.
+    """
+    active = rng.random(n) < 0.5
+    active[rng.integers(n)] = True
+    links = []
+    for k in range(n):
+        length = float(rng.uniform(0.2, 1.0))
+        link = {"length": length, "mass": float(rng.uniform(0.2, 2.0)),
+                "inertia": float(rng.uniform(0.0, 0.05)) if inertia else 0.0,
+                "joint": "active" if active[k] else "passive"}
+        if waves and active[k]:
+            link["wave"] = {"amplitude": float(rng.uniform(0.01, 0.3)) * length,
+                            "frequency": float(rng.uniform(1.0, 5.0)),
+                            "phase": float(rng.uniform(-np.pi, np.pi))}
+        links.append(link)
+    if gravity is None:
+        gravity = float(rng.choice([0.0, 9.81]))
+    if rotational is None:
+        rotational = str(rng.choice(["cumulative", "absolute"]))
+    return Robot.model_validate({"links": links, "gravity": gravity,
+                                 "rotational_inertia": rotational})
+
+
+def random_state(rng: np.random.Generator, n: int, speed: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+    """Angles uniform in [-pi, pi] rad and rates uniform in [-speed, speed] rad/s."""
+    return rng.uniform(-np.pi, np.pi, n), rng.uniform(-speed, speed, n)
+
+
+def point_mass_dynamics(robot: Robot, q, dq) -> tuple[np.ndarray, np.ndarray]:
+    """M(q) and h(q, dq) by d'Alembert's principle, independent of the library.
+
+    Tip k moves with dp_k/dt = sum_{i<=k} u_i dq_i, u_i = r_i' e_i + r_i e_i^perp, so
+    Q_i = sum_k m_k u_i . a_k gives M_ij = mu_max(i,j) u_i . u_j and
+    h_i = sum_j mu_max(i,j) u_i . u_j' dq_j^2 - g mu_i (u_i)_x, with mu_i the mass
+    beyond joint i and u_j' = du_j/dq_j. Rotational inertia adds a constant to M.
+    """
+    q, dq = np.asarray(q, float), np.asarray(dq, float)
+    n = robot.n
+    r, r1, r2 = np.empty(n), np.empty(n), np.empty(n)
+    for i, link in enumerate(robot.links):
+        a, f, e = (link.wave.amplitude, link.wave.frequency, link.wave.phase) if link.wave else (0, 0, 0)
+        r[i] = link.length + a * np.sin(f * q[i] + e)
+        r1[i] = a * f * np.cos(f * q[i] + e)
+        r2[i] = -a * f * f * np.sin(f * q[i] + e)
+    e = np.stack([np.cos(q), np.sin(q)], axis=1)
+    perp = np.stack([-np.sin(q), np.cos(q)], axis=1)
+    u = r1[:, None] * e + r[:, None] * perp
+    du = (r2 - r)[:, None] * e + 2 * r1[:, None] * perp
+    mu = np.cumsum([link.mass for link in robot.links][::-1])[::-1]
+    beyond = mu[np.maximum.outer(np.arange(n), np.arange(n))]
+    M = beyond * (u @ u.T) + rotational_mass(robot)
+    h = (beyond * (u @ du.T)) @ dq**2 - robot.gravity * mu * u[:, 0]
+    return M, h
+
+
+def rotational_mass(robot: Robot) -> np.ndarray:
+    """Constant rotational part of M: sum_{k>=max(i,j)} I_k (cumulative) or diag(I) (absolute)."""
+    inertia = np.array([link.inertia for link in robot.links])
+    if robot.rotational_inertia == "absolute":
+        return np.diag(inertia)
+    beyond = np.cumsum(inertia[::-1])[::-1]
+    n = robot.n
+    return beyond[np.maximum.outer(np.arange(n), np.arange(n))]
+
+
+@pytest.fixture
+def rng(request) -> np.random.Generator:
+    """A generator seeded from the test's node id (stable across runs and workers)."""
+    return np.random.default_rng(zlib.crc32(request.node.nodeid.encode()))
+
+
+@pytest.fixture
+def make_robot(rng) -> Callable[..., Robot]:
+    """`make_robot(n, **options)`: `random_robot` drawing from the test's generator."""
+    return lambda n, **options: random_robot(rng, n, **options)
+
+
+@pytest.fixture
+def seed_robot() -> Robot:
+    """The seed's 4-link arm with its waves, under gravity."""
+    return seed_arm()

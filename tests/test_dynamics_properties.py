@@ -1,0 +1,196 @@
+"""Structural properties of the derived dynamics and of its per-structure cache.
+
+M symmetric positive definite; C from the Christoffel symbols of M (computed here from
+a CasADi Jacobian of the library's M) makes Mdot - 2C skew-symmetric and reproduces
+h - gravity = C dq; forward and inverse dynamics are each other's inverse; energies and
+tips are consistent with M; robots of one structure share compiled functions; a
+structure without gravity, waves or inertia builds fewer expression nodes.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import casadi as ca
+import numpy as np
+import pytest
+from conftest import point_mass_dynamics, random_robot, random_state, seed_arm
+
+from planner.dynamics import Dynamics, functions
+from planner.model import Robot, Structure, parameters
+
+RTOL = 1e-12
+SIZES = [1, 2, 3, 5, 8]
+
+
+def robots(rng: np.random.Generator, count: int = 2):
+    """Random robots of every size in SIZES, both conventions, gravity drawn."""
+    for n in SIZES:
+        for rotational in ("cumulative", "absolute"):
+            for _ in range(count):
+                yield random_robot(rng, n, rotational=rotational)
+
+
+@lru_cache(maxsize=None)
+def mass_jacobian(s: Structure) -> ca.Function:
+    """dM/dq (q, p) -> n^2 x n, column k holding vec(dM/dq_k) (column-major)."""
+    q, p = ca.SX.sym("q", s.n), ca.SX.sym("p", s.n_params)
+    return ca.Function("dM", [q, p], [ca.jacobian(ca.vec(functions(s)["M"](q, p)), q)])
+
+
+def mass_derivative(robot: Robot, q) -> np.ndarray:
+    """dM[i, j, k] = dM_ij/dq_k."""
+    s = Structure.of(robot)
+    jac = np.array(mass_jacobian(s)(q, parameters(robot, s)))
+    return jac.reshape(s.n, s.n, s.n, order="F")
+
+
+def christoffel(robot: Robot, q) -> np.ndarray:
+    """Gamma[i, j, k] = 1/2 (dM_ij/dq_k + dM_ik/dq_j - dM_jk/dq_i)."""
+    dM = mass_derivative(robot, q)
+    return 0.5 * (dM + dM.transpose(0, 2, 1) - np.einsum("jki->ijk", dM))
+
+
+def mass_rate(robot: Robot, q, dq) -> np.ndarray:
+    """Mdot = sum_k dM/dq_k dq_k."""
+    return mass_derivative(robot, q) @ np.asarray(dq)
+
+
+def test_mass_matrix_is_symmetric_positive_definite(rng):
+    for robot in robots(rng):
+        dyn = Dynamics(robot)
+        for _ in range(5):
+            q, _ = random_state(rng, robot.n)
+            M = dyn.mass_matrix(q)
+            assert np.abs(M - M.T).max() <= RTOL * np.abs(M).max()
+            assert np.linalg.eigvalsh(M).min() > 0.0
+
+
+def test_point_masses_alone_give_a_positive_definite_mass_matrix(rng):
+    for n in SIZES:
+        robot = random_robot(rng, n, inertia=False)
+        q, _ = random_state(rng, n)
+        assert np.linalg.eigvalsh(Dynamics(robot).mass_matrix(q)).min() > 0.0
+
+
+def test_mass_rate_minus_twice_christoffel_matrix_is_skew(rng):
+    for robot in robots(rng, count=1):
+        q, dq = random_state(rng, robot.n)
+        C = christoffel(robot, q) @ dq
+        N = mass_rate(robot, q, dq) - 2 * C
+        assert np.abs(N + N.T).max() <= RTOL * max(1.0, np.abs(N).max())
+
+
+def test_velocity_terms_are_christoffel_matrix_times_rates(rng):
+    for robot in robots(rng):
+        dyn = Dynamics(robot)
+        q, dq = random_state(rng, robot.n)
+        C = christoffel(robot, q) @ dq
+        expected = C @ dq
+        got = dyn.bias(q, dq) - dyn.gravity(q)
+        assert np.abs(got - expected).max() <= RTOL * max(np.abs(expected).max(), np.abs(C).max())
+
+
+def test_power_balance_of_the_library_bias(rng):
+    """dT/dt = dq' (tau - G): dq' Mdot dq = 2 dq' (h - G), with the library's h."""
+    for robot in robots(rng):
+        dyn = Dynamics(robot)
+        q, dq = random_state(rng, robot.n)
+        left = dq @ mass_rate(robot, q, dq) @ dq
+        right = 2 * dq @ (dyn.bias(q, dq) - dyn.gravity(q))
+        assert abs(left - right) <= RTOL * max(1.0, abs(left))
+
+
+def test_inverse_undoes_forward(rng):
+    for robot in robots(rng):
+        dyn = Dynamics(robot)
+        q, dq = random_state(rng, robot.n)
+        tau = rng.uniform(-5.0, 5.0, len(robot.active))
+        ddq = dyn.forward(q, dq, tau)
+        generalized = dyn.inverse(q, dq, ddq)
+        scale = np.abs(dyn.mass_matrix(q)).max() * np.abs(ddq).max() + np.abs(tau).max()
+        assert np.abs(generalized - dyn.B @ tau).max() <= RTOL * scale
+
+
+def test_kinetic_energy_is_the_quadratic_form_of_M(rng):
+    for robot in robots(rng):
+        dyn = Dynamics(robot)
+        q, dq = random_state(rng, robot.n)
+        T, _ = dyn.energy(q, dq)
+        assert T == pytest.approx(0.5 * dq @ dyn.mass_matrix(q) @ dq, rel=RTOL)
+
+
+def test_potential_energy_and_gravity_follow_from_the_tips(rng):
+    for robot in robots(rng):
+        dyn = Dynamics(robot)
+        q, dq = random_state(rng, robot.n)
+        tips = dyn.tips(q)
+        masses = np.array([link.mass for link in robot.links])
+        _, V = dyn.energy(q, dq)
+        assert V == pytest.approx(-robot.gravity * masses @ tips[:, 0], rel=RTOL, abs=1e-14)
+        step = 1e-6
+        fd = [(dyn.energy(q + step * e, dq)[1] - dyn.energy(q - step * e, dq)[1]) / (2 * step)
+              for e in np.eye(robot.n)]
+        assert np.allclose(dyn.gravity(q), fd, rtol=1e-7, atol=1e-7)
+
+
+def test_tips_follow_the_waves(rng):
+    for robot in robots(rng):
+        q, _ = random_state(rng, robot.n)
+        radius = [link.length + (link.wave.amplitude * np.sin(link.wave.frequency * qi + link.wave.phase)
+                                 if link.wave else 0.0) for link, qi in zip(robot.links, q)]
+        expected = np.cumsum(np.stack([radius * np.cos(q), radius * np.sin(q)], axis=1), axis=0)
+        assert np.allclose(Dynamics(robot).tips(q), expected, rtol=0, atol=1e-14)
+
+
+def test_robots_of_one_structure_share_compiled_functions(rng):
+    first = random_robot(rng, 4, gravity=9.81)
+    second = first.model_copy(update={"links": [
+        link.model_copy(update={"length": link.length * 1.3, "mass": link.mass * 0.7})
+        for link in first.links]})
+    assert Structure.of(second) == Structure.of(first)
+    dyn1 = Dynamics(first)
+    before = functions.cache_info()
+    dyn2 = Dynamics(second)
+    after = functions.cache_info()
+    assert (after.hits, after.misses) == (before.hits + 1, before.misses)
+    assert dyn2.f is dyn1.f
+    q, dq = random_state(rng, 4)
+    assert not np.allclose(dyn1.mass_matrix(q), dyn2.mass_matrix(q))
+    for robot, dyn in ((first, dyn1), (second, dyn2)):
+        M, h = point_mass_dynamics(robot, q, dq)
+        assert np.allclose(dyn.mass_matrix(q), M, rtol=RTOL, atol=0)
+        assert np.allclose(dyn.bias(q, dq), h, rtol=RTOL, atol=RTOL * np.abs(h).max())
+
+
+def test_forced_wave_terms_with_zero_amplitude_change_nothing(rng):
+    robot = random_robot(rng, 4, waves=False, gravity=9.81)
+    forced = Structure.of(robot, wavy=(True,) * 4)
+    plain, wavy = Dynamics(robot), Dynamics(robot, forced)
+    assert wavy.f is not plain.f
+    q, dq = random_state(rng, 4)
+    assert np.allclose(wavy.mass_matrix(q), plain.mass_matrix(q), rtol=RTOL, atol=0)
+    assert np.allclose(wavy.bias(q, dq), plain.bias(q, dq), rtol=RTOL, atol=1e-14)
+
+
+def nodes(robot: Robot) -> dict[str, int]:
+    f = functions(Structure.of(robot))
+    return {name: f[name].n_nodes() for name in ("M", "h", "fd")}
+
+
+def test_gravity_costs_nodes_only_where_it_enters():
+    on, off = nodes(seed_arm(gravity=9.81)), nodes(seed_arm(gravity=0.0))
+    assert off["M"] == on["M"]
+    assert off["h"] < on["h"] and off["fd"] < on["fd"]
+
+
+def test_waves_cost_nodes():
+    wavy, plain = nodes(seed_arm()), nodes(seed_arm(waves=False))
+    assert all(plain[k] < wavy[k] for k in wavy)
+
+
+def test_inertia_costs_nodes():
+    doc = seed_arm().model_dump()
+    for link in doc["links"]:
+        link["inertia"] = 0.0
+    assert nodes(Robot.model_validate(doc))["M"] < nodes(seed_arm())["M"]
