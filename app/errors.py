@@ -107,7 +107,7 @@ def problem(request: Request, error: ApiError) -> JSONResponse:
                         media_type=MEDIA_TYPE, headers=error.headers)
 
 
-_HTTP_SLUGS = {401: "unauthorized", 404: "not-found", 405: "method-not-allowed",
+_HTTP_SLUGS = {400: "malformed-body", 401: "unauthorized", 404: "not-found", 405: "method-not-allowed",
                413: "request-too-large", 429: "queue-full"}
 
 

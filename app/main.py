@@ -51,7 +51,7 @@ def create_app(settings: Settings | None = None, solve: SolveFunction | None = N
             runner.shutdown()
 
     app = FastAPI(title="undertow", version="0.1.0", description=DESCRIPTION,
-                  lifespan=lifespan)
+                  lifespan=lifespan, generate_unique_id_function=lambda route: route.name)
     app.state.settings = settings
     app.state.metrics = Metrics()
     errors.install(app)

@@ -15,6 +15,7 @@ from app.errors import MEDIA_TYPE, Problem
 
 _REF = {"$ref": "#/components/schemas/Problem"}
 _DESCRIPTIONS = {
+    400: "the body could not be read as JSON",
     401: "missing or wrong X-API-Key",
     404: "no such resource",
     409: "the resource is in a state that does not allow this",
@@ -61,6 +62,7 @@ def document(app: FastAPI) -> dict[str, Any]:
             if "422" in responses:
                 responses["422"] = problem_response(422)
             if "requestBody" in operation:
+                responses["400"] = problem_response(400)
                 responses["413"] = problem_response(413)
             if operation.get("security"):
                 responses["401"] = problem_response(401)

@@ -149,6 +149,8 @@ def test_scene_and_query_validation(api):
         (["query", "wait"], "at most 5 s on this server (UNDERTOW_MAX_WAIT)")]
     assert errors_of(api.post("/v1/plans?wait=-1", json=two_link_scene())) == [
         (["query", "wait"], "Input should be greater than or equal to 0")]
+    assert errors_of(api.get("/v1/plans?offset=100000000000000000000")) == [
+        (["query", "offset"], "Input should be less than or equal to 1000000000")]
     assert errors_of(api.get("/v1/plans?status=done")) == [
         (["query", "status"],
          "Input should be 'queued', 'running', 'succeeded', 'failed' or 'cancelled'")]

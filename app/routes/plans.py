@@ -18,6 +18,8 @@ from app.store import FINAL, JobRecord, JobStatus, JobStore
 from planner.scene import Scene
 
 router = APIRouter(prefix="/v1/plans", tags=["plans"])
+_LINKS = {name: {"operationId": op, "parameters": {"job_id": "$response.body#/id"}}
+          for name, op in (("GetPlan", "get_plan"), ("CancelPlan", "cancel_plan"))}
 
 
 def _found(record: JobRecord | None, job_id: str) -> JobRecord:
@@ -28,7 +30,8 @@ def _found(record: JobRecord | None, job_id: str) -> JobRecord:
 
 @router.post("", status_code=202, summary="Submit a scene for planning",
              responses={200: {"model": Job, "description": "the job ended within `wait`"},
-                        202: {"description": "queued; poll the Location"}, **problems(429)})
+                        202: {"description": "queued; poll the Location", "links": _LINKS},
+                        **problems(429)})
 async def create_plan(scene: Scene, response: Response, settings: SettingsDep,
                       runner: RunnerDep, store: StoreDep,
                       wait: Annotated[float, Query(ge=0.0, description=(
@@ -58,7 +61,7 @@ async def create_plan(scene: Scene, response: Response, settings: SettingsDep,
 async def list_plans(store: StoreDep,
                      status: Annotated[JobStatus | None, Query()] = None,
                      limit: Annotated[int, Query(ge=1, le=100)] = 20,
-                     offset: Annotated[int, Query(ge=0)] = 0) -> JobList:
+                     offset: Annotated[int, Query(ge=0, le=1_000_000_000)] = 0) -> JobList:
     records = await run_in_threadpool(store.list, status, limit + 1, offset)
     items = [JobSummary.of(r) for r in records[:limit]]
     return JobList(items=items, limit=limit, offset=offset,
