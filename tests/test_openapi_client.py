@@ -1,0 +1,50 @@
+"""A Python client generated from openapi/openapi.json (openapi-python-client) plans a
+scene against a live server, with the API key."""
+
+from __future__ import annotations
+
+import importlib
+import subprocess
+import sys
+
+import pytest
+from service_fixtures import ROOT, LiveServer
+from test_e2e_server import QUICK
+
+KEY = "client-key"
+
+
+@pytest.fixture(scope="module")
+def generated(tmp_path_factory):
+    """The generated package `undertow_client`, importable."""
+    out = tmp_path_factory.mktemp("client")
+    config = out / "config.yml"
+    config.write_text("post_hooks: []\n")
+    subprocess.run([sys.executable, "-m", "openapi_python_client", "generate",
+                    "--path", str(ROOT / "openapi" / "openapi.json"), "--meta", "none",
+                    "--output-path", str(out / "undertow_client"), "--config", str(config)],
+                   cwd=out, check=True, capture_output=True, text=True, timeout=120)
+    sys.path.insert(0, str(out))
+    try:
+        yield importlib.import_module("undertow_client")
+    finally:
+        sys.path.remove(str(out))
+
+
+def test_the_generated_client_plans_a_scene(generated, tmp_path):
+    from undertow_client.api.plans import create_plan, get_plan
+    from undertow_client.models import Job, Problem, Scene
+
+    with LiveServer(tmp_path / "jobs.sqlite3", UNDERTOW_API_KEY=KEY) as live:
+        client = generated.AuthenticatedClient(base_url=live.url, token=KEY, prefix="",
+                                               auth_header_name="X-API-Key", timeout=60)
+        anonymous = generated.Client(base_url=live.url, timeout=60)
+        with client, anonymous:
+            refused = create_plan.sync_detailed(client=anonymous, body=Scene.from_dict(QUICK))
+            assert refused.status_code == 401 and isinstance(refused.parsed, Problem)
+            job = create_plan.sync(client=client, body=Scene.from_dict(QUICK), wait=30.0)
+            assert isinstance(job, Job), job
+            assert job.status == "succeeded" and job.plan.solver.success
+            again = get_plan.sync(client=client, job_id=job.id)
+    assert again.plan.to_dict() == job.plan.to_dict()
+    assert len(again.plan.t) == 11 and again.plan.q[0] == [0.0, 0.0]
