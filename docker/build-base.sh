@@ -57,13 +57,19 @@ build_local_base() {
   if ! command -v debootstrap >/dev/null 2>&1; then
     log "installing debootstrap"
     apt-get update -qq >&2
-    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq debootstrap >&2
+    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq debootstrap >/dev/null
   fi
   mirror=${DEBIAN_MIRROR:-$(debian_mirror)}
   rootfs=$(mktemp -d /var/tmp/undertow-rootfs.XXXXXX)
   trap 'rm -rf "$rootfs"' EXIT
   log "debootstrap $SUITE (minbase + $PACKAGES) from $mirror"
-  debootstrap --variant=minbase --include="$PACKAGES" "$SUITE" "$rootfs" "$mirror" >&2
+  if ! debootstrap --variant=minbase --include="$PACKAGES" "$SUITE" "$rootfs" "$mirror" \
+      >"$rootfs.log" 2>&1; then
+    tail -30 "$rootfs.log" >&2
+    log "debootstrap failed (full log: $rootfs.log)"
+    return 1
+  fi
+  rm -f "$rootfs.log"
   # Keep the image small: package caches, indexes, manuals.
   rm -rf "$rootfs"/var/cache/apt/archives/*.deb "$rootfs"/var/cache/apt/*.bin \
     "$rootfs"/var/lib/apt/lists/* "$rootfs"/usr/share/man/* "$rootfs"/usr/share/info/* \
@@ -75,7 +81,7 @@ build_local_base() {
     --change 'ENV LANG=C.UTF-8' \
     --change 'LABEL org.opencontainers.image.description="python:3.11-slim stand-in: Debian bookworm minbase with python3, built by undertow docker/build-base.sh"' \
     --change 'CMD ["python3"]' \
-    - "$LOCAL_BASE" >&2
+    - "$LOCAL_BASE" >/dev/null
   rm -rf "$rootfs"
   trap - EXIT
 }

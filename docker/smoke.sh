@@ -8,7 +8,8 @@
 #   docker/smoke.sh fetch URL JOB_ID      the job is stored and succeeded (e.g. after restart)
 #
 # Environment: UNDERTOW_API_KEY (sent as X-API-Key, and its absence must give 401),
-# SMOKE_PLAN (1: plan an example), SMOKE_PLAN_WAIT (seconds, default 120).
+# SMOKE_PLAN (1: plan an example), SMOKE_PLAN_WAIT (seconds, default 120),
+# SMOKE_PLAN_SCENE (a scene JSON file to plan instead of a built-in example).
 # Exit status 0 when every check passes; each failure is printed as "smoke: FAIL ...".
 set -euo pipefail
 exec python3 - "$@" <<'PY'
@@ -24,6 +25,7 @@ from email.message import Message
 API_KEY = os.environ.get("UNDERTOW_API_KEY") or None
 PLAN = os.environ.get("SMOKE_PLAN", "0") == "1"
 PLAN_WAIT = float(os.environ.get("SMOKE_PLAN_WAIT", "120"))
+PLAN_SCENE = os.environ.get("SMOKE_PLAN_SCENE") or None
 
 # Two links, the design's example arm; the passive first link has no wave, so its tip is
 # l0 (cos q0, sin q0) exactly.
@@ -124,7 +126,10 @@ def check_dynamics(base: str) -> None:
 
 
 def plan_example(base: str) -> tuple[str, dict]:
-    """(name, scene) of the first built-in example of kind "plan"."""
+    """(name, scene) of SMOKE_PLAN_SCENE or else the first built-in example of kind "plan"."""
+    if PLAN_SCENE:
+        with open(PLAN_SCENE, encoding="utf-8") as file:
+            return PLAN_SCENE, json.load(file)
     status, _, body = request(base, "GET", "/v1/examples")
     expect(status == 200, f"/v1/examples: expected 200, got {status}: {body}")
     items = body.get("examples", body) if isinstance(body, dict) else body
