@@ -58,7 +58,7 @@ def _waves(p: Arm, q):
 def printed_mass(p: Arm, q) -> dict[str, float]:
     """The entries of M* in (30), as printed."""
     l, m, I, a, n, e = p.l, p.m, p.I, p.a, p.n, p.e
-    s, c, r = _waves(p, q)
+    _, c, r = _waves(p, q)
     m234, m34 = m[2] + m[3] + m[4], m[3] + m[4]
     cos, sin = np.cos, np.sin
     return {
@@ -115,14 +115,14 @@ def _self(p: Arm, q, j: int) -> float:
 
 def _grav(p: Arm, q, i: int) -> float:
     a, n = p.a, p.n
-    s, c, r = _waves(p, q)
+    _, c, r = _waves(p, q)
     return r[i] * np.sin(q[i]) - a[i] * n[i] * c[i] * np.cos(q[i])
 
 
 def printed_bias(p: Arm, q) -> dict[str, float]:
     """Every term of h* in (31), as printed: 'h{i}.dq{j}^2' coefficients and 'h{i}.g'."""
     l, m, a, n, g = p.l, p.m, p.a, p.n, p.g
-    s, c, r = _waves(p, q)
+    _, c, r = _waves(p, q)
     m234, m34, mall = m[2] + m[3] + m[4], m[3] + m[4], m[1] + m[2] + m[3] + m[4]
     sin, cos = np.sin, np.cos
     return {
@@ -154,7 +154,7 @@ def printed_kinetic(p: Arm, q, dq, literal: bool = False) -> float:
     that (= 1/2 sum_k I_k k^2 dq_k^2), otherwise it is read as sum_{i<=k} dq_i.
     """
     l, m, I, a, n = p.l, p.m, p.I, p.a, p.n
-    s, c, r = _waves(p, q)
+    _, c, r = _waves(p, q)
     m234, m34, mall = m[2] + m[3] + m[4], m[3] + m[4], m[1] + m[2] + m[3] + m[4]
     cos, sin = np.cos, np.sin
     terms = [
@@ -182,7 +182,7 @@ def printed_kinetic(p: Arm, q, dq, literal: bool = False) -> float:
 def printed_potential(p: Arm, q) -> float:
     """V of (28): L carries + sum_k sum_{i<=k} m_k g r_i cos q_i, so V is its negative."""
     m, g = p.m, p.g
-    s, c, r = _waves(p, q)
+    _, _, r = _waves(p, q)
     return float(-sum(m[k] * g * r[i] * np.cos(q[i]) for k in (1, 2, 3, 4) for i in range(1, k + 1)))
 
 
@@ -194,7 +194,7 @@ def printed_lagrangian(p: Arm, q, dq, literal: bool = False) -> float:
 def _corrected_m12(p: Arm, q) -> float:
     """M12 with the wave of joint 2, as (28) has it: r2 = l2 + a2 sin(n2 q2 + eps2)."""
     l, m, I, a, n = p.l, p.m, p.I, p.a, p.n
-    s, c, r = _waves(p, q)
+    _, c, r = _waves(p, q)
     return I[2] + I[3] + I[4] + (m[2] + m[3] + m[4]) * l[1] * (
         r[2] * np.cos(q[1] - q[2]) + a[2] * n[2] * c[2] * np.sin(q[2] - q[1]))
 
@@ -202,7 +202,7 @@ def _corrected_m12(p: Arm, q) -> float:
 def _corrected_h2_dq1(p: Arm, q) -> float:
     """dM12/dq1 = (m2+m3+m4) l1 [r2 sin(q2 - q1) - a2 n2 cos(n2 q2 + eps2) cos(q2 - q1)]."""
     l, m, a, n = p.l, p.m, p.a, p.n
-    s, c, r = _waves(p, q)
+    _, c, r = _waves(p, q)
     return (m[2] + m[3] + m[4]) * l[1] * (
         r[2] * np.sin(q[2] - q[1]) - a[2] * n[2] * c[2] * np.cos(q[2] - q[1]))
 
@@ -226,7 +226,7 @@ def _corrected_h3_dq2(p: Arm, q) -> float:
 def _corrected_h4_dq1(p: Arm, q) -> float:
     """dM14/dq1 = m4 l1 [r4 sin(q4 - q1) - a4 n4 c4 cos(q4 - q1)]."""
     l, m, a, n = p.l, p.m, p.a, p.n
-    s, c, r = _waves(p, q)
+    _, c, r = _waves(p, q)
     return m[4] * l[1] * (r[4] * np.sin(q[4] - q[1]) - a[4] * n[4] * c[4] * np.cos(q[4] - q[1]))
 
 
@@ -247,7 +247,7 @@ def _corrected_h4_dq2(p: Arm, q) -> float:
 def _corrected_h4_dq3(p: Arm, q) -> float:
     """dM34/dq3 = m4 l3 [r4 sin(q4 - q3) - a4 n4 c4 cos(q4 - q3)]."""
     l, m, a, n = p.l, p.m, p.a, p.n
-    s, c, r = _waves(p, q)
+    _, c, r = _waves(p, q)
     return m[4] * l[3] * (r[4] * np.sin(q[4] - q[3]) - a[4] * n[4] * c[4] * np.cos(q[4] - q[3]))
 
 

@@ -9,7 +9,7 @@ structure without gravity, waves or inertia builds fewer expression nodes.
 
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import cache
 
 import casadi as ca
 import numpy as np
@@ -31,7 +31,7 @@ def robots(rng: np.random.Generator, count: int = 2):
                 yield random_robot(rng, n, rotational=rotational)
 
 
-@lru_cache(maxsize=None)
+@cache
 def mass_jacobian(s: Structure) -> ca.Function:
     """dM/dq (q, p) -> n^2 x n, column k holding vec(dM/dq_k) (column-major)."""
     q, p = ca.SX.sym("q", s.n), ca.SX.sym("p", s.n_params)

@@ -9,7 +9,7 @@ M, h and the energy (a wrong Christoffel term, a gravity sign) shows up far abov
 
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import cache
 
 import casadi as ca
 import numpy as np
@@ -26,7 +26,7 @@ DRIFT = 1e-8
 OUTPUTS = 100
 
 
-@lru_cache(maxsize=None)
+@cache
 def free_motion(s: Structure) -> ca.Function:
     """CVODES (Adams, functional iteration) over [0, DURATION] for tau = 0, outputs on a grid."""
     x = ca.SX.sym("x", 2 * s.n)

@@ -11,7 +11,7 @@ Agreement to 1e-12 of the scale of M (kg m^2) and of h (N m).
 
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 import pytest
@@ -24,7 +24,7 @@ from planner.model import Robot
 RTOL = 1e-12
 
 
-@lru_cache(maxsize=None)
+@cache
 def sympy_dynamics(n: int, rotational: str):
     """Lambdified (M, h)(q, dq, l, m, I, a, f, e, g) of an n-link chain with a wave on every joint."""
     q, dq = sp.symbols(f"q:{n}"), sp.symbols(f"dq:{n}")
