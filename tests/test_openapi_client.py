@@ -11,6 +11,8 @@ import pytest
 from service_fixtures import ROOT, LiveServer
 from test_e2e_server import QUICK
 
+pytest.importorskip("openapi_python_client", reason="openapi-python-client is a test dependency")
+
 KEY = "client-key"
 
 
