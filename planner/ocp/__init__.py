@@ -1,0 +1,6 @@
+"""Optimal-control planning of feed-forward torques: transcription, NLP, Ipopt, verification."""
+
+from planner.ocp.planner import plan
+from planner.ocp.result import Plan, Progress
+
+__all__ = ["plan", "Plan", "Progress"]

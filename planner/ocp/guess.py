@@ -1,0 +1,59 @@
+"""Initial guesses: functions of the time fraction t / T in [0, 1] giving q, dq, ddq and tau."""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from planner.dynamics import functions
+from planner.model import Robot, Structure, parameters
+from planner.ocp.result import Plan
+from planner.scene import Scene
+
+Guess = Callable[[np.ndarray], dict[str, np.ndarray]]
+
+
+def _torques(robot: Robot, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
+    """Active rows of M ddq + h [N m] along a motion (K, n) -> (K, n_active)."""
+    s = Structure.of(robot)
+    Q = functions(s)["id"].map(len(q))(q.T, dq.T, ddq.T, parameters(robot, s))
+    return np.array(Q)[s.active_idx, :].T
+
+
+def hermite_guess(scene: Scene, robot: Robot, T: float) -> Guess:
+    """Cubic Hermite motion from the initial to the final state (free entries: stay put, come to
+    rest), the prescribed passive motion where the task tracks one, and the torques that the
+    active rows of the dynamics ask for along it."""
+    task = scene.task
+    q0, dq0 = np.asarray(task.initial.q), np.asarray(task.initial.dq)
+    qf = np.array([q0[i] if v is None else v for i, v in enumerate(task.final.q)])
+    dqf = np.array([0.0 if v is None else v for v in task.final.dq])
+
+    def guess(x: np.ndarray) -> dict[str, np.ndarray]:
+        s = np.asarray(x)[:, None]
+        h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
+        d00, d10, d01, d11 = 6 * s**2 - 6 * s, 3 * s**2 - 4 * s + 1, -6 * s**2 + 6 * s, 3 * s**2 - 2 * s
+        e00, e10, e01, e11 = 12 * s - 6, 6 * s - 4, -12 * s + 6, 6 * s - 2
+        q = h00 * q0 + h10 * T * dq0 + h01 * qf + h11 * T * dqf
+        dq = (d00 * q0 + d10 * T * dq0 + d01 * qf + d11 * T * dqf) / T
+        ddq = (e00 * q0 + e10 * T * dq0 + e01 * qf + e11 * T * dqf) / T**2
+        if task.tracking is not None:
+            ref = task.tracking.motion.evaluate(s.ravel() * T, T)
+            for arr, r in zip((q, dq, ddq), ref):
+                arr[:, robot.passive] = r
+        return {"q": q, "dq": dq, "ddq": ddq, "tau": _torques(robot, q, dq, ddq)}
+
+    return guess
+
+
+def plan_guess(plan: Plan) -> Guess:
+    """An earlier plan's nodes, linearly interpolated in the time fraction."""
+    frac = np.asarray(plan.t) / plan.duration
+    arrays = {k: np.asarray(getattr(plan, k)) for k in ("q", "dq", "ddq", "tau")}
+
+    def guess(x: np.ndarray) -> dict[str, np.ndarray]:
+        return {k: np.stack([np.interp(x, frac, a[:, j]) for j in range(a.shape[1])], axis=1)
+                for k, a in arrays.items()}
+
+    return guess
