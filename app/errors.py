@@ -22,7 +22,7 @@ log = logging.getLogger("undertow.errors")
 
 MEDIA_TYPE = "application/problem+json"
 TYPE_PREFIX = "urn:undertow:problem:"
-_FIELD_PREFIX = re.compile(r"^(?P<path>[A-Za-z_]\w*(?:\.\w+)*): (?P<msg>.+)$", re.S)
+_FIELD_PREFIX = re.compile(r"^(?P<path>[A-Za-z_]\w*(?:\.\w+)*): (?P<msg>.+)$", re.DOTALL)
 _PYDANTIC_PREFIXES = ("Value error, ", "Assertion failed, ")
 
 Loc = list[str | int]
@@ -64,8 +64,7 @@ class ApiError(Exception):
 def _split(loc: Sequence[str | int], message: str) -> tuple[Loc, str]:
     """Move a leading "field.path: " of a message into the location."""
     for prefix in _PYDANTIC_PREFIXES:
-        if message.startswith(prefix):
-            message = message[len(prefix):]
+        message = message.removeprefix(prefix)
     match = _FIELD_PREFIX.match(message)
     if not match:
         return list(loc), message

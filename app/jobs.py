@@ -109,7 +109,7 @@ def run_job(store: JobStore, job_id: str, solve: SolveFunction) -> Outcome:
     reporter = _Reporter(store, job_id)
     try:
         plan = solve(Scene.model_validate(record.scene), progress=reporter)
-    except Exception as exc:  # a bug or a library error: the job fails, the worker lives
+    except Exception as exc:  # noqa: BLE001 - any error fails the job, the worker lives
         store.finish(job_id, "failed", None, f"solver error: {type(exc).__name__}: {exc}")
         return Outcome(job_id, "failed", time.monotonic() - start)
     finally:
@@ -243,7 +243,7 @@ class JobRunner:
 
     def _resubmit(self, job_id: str) -> None:
         with self._lock:
-            if self._pool._broken:  # noqa: SLF001 - the executor exposes no public flag
+            if self._pool._broken:  # the executor exposes no public flag
                 self._pool.shutdown(wait=False, cancel_futures=True)
                 self._pool = self._new_pool()
         self._submit(job_id)

@@ -24,7 +24,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
-from service_fixtures import LiveServer  # noqa: E402
+from service_fixtures import LiveServer
 
 SCENE = {"robot": {"links": [
     {"length": 0.5, "mass": 1.0, "inertia": 0.01, "joint": "passive"},
@@ -89,11 +89,11 @@ def report(result: dict, args: argparse.Namespace, command: str) -> tuple[str, b
         "",
         f"Command: `{command}`",
         "",
-        f"Machine: {platform.machine()}, Python {platform.python_version()}, "
-        f"{args.workers} solver worker processes, queue of {args.max_queued} "
-        f"(so at most {args.workers + args.max_queued} unfinished plans).",
-        f"Scene: a two-link arm (one passive, one wavy active joint), legendre collocation, 20 intervals "
-        f"(the NLP is built once before the run).",
+        (f"Machine: {platform.machine()}, Python {platform.python_version()}, "
+         f"{args.workers} solver worker processes, queue of {args.max_queued} "
+         f"(so at most {args.workers + args.max_queued} unfinished plans)."),
+        ("Scene: a two-link arm (one passive, one wavy active joint), legendre collocation, "
+         "20 intervals (the NLP is built once per worker, before or during the run)."),
         "",
         "| quantity | value |",
         "|---|---|",
@@ -106,8 +106,8 @@ def report(result: dict, args: argparse.Namespace, command: str) -> tuple[str, b
         f"| wall time, first submit to last job end | {span:.2f} s |",
         f"| throughput | {done / span:.2f} plans/s |",
         "",
-        f"Verdict: {'PASS' if ok else 'FAIL'} (every answer 202 or 429/503, none 5xx, "
-        "no accepted job lost).",
+        (f"Verdict: {'PASS' if ok else 'FAIL'} (every answer 202 or 429/503, none 5xx, "
+         "no accepted job lost)."),
         "",
         "Refused requests carry `Retry-After`; a client that honours it gets its plan later.",
         "",

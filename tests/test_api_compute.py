@@ -102,7 +102,7 @@ def test_dynamics_field_errors_name_the_field(api, change, expected):
 
 
 def test_nan_in_the_body_is_refused(api):
-    text = '{"robot": %s, "states": [{"q": [NaN, 0], "dq": [0, 0]}]}' % json.dumps(TWO_LINK)
+    text = f'{{"robot": {json.dumps(TWO_LINK)}, "states": [{{"q": [NaN, 0], "dq": [0, 0]}}]}}'
     r = api.post("/v1/dynamics", content=text, headers={"content-type": "application/json"})
     assert errors_of(r) == [(["body", "states", 0, "q", 0], "Input should be a finite number")]
 
@@ -135,8 +135,8 @@ def test_coupling_finds_the_waveless_singularity(api):
 def test_coupling_needs_a_passive_joint(api):
     robot = {**WAVELESS, "links": [{**link, "joint": "active"} for link in WAVELESS["links"]]}
     r = api.post("/v1/coupling", json={"robot": robot, "configurations": [[0.0, 1.0]]})
-    assert errors_of(r) == [(["body", "robot"], "has no passive joint, so there is no "
-                             "coupling block (the arm is fully actuated)")]
+    assert errors_of(r) == [(["body", "robot"], ("has no passive joint, so there is no "
+                                                 "coupling block (the arm is fully actuated)"))]
 
 
 def inverse_request(gravity: float) -> dict:

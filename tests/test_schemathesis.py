@@ -27,8 +27,8 @@ def test_fuzzing_finds_no_server_error_and_no_schema_violation(tmp_path):
         run = subprocess.run(
             [sys.executable, "-m", "schemathesis.cli", "run",
              str(ROOT / "openapi" / "openapi.json"), "--url", live.url, "--checks", CHECKS,
-             "--max-examples", "10", "--seed", "1", "--workers", "1", "--request-timeout", "30",
+             "--max-examples", "5", "--seed", "1", "--workers", "1", "--request-timeout", "30",
              "--generation-database", "none", "--no-color"],
-            cwd=tmp_path, capture_output=True, text=True, timeout=300)
+            check=False, cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stdout[-6000:] + run.stderr[-2000:]
     assert " passed" in run.stdout and "failed" not in run.stdout.split("SUMMARY")[-1]
