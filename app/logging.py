@@ -21,7 +21,8 @@ access = logging.getLogger("undertow.access")
 class JsonFormatter(logging.Formatter):
     """time, level, logger, message, request_id, any `extra` fields, and the traceback."""
 
-    _RESERVED = set(vars(logging.LogRecord("", 0, "", 0, "", None, None))) | {"message"}
+    _RESERVED = set(vars(logging.LogRecord("", 0, "", 0, "", None, None))) | {
+        "message", "color_message"}
 
     def format(self, record: logging.LogRecord) -> str:
         entry = {
@@ -41,13 +42,16 @@ class JsonFormatter(logging.Formatter):
 
 
 def configure(level: str = "INFO") -> None:
-    """Send the service's logs as JSON lines to stderr."""
+    """Send the service's and uvicorn's logs as JSON lines to stderr. uvicorn's own
+    access log is silenced: `undertow.access` logs every request, with its id."""
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(JsonFormatter())
-    logger = logging.getLogger("undertow")
-    logger.handlers[:] = [handler]
-    logger.setLevel(level.upper())
-    logger.propagate = False
+    for name in ("undertow", "uvicorn", "uvicorn.error", "uvicorn.access"):
+        logger = logging.getLogger(name)
+        logger.handlers[:] = [handler]
+        logger.propagate = False
+    logging.getLogger("undertow").setLevel(level.upper())
+    logging.getLogger("uvicorn.access").setLevel(logging.WARNING)
 
 
 class RequestIdMiddleware:
