@@ -81,6 +81,20 @@ def test_delete_cancels_a_running_plan(api):
     assert again.status_code == 200 and again.json()["status"] == "cancelled"
 
 
+def test_delete_cancels_a_queued_plan_before_it_starts(api):
+    busy = [api.post("/v1/plans", json=two_link_scene(iterations=1000)).json()["id"]
+            for _ in range(2)]  # both workers
+    queued = api.post("/v1/plans", json=two_link_scene()).json()["id"]
+    r = api.delete(f"/v1/plans/{queued}")
+    assert r.status_code == 200 and r.json()["status"] == "cancelled"
+    for job_id in busy:
+        api.delete(f"/v1/plans/{job_id}")
+    assert {poll(api, job_id)["status"] for job_id in busy} == {"cancelled"}
+    time.sleep(0.3)  # the worker that takes the queued job up must skip it
+    job = api.get(f"/v1/plans/{queued}").json()
+    assert (job["status"], job["started"], job["plan"]) == ("cancelled", None, None)
+
+
 def test_delete_of_a_finished_plan_is_a_conflict(api):
     job = api.post("/v1/plans?wait=5", json=two_link_scene()).json()
     r = api.delete(f"/v1/plans/{job['id']}")
