@@ -41,7 +41,6 @@ RUN groupadd --gid 10001 undertow \
     && chown undertow:undertow /data
 COPY --from=builder /opt/venv /opt/venv
 WORKDIR /srv/undertow
-# The app writes its own JSON access log (with request ids), hence --no-access-log.
 # One uvicorn process per container: scale solves with UNDERTOW_WORKERS (processes) and
 # the service with more containers. UNDERTOW_INSTANCE names this server in the job store;
 # it stays fixed across container re-creation so that jobs a stopped container left
@@ -58,4 +57,4 @@ USER 10001:10001
 EXPOSE 8000
 HEALTHCHECK --interval=30s --timeout=5s --start-period=30s --retries=3 \
     CMD ["python", "-c", "import urllib.request; urllib.request.urlopen('http://127.0.0.1:8000/healthz', timeout=4)"]
-CMD ["uvicorn", "app.main:app", "--host", "0.0.0.0", "--port", "8000", "--no-access-log"]
+CMD ["uvicorn", "app.main:app", "--host", "0.0.0.0", "--port", "8000"]
