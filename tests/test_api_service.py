@@ -111,3 +111,18 @@ def test_metrics_count_requests_by_route_template_and_status(api):
     assert metric(text, 'undertow_http_request_duration_seconds_count{method="GET",'
                         'route="/v1/plans/{job_id}"}') >= 3
     assert 'undertow_jobs{state="queued"} 0.0' in text
+
+
+def test_settings_come_from_undertow_environment_variables(monkeypatch):
+    from pydantic import ValidationError
+
+    from app.settings import Settings
+
+    monkeypatch.setenv("UNDERTOW_WORKERS", "3")
+    monkeypatch.setenv("UNDERTOW_API_KEY", "k")
+    monkeypatch.setenv("UNDERTOW_MAX_HORIZON", "12.5")
+    settings = Settings()
+    assert (settings.workers, settings.api_key, settings.max_horizon) == (3, "k", 12.5)
+    monkeypatch.setenv("UNDERTOW_MAX_LINKS", "9")
+    with pytest.raises(ValidationError, match="max_links"):
+        Settings()

@@ -31,3 +31,12 @@ def test_every_error_response_is_a_problem():
                         method, path, status)
             if path != "/healthz":
                 assert "401" in operation["responses"], (method, path)
+
+
+def test_the_export_command_writes_the_document(tmp_path):
+    from app.openapi_export import main
+
+    target = tmp_path / "sub" / "openapi.json"
+    assert main([str(target)]) == 0
+    assert target.read_text() == render()
+    assert main([]) == 2
