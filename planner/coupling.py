@@ -22,7 +22,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from scipy.optimize import brentq, minimize, minimize_scalar
 
-from planner.dynamics import functions
+from planner.dynamics import derive, functions
 from planner.model import Robot, Structure, parameters
 
 MAX_POINTS = 200_000
@@ -199,31 +199,58 @@ def split_of(robot: Robot) -> Split:
 # --------------------------------------------------------------------------- batch evaluation
 
 
+def block_jacobian(s: Structure) -> ca.Function:
+    """dMpa(q, p): d vec(M_pa) / dq, (n_passive * n_active) x n, column-major vec."""
+    return _block_jacobian(s)
+
+
 @lru_cache(maxsize=64)
-def _mapped(structure: Structure, size: int) -> ca.Function:
-    """M_pa mapped over `size` configurations (columns); the parameters are shared."""
-    return functions(structure)["Mpa"].map(size)
+def _block_jacobian(s: Structure) -> ca.Function:
+    sym = derive(s)
+    mpa = sym.mass[s.passive_idx, s.active_idx]
+    return ca.Function("dMpa", [sym.q, sym.p], [ca.jacobian(ca.vec(mpa), sym.q)],
+                       ["q", "p"], ["dMpa"])
+
+
+@lru_cache(maxsize=128)
+def _mapped(s: Structure, name: str, size: int) -> ca.Function:
+    """A function of (q, p) mapped over `size` columns; a one-column p is shared."""
+    f = block_jacobian(s) if name == "dMpa" else functions(s)[name]
+    return f.map(size)
+
+
+def evaluate(s: Structure, name: str, configurations, p) -> np.ndarray:
+    """Evaluate function `name` (of q and p: "Mpa", "dMpa", "M", ...) at every configuration.
+
+    configurations: (K, n); p: one parameter vector (n_params,) or one per row (K, n_params).
+    Returns (K, rows, cols) of the function's output at each configuration.
+    """
+    Q = np.atleast_2d(np.asarray(configurations, dtype=float))
+    P = np.asarray(p, dtype=float)
+    K = Q.shape[0]
+    size = min(CHUNK, max(K, 1))
+    f = _mapped(s, name, size)
+    rows, cols = f.size_out(0)
+    cols //= size
+    out = np.empty((K, rows, cols))
+    for start in range(0, K, size):
+        stop = min(start + size, K)
+        args = [_pad(Q[start:stop], size).T,
+                P if P.ndim == 1 else _pad(P[start:stop], size).T]
+        flat = np.array(f(*args))  # (rows, cols * size): the outputs side by side
+        out[start:stop] = flat.reshape(rows, cols, size, order="F").transpose(2, 0, 1)[:stop - start]
+    return out
+
+
+def _pad(rows: np.ndarray, size: int) -> np.ndarray:
+    """Repeat the last row up to `size` rows."""
+    return rows if len(rows) == size else np.vstack([rows, np.repeat(rows[-1:], size - len(rows), 0)])
 
 
 def blocks(robot: Robot, configurations, structure: Structure | None = None) -> np.ndarray:
     """M_pa at every configuration: (K, n_passive, n_active) [kg m^2] for q of shape (K, n)."""
     s = structure or Structure.of(robot)
-    p = parameters(robot, s)
-    Q = np.atleast_2d(np.asarray(configurations, dtype=float))
-    rows, cols = len(s.passive_idx), len(s.active_idx)
-    K = Q.shape[0]
-    out = np.empty((K, rows, cols))
-    size = min(CHUNK, max(K, 1))
-    f = _mapped(s, size)
-    for start in range(0, K, size):
-        chunk = Q[start:start + size]
-        pad = size - len(chunk)
-        if pad:
-            chunk = np.vstack([chunk, np.repeat(chunk[-1:], pad, axis=0)])
-        flat = np.array(f(chunk.T, p))  # (rows, cols * size), blocks side by side
-        stacked = flat.reshape(rows, cols, size, order="F").transpose(2, 0, 1)
-        out[start:start + size - pad] = stacked[:size - pad] if pad else stacked
-    return out
+    return evaluate(s, "Mpa", configurations, parameters(robot, s))
 
 
 def measures(mpa: np.ndarray) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:

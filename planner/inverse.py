@@ -63,26 +63,34 @@ class InverseDynamicsRequest(BaseModel):
 
     @model_validator(mode="after")
     def _consistent(self) -> InverseDynamicsRequest:
-        check_split(self.robot)
-        check_prescribable(self.robot)
-        n_p, n_a = len(self.robot.passive), len(self.robot.active)
-        if self.passive_motion.n != n_p:
-            raise ValueError(f"passive_motion: needs {n_p} angles per time, one per passive joint")
-        if isinstance(self.passive_motion, SampledProfile) and not np.isclose(
-                self.passive_motion.t[-1], self.duration, rtol=1e-12, atol=0.0):
-            raise ValueError(f"passive_motion.t: must end at duration ({self.duration:g} s)")
-        if len(self.active_initial.q) != n_a or len(self.active_initial.dq) != n_a:
-            raise ValueError(f"active_initial: q and dq need {n_a} entries each, "
-                             "one per active joint")
+        check_motion(self.robot, self.passive_motion, self.duration, self.active_initial)
         return self
 
 
 def check_prescribable(robot: Robot) -> None:
-    """Raise ValueError when fewer active than passive joints make M_pa rank-deficient."""
+    """Raise ValueError when the robot has no passive joint, or too few active joints
+    for M_pa to have full row rank."""
+    check_split(robot)
     n_p, n_a = len(robot.passive), len(robot.active)
     if n_a < n_p:
         raise ValueError(f"robot: {n_a} active joints cannot prescribe the motion of "
                          f"{n_p} passive joints (M_pa never has full row rank)")
+
+
+def check_motion(robot: Robot, motion, duration: float, initial: ActiveState,
+                 prefix: str = "") -> None:
+    """Raise ValueError unless the motion and initial state fit the robot's joints."""
+    check_prescribable(robot)
+    n_p, n_a = len(robot.passive), len(robot.active)
+    if motion.n != n_p:
+        raise ValueError(f"{prefix}passive_motion: needs {n_p} angles per time, "
+                         "one per passive joint")
+    if isinstance(motion, SampledProfile) and not np.isclose(
+            motion.t[-1], duration, rtol=1e-12, atol=0.0):
+        raise ValueError(f"{prefix}passive_motion.t: must end at duration ({duration:g} s)")
+    if len(initial.q) != n_a or len(initial.dq) != n_a:
+        raise ValueError(f"{prefix}active_initial: q and dq need {n_a} entries each, "
+                         "one per active joint")
 
 
 class Singularity(BaseModel):

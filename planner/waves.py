@@ -1,0 +1,626 @@
+"""Certified wave design: a numerical form of the seed's Proposition 1.
+
+Every active joint j gets a wave r_j = l_j + a_j sin(n_j q_j + eps_j), with an amplitude
+0 <= a_j <= amplitude_max (and below the link length), an integer frequency
+1 <= n_j <= frequency_max and a free phase, so that sigma_min(M_pa) >= margin over a box
+of configurations, or along the motion that the inverse dynamics then produces. Waves
+already on the robot are replaced.
+
+How:
+1. Screening. For every frequency combination and a few phases per joint (full
+   amplitude), sigma_min is evaluated at the samples (box) or at the start (motion), and
+   the best candidates start an NLP.
+2. NLP (Ipopt). With the frequencies fixed, maximise s subject to
+   lambda_min(M_pa M_pa^T) >= s^2 at every sample, written as smooth constraints on
+   D = M_pa M_pa^T - s^2 I: D >= 0 (one passive joint), trace D >= 0 and det D >= 0 (two),
+   the leading principal minors of D >= 0 (more). Along a motion the samples are the
+   nodes of a collocation of the inverse dynamics whose active states are NLP variables
+   (passive rows M_pp ddq_p + M_pa ddq_a + h_p = 0 at the nodes, ddq_a piecewise linear).
+3. Certification, independent of the NLP's samples: a dense grid of the box with a
+   Lipschitz bound between grid points, or the inverse dynamics of `planner.inverse.solve`
+   at dense samples with a bound between samples. Where the dense check falls below the
+   NLP's bound, the worst configurations join the samples (or the time grid is refined
+   around the worst times) and the NLP is solved again (exchange method).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass, field
+from functools import lru_cache
+from typing import Literal
+
+import casadi as ca
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from planner.coupling import check_split, evaluate, measures
+from planner.dynamics import derive
+from planner.inverse import (ActiveState, InverseDynamicsRequest, InverseDynamicsResult,
+                             active_acceleration, check_motion, check_prescribable, solve)
+from planner.model import Robot, Structure, Wave, parameters, wave_slots
+from planner.profiles import PassiveMotion
+
+_STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+AMPLITUDE_FRACTION = 0.95
+"""Largest amplitude as a fraction of the link length (r stays >= 5 % of l)."""
+EXCHANGE_ROUNDS = 6
+"""Largest number of NLP solves per starting point (exchange iterations)."""
+EXCHANGE_TOL = 0.01
+"""The exchange stops when the dense minimum is within this fraction of the NLP bound."""
+_IPOPT = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "expand": True,
+          "ipopt.max_iter": 250, "ipopt.tol": 1e-9, "ipopt.acceptable_tol": 1e-6}
+
+
+# --------------------------------------------------------------------------- requests
+
+
+class Region(BaseModel):
+    """A box of configurations [rad], one bound per joint; lower == upper fixes a joint."""
+
+    model_config = _STRICT
+
+    lower: list[float] = Field(min_length=1)
+    upper: list[float] = Field(min_length=1)
+
+
+class Motion(BaseModel):
+    """A prescribed passive motion and the active joints' initial state (as for
+    `planner.inverse.InverseDynamicsRequest`)."""
+
+    model_config = _STRICT
+
+    passive_motion: PassiveMotion
+    duration: float = Field(gt=0.0, le=1e4, description="T [s]")
+    active_initial: ActiveState
+
+
+class WaveDesignRequest(BaseModel):
+    """Bounds of the waves and what they must keep regular: a region or a motion."""
+
+    model_config = _STRICT
+
+    robot: Robot
+    amplitude_max: float = Field(gt=0.0, description="largest amplitude a [m]")
+    frequency_max: int = Field(ge=1, le=12, description="largest integer frequency n")
+    margin: float = Field(gt=0.0, description="required sigma_min(M_pa) [kg m^2]")
+    region: Region | None = None
+    motion: Motion | None = None
+    starts: int = Field(default=4, ge=1, le=32, description="NLP starting points")
+    certification_points: int | None = Field(
+        default=None, ge=100, le=200_000,
+        description="dense check: grid points of the region (default 40,000) or "
+                    "inverse-dynamics samples of the motion (default 2,001)")
+
+    @model_validator(mode="after")
+    def _consistent(self) -> WaveDesignRequest:
+        check_split(self.robot)
+        check_prescribable(self.robot)
+        n = self.robot.n
+        if (self.region is None) == (self.motion is None):
+            raise ValueError("region: give exactly one of region and motion")
+        if self.region is not None:
+            if len(self.region.lower) != n or len(self.region.upper) != n:
+                raise ValueError(f"region: lower and upper need {n} entries each, one per joint")
+            if any(u < lo for lo, u in zip(self.region.lower, self.region.upper)):
+                raise ValueError("region.upper: every entry must be >= the matching entry "
+                                 "of lower")
+        else:
+            m = self.motion
+            check_motion(self.robot, m.passive_motion, m.duration, m.active_initial, "motion.")
+        return self
+
+
+class WaveSpec(BaseModel):
+    """The wave of one active joint (0-based index)."""
+
+    joint: int
+    amplitude: float
+    frequency: int
+    phase: float
+
+
+class WaveDesignResult(BaseModel):
+    """The designed waves, the certified smallest sigma_min [kg m^2] and how it was
+    certified. `robot` is the request's robot carrying these waves."""
+
+    status: Literal["certified", "infeasible"]
+    waves: list[WaveSpec]
+    certified_sigma_min: float
+    method: str
+    robot: Robot
+
+
+# --------------------------------------------------------------------------- symbolic pieces
+
+
+def wave_structure(robot: Robot) -> Structure:
+    """The robot's structure with wave terms on every active joint."""
+    return Structure.of(robot, wavy=tuple(link.joint == "active" for link in robot.links))
+
+
+def _with_waves(s: Structure, base, amplitude, frequency, phase) -> ca.MX:
+    """The parameter vector `base` with the active joints' (a, n, eps) put in their slots."""
+    entries = [base[i] for i in range(s.n_params)]
+    for k, (joint, slot) in enumerate(sorted(wave_slots(s).items())):
+        entries[slot:slot + 3] = [amplitude[k], frequency[k], phase[k]]
+    return ca.vertcat(*entries)
+
+
+def _bound(G, s2):
+    """Smooth constraints (all >= 0) equivalent to lambda_min(G) >= s2 for symmetric G."""
+    r = G.shape[0]
+    D = G - s2 * ca.SX.eye(r)
+    if r == 1:
+        return D
+    if r == 2:
+        return ca.vertcat(ca.trace(D), ca.det(D))
+    return ca.vertcat(*[ca.det(D[:k, :k]) for k in range(1, r + 1)])
+
+
+def _n_bound(s: Structure) -> int:
+    r = len(s.passive_idx)
+    return 1 if r == 1 else 2 if r == 2 else r
+
+
+@lru_cache(maxsize=16)
+def _sample_bound(s: Structure) -> ca.Function:
+    """bound(q, p, s2): the constraints of `_bound` for M_pa(q) M_pa(q)^T at one point."""
+    sym = derive(s)
+    mpa = sym.mass[s.passive_idx, s.active_idx]
+    s2 = ca.SX.sym("s2")
+    return ca.Function("bound", [sym.q, sym.p, s2], [_bound(ca.mtimes(mpa, mpa.T), s2)])
+
+
+def _decision(na: int):
+    return ca.MX.sym("a", na), ca.MX.sym("eps", na), ca.MX.sym("s")
+
+
+@lru_cache(maxsize=16)
+def _region_nlp(s: Structure, count: int) -> ca.Function:
+    """maximise s over (a, eps, s) s.t. the bound holds at `count` configurations."""
+    na = len(s.active_idx)
+    a, eps, sig = _decision(na)
+    base, freq = ca.MX.sym("p", s.n_params), ca.MX.sym("n", na)
+    Q = ca.MX.sym("Q", s.n, count)
+    p = _with_waves(s, base, a, freq, eps)
+    g = _sample_bound(s).map(count)(Q, p, sig**2)
+    nlp = {"x": ca.vertcat(a, eps, sig), "p": ca.vertcat(base, freq, ca.vec(Q)),
+           "f": -sig, "g": ca.vec(g)}
+    return ca.nlpsol("waves_region", "ipopt", nlp, _IPOPT)
+
+
+@lru_cache(maxsize=16)
+def _node(s: Structure) -> ca.Function:
+    """Passive-row residual and bound at one collocation node."""
+    sym = derive(s)
+    P, A = s.passive_idx, s.active_idx
+    na, npas = len(A), len(P)
+    z = ca.SX.sym("z", 3 * na + (npas if na > npas else 0))
+    qp, dqp, ddqp = ca.SX.sym("qp", npas), ca.SX.sym("dqp", npas), ca.SX.sym("ddqp", npas)
+    s2 = ca.SX.sym("s2")
+    q, dq = ca.SX.zeros(s.n), ca.SX.zeros(s.n)
+    q[P], q[A], dq[P], dq[A] = qp, z[:na], dqp, z[na:2 * na]
+    mass = ca.Function("Mh", [sym.q, sym.dq, sym.p], [sym.mass, sym.bias])
+    M, h = mass(q, dq, sym.p)
+    mpa = M[P, A]
+    ddqa = z[2 * na:3 * na]
+    residual = [ca.mtimes(M[P, P], ddqp) + ca.mtimes(mpa, ddqa) + h[P]]
+    if na > npas:  # minimum norm: ddq_a in the row space of M_pa
+        residual.append(ddqa - ca.mtimes(mpa.T, z[3 * na:]))
+    return ca.Function("node", [z, qp, dqp, ddqp, sym.p, s2],
+                       [ca.vertcat(*residual), _bound(ca.mtimes(mpa, mpa.T), s2)])
+
+
+def _interval(na: int, nz: int) -> ca.Function:
+    """Continuity of (q_a, dq_a) over one interval with ddq_a linear in time."""
+    z0, z1, h = ca.SX.sym("z0", nz), ca.SX.sym("z1", nz), ca.SX.sym("h")
+    q0, v0, a0 = z0[:na], z0[na:2 * na], z0[2 * na:3 * na]
+    q1, v1, a1 = z1[:na], z1[na:2 * na], z1[2 * na:3 * na]
+    return ca.Function("interval", [z0, z1, h], [ca.vertcat(
+        q1 - q0 - h * v0 - h**2 / 6 * (2 * a0 + a1), v1 - v0 - h / 2 * (a0 + a1))])
+
+
+@lru_cache(maxsize=16)
+def _motion_nlp(s: Structure, K: int) -> tuple[ca.Function, int]:
+    """maximise s over (a, eps, s, node states) along K intervals; returns (solver, nz)."""
+    na, npas = len(s.active_idx), len(s.passive_idx)
+    nz = 3 * na + (npas if na > npas else 0)
+    a, eps, sig = _decision(na)
+    Z = ca.MX.sym("Z", nz, K + 1)
+    base, freq = ca.MX.sym("p", s.n_params), ca.MX.sym("n", na)
+    QP, DQP, DDQP = (ca.MX.sym(name, npas, K + 1) for name in ("qp", "dqp", "ddqp"))
+    H, X0 = ca.MX.sym("h", 1, K), ca.MX.sym("x0", 2 * na)
+    p = _with_waves(s, base, a, freq, eps)
+    residual, bound = _node(s).map(K + 1)(Z, QP, DQP, DDQP, p, sig**2)
+    continuity = _interval(na, nz).map(K)(Z[:, :-1], Z[:, 1:], H)
+    g = ca.vertcat(Z[:2 * na, 0] - X0, ca.vec(residual), ca.vec(continuity), ca.vec(bound))
+    nlp = {"x": ca.vertcat(a, eps, sig, ca.vec(Z)), "f": -sig, "g": g,
+           "p": ca.vertcat(base, freq, ca.vec(QP), ca.vec(DQP), ca.vec(DDQP), H.T, X0)}
+    return ca.nlpsol("waves_motion", "ipopt", nlp, _IPOPT), nz
+
+
+# --------------------------------------------------------------------------- candidates
+
+
+@dataclass
+class Candidate:
+    """Waves of the active joints: amplitudes [m], integer frequencies, phases [rad]."""
+
+    amplitude: np.ndarray
+    frequency: np.ndarray
+    phase: np.ndarray
+    bound: float = 0.0  # the NLP's s, or the screening score
+    solved: bool = False  # the NLP converged
+    guess: np.ndarray | None = field(default=None, repr=False)  # NLP node states (motion)
+
+    def robot(self, base: Robot) -> Robot:
+        waves = {j: Wave(amplitude=float(a), frequency=float(n), phase=float(e))
+                 for j, a, n, e in zip(base.active, self.amplitude, self.frequency, self.phase)}
+        return base.with_waves(waves)
+
+    def specs(self, base: Robot) -> list[WaveSpec]:
+        return [WaveSpec(joint=j, amplitude=float(a), frequency=int(n), phase=float(e))
+                for j, a, n, e in zip(base.active, self.amplitude, self.frequency, self.phase)]
+
+
+def _wrap(phase: np.ndarray) -> np.ndarray:
+    """Phases in [-pi, pi)."""
+    return (np.asarray(phase) + np.pi) % (2 * np.pi) - np.pi
+
+
+def _candidates(na: int, frequency_max: int, amplitude: np.ndarray,
+                starts: int) -> list[Candidate]:
+    """Every frequency combination with `starts` evenly spaced phases per joint."""
+    phases = 2 * np.pi * np.arange(starts) / starts - np.pi
+    out = []
+    for freq in itertools.product(range(1, frequency_max + 1), repeat=na):
+        for phase in itertools.product(phases, repeat=na):
+            out.append(Candidate(amplitude.copy(), np.array(freq, float), np.array(phase)))
+    return out
+
+
+def _params(s: Structure, base: np.ndarray, cands: list[Candidate]) -> np.ndarray:
+    """One parameter vector per candidate (rows)."""
+    P = np.tile(base, (len(cands), 1))
+    for k, slot in enumerate(sorted(wave_slots(s).values())):
+        P[:, slot] = [c.amplitude[k] for c in cands]
+        P[:, slot + 1] = [c.frequency[k] for c in cands]
+        P[:, slot + 2] = [c.phase[k] for c in cands]
+    return P
+
+
+@dataclass
+class Certificate:
+    """Dense check of one design: the certified value, whether the exchange may stop, and
+    where to add samples."""
+
+    value: float
+    converged: bool
+    describe: str
+    worst: np.ndarray = field(default_factory=lambda: np.empty(0))
+
+
+# --------------------------------------------------------------------------- region
+
+
+class _RegionProblem:
+    """Keep sigma_min >= s over a box: samples, NLP and dense-grid certification."""
+
+    def __init__(self, request: WaveDesignRequest, s: Structure, base: Robot):
+        self.s, self.base = s, base
+        self.p = parameters(base, s)
+        lower, upper = np.array(request.region.lower), np.array(request.region.upper)
+        self.free = np.flatnonzero(upper > lower)
+        d = max(len(self.free), 1)
+        coarse = min(17, max(3, round(300 ** (1 / d))))
+        self.samples = _box_grid(lower, upper, coarse)
+        budget = request.certification_points or 40_000
+        self.dense_points = max(3, int(budget ** (1 / d)))
+        if self.dense_points == coarse:
+            self.dense_points += 1
+        self.dense = _box_grid(lower, upper, self.dense_points)
+        self.steps = (upper - lower) / (self.dense_points - 1)
+
+    def screen(self, cands: list[Candidate]) -> list[float]:
+        """Smallest sigma_min over the samples of each candidate."""
+        K = len(self.samples)
+        Q = np.tile(self.samples, (len(cands), 1))
+        P = np.repeat(_params(self.s, self.p, cands), K, axis=0)
+        smin = measures(evaluate(self.s, "Mpa", Q, P))[1]
+        return list(smin.reshape(len(cands), K).min(axis=1))
+
+    def optimise(self, c: Candidate, upper: np.ndarray) -> Candidate:
+        solver = _region_nlp(self.s, len(self.samples))
+        x0 = np.concatenate([c.amplitude, c.phase, [max(c.bound, 0.0)]])
+        par = np.concatenate([self.p, c.frequency, self.samples.ravel()])
+        sol = solver(x0=x0, p=par, lbx=_lbx(upper), ubx=_ubx(upper), lbg=0.0, ubg=np.inf)
+        x = np.array(sol["x"]).ravel()
+        return _candidate_from(solver, x, c.frequency, upper)
+
+    def certify(self, c: Candidate) -> Certificate:
+        """Dense-grid minimum minus the Lipschitz bound between grid points."""
+        p = _params(self.s, self.p, [c])[0]
+        smin = measures(evaluate(self.s, "Mpa", self.dense, p))[1]
+        jac = evaluate(self.s, "dMpa", self.dense, p)  # (K, r*c, n)
+        slope = np.sqrt((jac**2).sum(axis=1)).max(axis=0)  # largest |dM_pa/dq_i|_F
+        lipschitz = float((slope * self.steps / 2)[self.free].sum())
+        value = float(smin.min()) - lipschitz
+        order = np.argsort(smin)[:8]
+        converged = smin.min() >= c.bound * (1 - EXCHANGE_TOL)
+        shape = " x ".join(str(self.dense_points) for _ in self.free) or "1"
+        describe = (f"sigma_min evaluated on a dense {shape} grid of the region "
+                    f"({len(self.dense):,} points, independent of the "
+                    f"{len(self.samples)} optimisation samples); between grid points it "
+                    f"can fall by at most {lipschitz:.3g} (largest |dM_pa/dq_i| on the grid "
+                    f"times half the spacing), which the certified value subtracts")
+        return Certificate(value, bool(converged), describe, self.dense[order])
+
+    def exchange(self, cert: Certificate) -> None:
+        self.samples = np.vstack([self.samples, cert.worst])
+
+
+def _box_grid(lower: np.ndarray, upper: np.ndarray, points: int) -> np.ndarray:
+    axes = [np.array([lo]) if hi == lo else np.linspace(lo, hi, points)
+            for lo, hi in zip(lower, upper)]
+    return np.stack([m.ravel() for m in np.meshgrid(*axes, indexing="ij")], axis=1)
+
+
+def _lbx(upper: np.ndarray, extra: int = 0) -> np.ndarray:
+    na = len(upper)
+    return np.concatenate([np.zeros(na), -np.inf * np.ones(na), [0.0], -np.inf * np.ones(extra)])
+
+
+def _ubx(upper: np.ndarray, extra: int = 0) -> np.ndarray:
+    na = len(upper)
+    return np.concatenate([upper, np.inf * np.ones(na), [np.inf], np.inf * np.ones(extra)])
+
+
+def _candidate_from(solver: ca.Function, x: np.ndarray, frequency: np.ndarray,
+                    upper: np.ndarray, guess: np.ndarray | None = None) -> Candidate:
+    na = len(frequency)
+    solved = solver.stats()["return_status"] in ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+    return Candidate(np.clip(x[:na], 0.0, upper), frequency.copy(), _wrap(x[na:2 * na]),
+                     float(x[2 * na]), solved, guess)
+
+
+# --------------------------------------------------------------------------- motion
+
+
+class _MotionProblem:
+    """Keep sigma_min >= s along the inverse-dynamics motion: collocation NLP and a dense
+    inverse-dynamics check."""
+
+    LADDER = (40, 80, 160, 320)  # collocation intervals: few sizes, few NLP builds
+    SCREEN_STEPS = 100
+
+    def __init__(self, request: WaveDesignRequest, s: Structure, base: Robot):
+        self.s, self.base, self.motion = s, base, request.motion
+        self.p = parameters(base, s)
+        self.times = np.linspace(0.0, self.motion.duration, self.LADDER[0] + 1)
+        self.dense = request.certification_points or 2001
+        self.threshold = request.margin / 2
+
+    def screen(self, cands: list[Candidate]) -> list[float]:
+        """Score every candidate by a fixed-step RK4 inverse dynamics (all at once).
+
+        Score: the smallest sigma_min along a motion that keeps sigma_min >= margin / 2,
+        else the fraction of the duration reached minus one (negative).
+        """
+        steps, T = self.SCREEN_STEPS, self.motion.duration
+        t = np.linspace(0.0, T, 2 * steps + 1)
+        qp, dqp, ddqp = self.motion.passive_motion.evaluate(t, T)
+        stages = np.hstack([qp, dqp, ddqp])  # (2 steps + 1, 3 npas)
+        U = np.hstack([stages[0:-1:2], stages[1::2], stages[2::2]]).T  # (9 npas, steps)
+        init = self.motion.active_initial
+        x0 = np.concatenate([init.q, init.dq])
+        P = _params(self.s, self.p, cands)
+        X = np.array(_rollout(self.s, steps).map(len(cands))(x0, U, T / steps, P.T))
+        na, C = len(x0) // 2, len(cands)
+        q = np.empty((steps + 1, C, self.s.n))
+        q[:, :, self.s.passive_idx] = qp[0::2][:, None, :]
+        q[0, :, self.s.active_idx] = np.array(init.q)[:, None]
+        q[1:, :, self.s.active_idx] = X[:na].reshape(na, C, steps).transpose(2, 1, 0)
+        finite = np.isfinite(q).all(axis=2)
+        q[~finite] = 0.0
+        sigma = measures(evaluate(self.s, "Mpa", q.reshape(-1, self.s.n),
+                                  np.tile(P, (steps + 1, 1))))[1].reshape(steps + 1, C)
+        bad = (sigma < self.threshold) | ~finite
+        reached = np.where(bad.any(axis=0), bad.argmax(axis=0) / steps, 1.0)
+        return [float(sigma[:, k].min()) if reached[k] == 1.0 else float(reached[k] - 1.0)
+                for k in range(C)]
+
+    def inverse(self, c: Candidate, samples: int, rtol: float = 1e-10) -> InverseDynamicsResult:
+        m = self.motion
+        return solve(InverseDynamicsRequest(
+            robot=c.robot(self.base), passive_motion=m.passive_motion, duration=m.duration,
+            active_initial=m.active_initial, samples=samples, sigma_threshold=self.threshold,
+            rtol=rtol, atol=rtol))
+
+    def _guess(self, c: Candidate, nz: int) -> np.ndarray:
+        """Node states of the NLP: c's own, else from its inverse dynamics."""
+        Z = np.zeros((nz, len(self.times)))
+        if c.guess is not None and c.guess.shape[1] == len(self.times):
+            states = c.guess
+        else:
+            states = self._states(self.inverse(c, 4 * len(self.times), rtol=1e-8))
+        Z[:len(states)] = states
+        return Z
+
+    def _states(self, result: InverseDynamicsResult) -> np.ndarray:
+        """(q_a, dq_a, ddq_a) at the nodes, interpolated from an inverse-dynamics result;
+        held at rest after a singular stop."""
+        na, A = len(self.s.active_idx), self.s.active_idx
+        Z = np.zeros((3 * na, len(self.times)))
+        Z[:na] = np.array(self.motion.active_initial.q)[:, None]
+        if not result.t:
+            return Z
+        t = np.array(result.t)
+        for rows, arr in ((slice(0, na), np.array(result.q)[:, A]),
+                          (slice(na, 2 * na), np.array(result.dq)[:, A]),
+                          (slice(2 * na, 3 * na), np.array(result.ddq)[:, A])):
+            Z[rows] = np.array([np.interp(self.times, t, col) for col in arr.T])
+        Z[na:, self.times > t[-1]] = 0.0
+        return Z
+
+    def optimise(self, c: Candidate, upper: np.ndarray) -> Candidate:
+        K = len(self.times) - 1
+        solver, nz = _motion_nlp(self.s, K)
+        Z = self._guess(c, nz)
+        qp, dqp, ddqp = self.motion.passive_motion.evaluate(self.times, self.motion.duration)
+        x0 = np.concatenate([c.amplitude, c.phase, [max(c.bound, 0.0)], Z.ravel(order="F")])
+        init = self.motion.active_initial
+        par = np.concatenate([self.p, c.frequency, qp.T.ravel(order="F"),
+                              dqp.T.ravel(order="F"), ddqp.T.ravel(order="F"),
+                              np.diff(self.times), init.q, init.dq])
+        extra = Z.size
+        n_res = solver.size_out("g")[0] - (K + 1) * _n_bound(self.s)
+        lbg = np.concatenate([np.zeros(n_res), np.zeros((K + 1) * _n_bound(self.s))])
+        ubg = np.concatenate([np.zeros(n_res), np.inf * np.ones((K + 1) * _n_bound(self.s))])
+        sol = solver(x0=x0, p=par, lbx=_lbx(upper, extra), ubx=_ubx(upper, extra),
+                     lbg=lbg, ubg=ubg)
+        x = np.array(sol["x"]).ravel()
+        na = len(upper)
+        Z = x[2 * na + 1:].reshape(nz, K + 1, order="F")
+        return _candidate_from(solver, x, c.frequency, upper, Z)
+
+    def certify(self, c: Candidate) -> Certificate:
+        """Dense inverse-dynamics samples: their minimum minus the bound between samples."""
+        result = self.inverse(c, self.dense)
+        sigma = np.array(result.sigma_min)
+        if result.status != "completed" or len(sigma) == 0:
+            stop = result.singularity.time if result.singularity else 0.0
+            return Certificate(0.0, False, f"the inverse dynamics stopped at t = {stop:.4g} s",
+                               np.array([stop]))
+        q, dq = np.array(result.q), np.array(result.dq)
+        p = _params(self.s, self.p, [c])[0]
+        jac = evaluate(self.s, "dMpa", q, p)  # (K, r*c, n)
+        rate = np.sqrt((np.einsum("kij,kj->ki", jac, dq) ** 2).sum(axis=1)).max()
+        dt = self.motion.duration / (self.dense - 1)
+        value = float(sigma.min() - rate * dt / 2)
+        converged = sigma.min() >= c.bound * (1 - EXCHANGE_TOL)
+        t = np.array(result.t)
+        describe = (f"sigma_min evaluated at {self.dense:,} evenly spaced samples of the "
+                    f"inverse dynamics (DOP853, rtol = atol = 1e-10), independent of the "
+                    f"{len(self.times) - 1} collocation intervals of the NLP; between samples "
+                    f"it can fall by at most {rate * dt / 2:.3g} (largest |dM_pa/dt| times "
+                    f"half the spacing), which the certified value subtracts")
+        low = t[sigma < c.bound * (1 - EXCHANGE_TOL)]
+        return Certificate(value, bool(converged), describe, low)
+
+    def exchange(self, cert: Certificate) -> None:
+        """Halve the collocation intervals around the failing times (all of them when
+        none is given), then split the longest ones up to the next size of LADDER."""
+        t, K = self.times, len(self.times) - 1
+        k = np.clip(np.searchsorted(t, cert.worst) - 1, 0, K - 1)
+        split = np.zeros(K, bool)
+        for shift in (-1, 0, 1):
+            split[np.clip(k + shift, 0, K - 1)] = True
+        if not split.any():
+            split[:] = True
+        t = np.sort(np.concatenate([t, (t[:-1] + t[1:])[split] / 2]))
+        target = next((size for size in self.LADDER if size >= len(t) - 1), None)
+        if target is None:
+            return
+        while len(t) - 1 < target:
+            i = int(np.argmax(np.diff(t)))
+            t = np.insert(t, i + 1, (t[i] + t[i + 1]) / 2)
+        self.times = t
+
+
+@lru_cache(maxsize=16)
+def _rollout(s: Structure, steps: int) -> ca.Function:
+    """RK4 of the active state along tabulated passive stages: (x0, U, h, p) -> X.
+
+    U holds per step the passive (q, dq, ddq) at t, t + h/2 and t + h (9 n_passive rows);
+    X the active state (q_a, dq_a) after each step.
+    """
+    accel = active_acceleration(s)
+    P, A = s.passive_idx, s.active_idx
+    na, npas = len(A), len(P)
+    x, u = ca.SX.sym("x", 2 * na), ca.SX.sym("u", 9 * npas)
+    h, p = ca.SX.sym("h"), ca.SX.sym("p", s.n_params)
+
+    def f(state, stage):
+        qp, dqp, ddqp = (u[(3 * stage + i) * npas:(3 * stage + i + 1) * npas] for i in range(3))
+        q, dq = ca.SX.zeros(s.n), ca.SX.zeros(s.n)
+        q[P], q[A], dq[P], dq[A] = qp, state[:na], dqp, state[na:]
+        return ca.vertcat(state[na:], accel(q, dq, ddqp, p))
+
+    k1 = f(x, 0)
+    k2 = f(x + h / 2 * k1, 1)
+    k3 = f(x + h / 2 * k2, 1)
+    k4 = f(x + h * k3, 2)
+    step = ca.Function("step", [x, u, h, p], [x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)])
+    chain = step.mapaccum(steps)
+    X0, U = ca.MX.sym("x0", 2 * na), ca.MX.sym("U", 9 * npas, steps)
+    H, Pm = ca.MX.sym("h"), ca.MX.sym("p", s.n_params)
+    return ca.Function("rollout", [X0, U, H, Pm], [chain(X0, U, H, Pm)])
+
+
+# --------------------------------------------------------------------------- design
+
+
+def design(request: WaveDesignRequest) -> WaveDesignResult:
+    """Waves that keep sigma_min(M_pa) >= margin, certified on dense samples."""
+    base = request.robot.without_waves()
+    s = wave_structure(base)
+    upper = np.array([min(request.amplitude_max, AMPLITUDE_FRACTION * base.links[j].length)
+                      for j in base.active])
+    problem = (_RegionProblem if request.region is not None else _MotionProblem)(request, s, base)
+
+    cands = _candidates(len(upper), request.frequency_max, upper, _phases_per_joint(request))
+    scores = problem.screen(cands)
+    order = _diverse(cands, scores, request.starts)
+
+    best: tuple[Candidate, Certificate] | None = None
+    for k in order:
+        start = cands[k]
+        start.bound = float(scores[k])
+        c, cert = _exchange(problem, start, upper)
+        if best is None or cert.value > best[1].value:
+            best = (c, cert)
+    c, cert = best
+    status = "certified" if cert.value >= request.margin else "infeasible"
+    certified = max(cert.value, 0.0)
+    method = (f"For each of the {len(order)} best screened starts (integer frequencies "
+              f"1..{request.frequency_max}, {_phases_per_joint(request)} phases per joint), "
+              f"Ipopt maximised a lower bound on sigma_min(M_pa) at sample points, with "
+              f"exchange of the worst dense points; certified: {cert.describe}.")
+    return WaveDesignResult(status=status, waves=c.specs(base), certified_sigma_min=certified,
+                            method=method, robot=c.robot(base))
+
+
+def _phases_per_joint(request: WaveDesignRequest) -> int:
+    """Starting phases per joint: about 36 phase combinations per frequency combination."""
+    na = len(request.robot.active)
+    return max(2, min(8, math.floor(36 ** (1 / na) + 1e-9)))
+
+
+def _diverse(cands: list[Candidate], scores: list[float], count: int) -> list[int]:
+    """Indices of the `count` best candidates, the best of each frequency combination
+    first, so that the starts do not all fall into one basin."""
+    order = list(np.argsort(scores)[::-1])
+    seen, first, rest = set(), [], []
+    for k in order:
+        key = tuple(cands[k].frequency)
+        (rest if key in seen or scores[k] <= 0.0 else first).append(k)
+        seen.add(key)
+    return (first + rest)[:count]
+
+
+def _exchange(problem, start: Candidate, upper: np.ndarray) -> tuple[Candidate, Certificate]:
+    """Solve the NLP, certify, add the failing samples, solve again; keep the best certified."""
+    c = start
+    best: tuple[Candidate, Certificate] | None = None
+    for _ in range(EXCHANGE_ROUNDS):
+        c = problem.optimise(c, upper)
+        cert = problem.certify(c)
+        if best is None or cert.value > best[1].value:
+            best = (c, cert)
+        if cert.converged or not c.solved:
+            break
+        problem.exchange(cert)
+    return best
