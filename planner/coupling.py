@@ -272,7 +272,10 @@ def sigma_min(robot: Robot, configurations, structure: Structure | None = None) 
 
 
 def _condition(smin: np.ndarray, smax: np.ndarray) -> list[float | None]:
-    return [float(b / a) if a > 0.0 else None for a, b in zip(smin, smax)]
+    """sigma_max / sigma_min, None where it does not exist as a finite number."""
+    with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
+        ratio = smax / smin
+    return [float(c) if a > 0.0 and math.isfinite(c) else None for a, c in zip(smin, ratio)]
 
 
 # --------------------------------------------------------------------------- singular points
