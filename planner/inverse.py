@@ -73,8 +73,9 @@ def check_prescribable(robot: Robot) -> None:
     check_split(robot)
     n_p, n_a = len(robot.passive), len(robot.active)
     if n_a < n_p:
-        raise ValueError(f"robot: {n_a} active joints cannot prescribe the motion of "
-                         f"{n_p} passive joints (M_pa never has full row rank)")
+        raise ValueError(f"robot: fewer active joints ({n_a}) than passive joints ({n_p}): "
+                         "M_pa never has full row rank, so the passive motion cannot be "
+                         "prescribed")
 
 
 def check_motion(robot: Robot, motion, duration: float, initial: ActiveState,
@@ -83,14 +84,14 @@ def check_motion(robot: Robot, motion, duration: float, initial: ActiveState,
     check_prescribable(robot)
     n_p, n_a = len(robot.passive), len(robot.active)
     if motion.n != n_p:
-        raise ValueError(f"{prefix}passive_motion: needs {n_p} angles per time, "
-                         "one per passive joint")
+        raise ValueError(f"{prefix}passive_motion: needs {n_p} angle{'s' * (n_p > 1)} "
+                         "per time, one per passive joint")
     if isinstance(motion, SampledProfile) and not np.isclose(
             motion.t[-1], duration, rtol=1e-12, atol=0.0):
         raise ValueError(f"{prefix}passive_motion.t: must end at duration ({duration:g} s)")
     if len(initial.q) != n_a or len(initial.dq) != n_a:
-        raise ValueError(f"{prefix}active_initial: q and dq need {n_a} entries each, "
-                         "one per active joint")
+        raise ValueError(f"{prefix}active_initial: q and dq need {n_a} "
+                         f"entr{'ies' if n_a > 1 else 'y'} each, one per active joint")
 
 
 class Singularity(BaseModel):
