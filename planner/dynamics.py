@@ -9,6 +9,7 @@ zero inertia. Functions are cached per `Structure`, the numbers enter as paramet
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -150,30 +151,58 @@ class Coupling:
     """Measures of the inertial coupling block M_pa at one configuration.
 
     det: determinant (square M_pa only, else None); sigma_min, sigma_max: extreme
-    singular values; condition: sigma_max / sigma_min (None where sigma_min == 0).
+    singular values [kg m^2], sigma_min = 0 when M_pa has more rows than columns (it
+    cannot have full row rank); condition: sigma_max / sigma_min (None where sigma_min is
+    0 or so small that the ratio overflows).
+    A robot without passive joints has an empty M_pa: no passive row constrains the
+    active accelerations, so there is no singularity to measure. Then det, sigma_min and
+    sigma_max are None (undefined) and condition is 1.0 (trivially well conditioned).
+    Every value is finite or None.
     """
 
     det: float | None
-    sigma_min: float
-    sigma_max: float
+    sigma_min: float | None
+    sigma_max: float | None
     condition: float | None
 
 
 def coupling_measures(mpa: np.ndarray) -> Coupling:
-    """det, extreme singular values and condition number of a coupling block."""
+    """det, extreme singular values and condition number of a coupling block (see Coupling)."""
     rows, cols = mpa.shape
     if rows == 0:
-        return Coupling(det=None, sigma_min=float("inf"), sigma_max=float("inf"), condition=1.0)
+        return Coupling(det=None, sigma_min=None, sigma_max=None, condition=1.0)
     sv = np.linalg.svd(mpa, compute_uv=False)
-    smin = float(sv[-1]) if len(sv) == min(rows, cols) and rows <= cols else 0.0
+    smin = float(sv[-1]) if rows <= cols else 0.0
     smax = float(sv[0])
     det = float(np.linalg.det(mpa)) if rows == cols else None
+    condition = smax / smin if smin > 0.0 else math.inf
     return Coupling(det=det, sigma_min=smin, sigma_max=smax,
-                    condition=smax / smin if smin > 0.0 else None)
+                    condition=condition if math.isfinite(condition) else None)
+
+
+def _vector(name: str, value, size: int, per: str) -> np.ndarray:
+    """`value` as a float vector of `size` finite entries; ValueError naming `name` if not."""
+    try:
+        v = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: must be a list of numbers") from None
+    if v.ndim > 1:
+        raise ValueError(f"{name}: must be a flat list of numbers (got shape {v.shape})")
+    if v.size != size:
+        entries = "entry" if size == 1 else "entries"
+        raise ValueError(f"{name}: needs {size} {entries}, one per {per} (got {v.size})")
+    if not np.all(np.isfinite(v)):
+        raise ValueError(f"{name}: every entry must be a finite number (got {v.tolist()})")
+    return v.reshape(size)
 
 
 class Dynamics:
-    """Numpy-facing dynamics of one robot (vectors in, arrays out; SI units)."""
+    """Numpy-facing dynamics of one robot (vectors in, arrays out; SI units).
+
+    q [rad], dq [rad/s] and ddq [rad/s^2] need one finite entry per joint, tau [N m] one
+    per active joint (a plain sequence or a 1-D array); anything else raises ValueError
+    naming the argument, e.g. "q: needs 2 entries, one per joint (got 1)".
+    """
 
     def __init__(self, robot: Robot, structure: Structure | None = None):
         self.robot = robot
@@ -182,40 +211,54 @@ class Dynamics:
         self.f = functions(self.structure)
         self.B = selection(self.structure)
 
+    def _joints(self, name: str, value) -> np.ndarray:
+        return _vector(name, value, self.structure.n, "joint")
+
     def mass_matrix(self, q) -> np.ndarray:
         """M(q) [kg m^2], n x n."""
-        return np.array(self.f["M"](q, self.p))
+        return np.array(self.f["M"](self._joints("q", q), self.p))
 
     def bias(self, q, dq) -> np.ndarray:
         """h(q, dq) [N m]: Coriolis, centrifugal and gravity terms."""
-        return np.array(self.f["h"](q, dq, self.p)).ravel()
+        return np.array(self.f["h"](self._joints("q", q), self._joints("dq", dq), self.p)).ravel()
 
     def gravity(self, q) -> np.ndarray:
         """Gravity term dV/dq [N m]."""
-        return np.array(self.f["gravity"](q, self.p)).ravel()
+        return np.array(self.f["gravity"](self._joints("q", q), self.p)).ravel()
 
     def energy(self, q, dq) -> tuple[float, float]:
         """Kinetic and potential energy [J]."""
-        T, V = self.f["energy"](q, dq, self.p)
+        T, V = self.f["energy"](self._joints("q", q), self._joints("dq", dq), self.p)
         return float(T), float(V)
 
     def tips(self, q) -> np.ndarray:
         """Tip position of every link, n x 2 [m]."""
-        return np.array(self.f["tips"](q, self.p)).T
+        return np.array(self.f["tips"](self._joints("q", q), self.p)).T
 
     def forward(self, q, dq, tau) -> np.ndarray:
-        """Joint accelerations [rad/s^2] for the active torques tau [N m]."""
-        return np.array(self.f["fd"](q, dq, tau, self.p)).ravel()
+        """Joint accelerations [rad/s^2] for the active torques tau [N m].
+
+        Raises ValueError where they are not finite: M(q) numerically singular (masses,
+        lengths and inertias spanning too many orders of magnitude) or values too large.
+        """
+        tau = _vector("tau", tau, len(self.structure.active_idx), "active joint")
+        ddq = np.array(self.f["fd"](self._joints("q", q), self._joints("dq", dq), tau,
+                                    self.p)).ravel()
+        if not np.all(np.isfinite(ddq)):
+            raise ValueError("the accelerations are not finite at this state: M(q) is "
+                             "numerically singular or the values are too large")
+        return ddq
 
     def inverse(self, q, dq, ddq) -> np.ndarray:
         """Generalized forces M ddq + h [N m]."""
-        return np.array(self.f["id"](q, dq, ddq, self.p)).ravel()
+        return np.array(self.f["id"](self._joints("q", q), self._joints("dq", dq),
+                                     self._joints("ddq", ddq), self.p)).ravel()
 
     def coupling_block(self, q) -> np.ndarray:
-        """M_pa(q): passive rows, active columns of M."""
-        return np.array(self.f["Mpa"](q, self.p)).reshape(
+        """M_pa(q) [kg m^2]: passive rows, active columns of M."""
+        return np.array(self.f["Mpa"](self._joints("q", q), self.p)).reshape(
             len(self.structure.passive_idx), len(self.structure.active_idx))
 
     def coupling(self, q) -> Coupling:
-        """det, sigma_min and condition of M_pa(q)."""
+        """det, extreme singular values and condition of M_pa(q) (see Coupling)."""
         return coupling_measures(self.coupling_block(q))

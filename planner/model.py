@@ -3,6 +3,9 @@
 A robot is a planar chain of 1 to 8 links. Link i is the vector r_i(q_i) e(q_i) with
 r_i = l_i + a_i sin(n_i q_i + eps_i), q_i the absolute angle measured from gravity.
 A point mass sits at the tip of every link. SI units throughout.
+
+Every number is bounded to a physically sane range (the `MIN_`/`MAX_` constants) so that
+M, h, the energies and the tips of a valid robot are finite at any moderate state.
 """
 
 from __future__ import annotations
@@ -11,9 +14,15 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator
 
 MAX_LINKS = 8
+MIN_LENGTH, MAX_LENGTH = 1e-4, 1e3  # m
+MIN_MASS, MAX_MASS = 1e-6, 1e6  # kg
+MAX_INERTIA = 1e6  # kg m^2
+MAX_GRAVITY = 1e3  # m/s^2
+MAX_FREQUENCY = 100.0  # periods per turn
+MAX_PHASE = 1e3  # rad
 
 _FINITE = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
@@ -24,8 +33,10 @@ class Wave(BaseModel):
     model_config = _FINITE
 
     amplitude: float = Field(ge=0.0, description="a [m], 0 <= a < link length")
-    frequency: float = Field(ge=0.0, description="n [1/rad], waves per radian of joint angle")
-    phase: float = Field(default=0.0, description="eps [rad]")
+    frequency: float = Field(
+        ge=0.0, le=MAX_FREQUENCY,
+        description="n [-], periods of the wave per full turn (2 pi rad) of the joint angle")
+    phase: float = Field(default=0.0, ge=-MAX_PHASE, le=MAX_PHASE, description="eps [rad]")
 
 
 class Link(BaseModel):
@@ -33,24 +44,30 @@ class Link(BaseModel):
 
     model_config = _FINITE
 
-    length: float = Field(gt=0.0, description="l [m]")
-    mass: float = Field(gt=0.0, description="point mass at the tip [kg]")
-    inertia: float = Field(default=0.0, ge=0.0, description="rotational inertia [kg m^2]")
+    length: float = Field(ge=MIN_LENGTH, le=MAX_LENGTH, description="l [m]")
+    mass: float = Field(ge=MIN_MASS, le=MAX_MASS, description="point mass at the tip [kg]")
+    inertia: float = Field(default=0.0, ge=0.0, le=MAX_INERTIA,
+                           description="rotational inertia [kg m^2]")
     joint: Literal["passive", "active"]
     wave: Wave | None = None
 
-    @model_validator(mode="after")
-    def _wave_fits(self) -> Link:
-        if self.wave is None:
-            return self
-        if self.joint == "passive":
-            raise ValueError("wave: a passive joint cannot carry a wave")
-        if self.wave.amplitude >= self.length:
-            raise ValueError(
-                f"wave.amplitude: must be smaller than the link length "
-                f"({self.wave.amplitude:g} >= {self.length:g})"
-            )
-        return self
+    @field_validator("wave")
+    @classmethod
+    def _wave_fits(cls, wave: Wave | None, info: ValidationInfo) -> Wave | None:
+        """Only an active joint carries a wave, and r = l + a sin(...) stays positive.
+
+        `joint` and `length` are validated first; one that failed is absent from
+        `info.data` and its own error is reported instead.
+        """
+        if wave is None:
+            return wave
+        if info.data.get("joint") == "passive":
+            raise ValueError("a passive joint cannot carry a wave")
+        length = info.data.get("length")
+        if length is not None and wave.amplitude >= length:
+            raise ValueError(f"amplitude: must be smaller than the link length "
+                             f"({wave.amplitude:g} >= {length:g})")
+        return wave
 
     @property
     def wavy(self) -> bool:
@@ -64,14 +81,15 @@ class Robot(BaseModel):
     model_config = _FINITE
 
     links: list[Link] = Field(min_length=1, max_length=MAX_LINKS)
-    gravity: float = Field(default=0.0, ge=0.0, description="g [m/s^2] along +x")
+    gravity: float = Field(default=0.0, ge=0.0, le=MAX_GRAVITY, description="g [m/s^2] along +x")
     rotational_inertia: Literal["cumulative", "absolute"] = "cumulative"
 
-    @model_validator(mode="after")
-    def _has_active_joint(self) -> Robot:
-        if not any(link.joint == "active" for link in self.links):
-            raise ValueError("links: at least one joint must be active")
-        return self
+    @field_validator("links")
+    @classmethod
+    def _has_active_joint(cls, links: list[Link]) -> list[Link]:
+        if not any(link.joint == "active" for link in links):
+            raise ValueError("at least one joint must be active")
+        return links
 
     @property
     def n(self) -> int:

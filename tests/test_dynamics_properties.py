@@ -9,6 +9,8 @@ structure without gravity, waves or inertia builds fewer expression nodes.
 
 from __future__ import annotations
 
+import json
+from dataclasses import asdict
 from functools import cache
 
 import casadi as ca
@@ -16,8 +18,20 @@ import numpy as np
 import pytest
 from conftest import point_mass_dynamics, random_robot, random_state, seed_arm
 
-from planner.dynamics import Dynamics, functions
-from planner.model import Robot, Structure, parameters
+from planner.dynamics import Coupling, Dynamics, coupling_measures, functions
+from planner.model import (
+    MAX_FREQUENCY,
+    MAX_GRAVITY,
+    MAX_INERTIA,
+    MAX_LENGTH,
+    MAX_MASS,
+    MAX_PHASE,
+    MIN_LENGTH,
+    MIN_MASS,
+    Robot,
+    Structure,
+    parameters,
+)
 
 RTOL = 1e-12
 SIZES = [1, 2, 3, 5, 8]
@@ -194,3 +208,152 @@ def test_inertia_costs_nodes():
     for link in doc["links"]:
         link["inertia"] = 0.0
     assert nodes(Robot.model_validate(doc))["M"] < nodes(seed_arm())["M"]
+
+
+# --------------------------------------------------------------------------- argument checks
+
+def two_link() -> Robot:
+    """Passive joint 0, active joint 1 carrying a wave."""
+    return Robot.model_validate({"links": [
+        {"length": 0.5, "mass": 1.0, "joint": "passive"},
+        {"length": 0.4, "mass": 0.5, "joint": "active",
+         "wave": {"amplitude": 0.05, "frequency": 3.0}}]})
+
+
+Q, DQ, DDQ, TAU = [0.1, 0.2], [0.3, -0.4], [1.0, 2.0], [0.5]
+CALLS = {  # method, arguments, index of the argument to spoil, its name, entries needed
+    "mass_matrix q": ("mass_matrix", [Q], 0, "q", "2 entries, one per joint"),
+    "bias q": ("bias", [Q, DQ], 0, "q", "2 entries, one per joint"),
+    "bias dq": ("bias", [Q, DQ], 1, "dq", "2 entries, one per joint"),
+    "gravity q": ("gravity", [Q], 0, "q", "2 entries, one per joint"),
+    "energy dq": ("energy", [Q, DQ], 1, "dq", "2 entries, one per joint"),
+    "tips q": ("tips", [Q], 0, "q", "2 entries, one per joint"),
+    "forward q": ("forward", [Q, DQ, TAU], 0, "q", "2 entries, one per joint"),
+    "forward tau": ("forward", [Q, DQ, TAU], 2, "tau", "1 entry, one per active joint"),
+    "inverse ddq": ("inverse", [Q, DQ, DDQ], 2, "ddq", "2 entries, one per joint"),
+    "coupling q": ("coupling", [Q], 0, "q", "2 entries, one per joint"),
+}
+
+
+def call(case: str, value):
+    method, args, k, _, _ = CALLS[case]
+    args = list(args)
+    args[k] = value
+    return getattr(Dynamics(two_link()), method)(*args)
+
+
+@pytest.mark.parametrize("case", CALLS)
+@pytest.mark.parametrize("size", [0, 1, 3])
+def test_a_vector_of_the_wrong_length_is_refused(case, size):
+    _, args, k, name, needs = CALLS[case]
+    if size == len(args[k]):
+        size += 1
+    with pytest.raises(ValueError) as info:
+        call(case, [0.1] * size)
+    assert str(info.value) == f"{name}: needs {needs} (got {size})"
+
+
+@pytest.mark.parametrize("case", CALLS)
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_a_non_finite_entry_is_refused(case, bad):
+    _, args, k, name, _ = CALLS[case]
+    value = [bad] + list(args[k][1:])
+    with pytest.raises(ValueError) as info:
+        call(case, value)
+    assert str(info.value) == f"{name}: every entry must be a finite number (got {value})"
+
+
+def test_matrices_and_text_are_refused():
+    dyn = Dynamics(two_link())
+    with pytest.raises(ValueError, match=r"^q: must be a flat list of numbers \(got shape \(2, 1\)\)$"):
+        dyn.mass_matrix([[0.1], [0.2]])
+    with pytest.raises(ValueError, match="^dq: must be a list of numbers$"):
+        dyn.bias(Q, ["fast", "slow"])
+
+
+def test_a_one_joint_robot_takes_plain_numbers():
+    robot = Robot.model_validate({"links": [{"length": 0.5, "mass": 1.0, "joint": "active"}],
+                                  "gravity": 9.81})
+    dyn = Dynamics(robot)
+    assert dyn.forward(0.3, 0.1, 2.0) == pytest.approx(dyn.forward([0.3], [0.1], [2.0]), rel=1e-15)
+    assert dyn.forward(0.3, 0.1, 2.0)[0] == pytest.approx((2.0 - 9.81 * 0.5 * np.sin(0.3)) / 0.25)
+
+
+def corner_robots(rng: np.random.Generator, count: int):
+    """Robots with every number at a bound of planner.model (waves at 0.999 of the length)."""
+    for _ in range(count):
+        n = int(rng.integers(1, 5))
+        active = rng.random(n) < 0.5
+        active[rng.integers(n)] = True
+        links = []
+        for k in range(n):
+            length = float(rng.choice([MIN_LENGTH, MAX_LENGTH]))
+            link = {"length": length, "mass": float(rng.choice([MIN_MASS, MAX_MASS])),
+                    "inertia": float(rng.choice([0.0, MAX_INERTIA])),
+                    "joint": "active" if active[k] else "passive"}
+            if active[k]:
+                link["wave"] = {"amplitude": 0.999 * length, "frequency": MAX_FREQUENCY,
+                                "phase": float(rng.choice([-MAX_PHASE, MAX_PHASE]))}
+            links.append(link)
+        yield Robot.model_validate({"links": links, "gravity": float(rng.choice([0.0, MAX_GRAVITY])),
+                                    "rotational_inertia": str(rng.choice(["cumulative", "absolute"]))})
+
+
+def test_robots_at_the_bounds_give_finite_values_or_a_clear_error(rng):
+    """M, h, G, energies, tips and M_pa stay finite; forward dynamics is finite or refused."""
+    for robot in corner_robots(rng, 60):
+        dyn = Dynamics(robot)
+        q, dq = random_state(rng, robot.n, speed=10.0)
+        values = [dyn.mass_matrix(q), dyn.bias(q, dq), dyn.gravity(q), dyn.energy(q, dq),
+                  dyn.tips(q), dyn.coupling_block(q)]
+        assert all(np.all(np.isfinite(v)) for v in values), robot.model_dump_json()
+        try:
+            assert np.all(np.isfinite(dyn.forward(q, dq, np.ones(len(robot.active)))))
+        except ValueError as error:
+            assert str(error).startswith("the accelerations are not finite at this state")
+
+
+def test_a_numerically_singular_mass_matrix_is_refused_not_answered_with_nan():
+    """1e6 kg m^2 on the active link (cumulative) swamps the 1e-14 kg m^2 of the point masses."""
+    robot = Robot.model_validate({"links": [
+        {"length": MIN_LENGTH, "mass": MIN_MASS, "joint": "passive"},
+        {"length": MIN_LENGTH, "mass": MIN_MASS, "inertia": MAX_INERTIA, "joint": "active"}]})
+    dyn = Dynamics(robot)
+    assert np.linalg.cond(dyn.mass_matrix(Q)) > 1e15
+    with pytest.raises(ValueError) as info:
+        dyn.forward(Q, DQ, TAU)
+    assert str(info.value) == ("the accelerations are not finite at this state: M(q) is "
+                               "numerically singular or the values are too large")
+
+
+# --------------------------------------------------------------------------- coupling measures
+
+def test_a_robot_without_passive_joints_has_no_coupling_measures_but_finite_json():
+    robot = Robot.model_validate({"links": [{"length": 0.5, "mass": 1.0, "joint": "active"}] * 2})
+    coupling = Dynamics(robot).coupling(Q)
+    assert coupling == Coupling(det=None, sigma_min=None, sigma_max=None, condition=1.0)
+    assert json.loads(json.dumps(asdict(coupling), allow_nan=False))["sigma_min"] is None
+
+
+def test_coupling_measures_agree_with_numpy(rng):
+    square = rng.normal(size=(2, 2))
+    wide = rng.normal(size=(2, 3))
+    sv = np.linalg.svd(square, compute_uv=False)
+    assert coupling_measures(square) == Coupling(det=pytest.approx(np.linalg.det(square), rel=1e-14),
+                                                 sigma_min=pytest.approx(sv[1], rel=1e-14),
+                                                 sigma_max=pytest.approx(sv[0], rel=1e-14),
+                                                 condition=pytest.approx(sv[0] / sv[1], rel=1e-14))
+    sv = np.linalg.svd(wide, compute_uv=False)
+    c = coupling_measures(wide)
+    assert (c.det, c.sigma_min, c.sigma_max) == (None, pytest.approx(sv[1]), pytest.approx(sv[0]))
+
+
+@pytest.mark.parametrize(("block", "sigma_min"), [
+    (np.ones((2, 1)), 0.0),              # more passive than active joints: no full row rank
+    (np.zeros((1, 2)), 0.0),             # a zero block
+    (np.diag([1e300, 1e-10]), 1e-10),    # sigma_max / sigma_min overflows
+])
+def test_condition_is_none_where_it_is_undefined_or_overflows(block, sigma_min):
+    c = coupling_measures(block)
+    assert (c.sigma_min, c.condition) == (pytest.approx(sigma_min, rel=1e-14), None)
+    assert json.dumps(asdict(c), allow_nan=False)

@@ -1,8 +1,9 @@
 """Every validation rule of planner.model.Robot: the error's location and exact message.
 
 Each case edits a valid two-link robot document in one place and expects exactly one
-error. Model-level rules (a wave that does not fit its link, no active joint) are
-reported at the enclosing model with the field named at the start of the message.
+error. Rules that read other fields are reported at the field they check: a wave that
+does not fit its link at the link's `wave` (naming `amplitude` at the start of the
+message), a robot without an active joint at `links`.
 """
 
 from __future__ import annotations
@@ -13,7 +14,18 @@ from collections.abc import Callable
 import pytest
 from pydantic import ValidationError
 
-from planner.model import MAX_LINKS, Robot
+from planner.model import (
+    MAX_FREQUENCY,
+    MAX_GRAVITY,
+    MAX_INERTIA,
+    MAX_LENGTH,
+    MAX_LINKS,
+    MAX_MASS,
+    MAX_PHASE,
+    MIN_LENGTH,
+    MIN_MASS,
+    Robot,
+)
 
 Doc = dict
 
@@ -47,28 +59,49 @@ def drop(path: tuple) -> Callable[[Doc], Doc]:
     return apply
 
 
-GT0 = "Input should be greater than 0"
 GE0 = "Input should be greater than or equal to 0"
+GE_LENGTH = "Input should be greater than or equal to 0.0001"
+LE_LENGTH = "Input should be less than or equal to 1000"
+GE_MASS = "Input should be greater than or equal to 0.000001"
+LE_MASS = "Input should be less than or equal to 1000000"
 FINITE = "Input should be a finite number"
 EXTRA = "Extra inputs are not permitted"
 
 CASES = {
-    "zero length": (edit(("links", 0, "length"), 0.0), ("links", 0, "length"), GT0),
-    "negative length": (edit(("links", 1, "length"), -0.4), ("links", 1, "length"), GT0),
-    "zero mass": (edit(("links", 1, "mass"), 0.0), ("links", 1, "mass"), GT0),
-    "negative mass": (edit(("links", 0, "mass"), -1.0), ("links", 0, "mass"), GT0),
+    "zero length": (edit(("links", 0, "length"), 0.0), ("links", 0, "length"), GE_LENGTH),
+    "negative length": (edit(("links", 1, "length"), -0.4), ("links", 1, "length"), GE_LENGTH),
+    "length below 0.1 mm": (edit(("links", 0, "length"), 0.99e-4), ("links", 0, "length"), GE_LENGTH),
+    "tiny length": (edit(("links", 0, "length"), 1e-200), ("links", 0, "length"), GE_LENGTH),
+    "length above 1 km": (edit(("links", 0, "length"), 1000.1), ("links", 0, "length"), LE_LENGTH),
+    "huge length": (edit(("links", 1, "length"), 1e200), ("links", 1, "length"), LE_LENGTH),
+    "zero mass": (edit(("links", 1, "mass"), 0.0), ("links", 1, "mass"), GE_MASS),
+    "negative mass": (edit(("links", 0, "mass"), -1.0), ("links", 0, "mass"), GE_MASS),
+    "tiny mass": (edit(("links", 0, "mass"), 1e-200), ("links", 0, "mass"), GE_MASS),
+    "huge mass": (edit(("links", 1, "mass"), 1e200), ("links", 1, "mass"), LE_MASS),
     "negative inertia": (edit(("links", 0, "inertia"), -0.01), ("links", 0, "inertia"), GE0),
+    "huge inertia": (edit(("links", 0, "inertia"), 1.01e6), ("links", 0, "inertia"),
+                     "Input should be less than or equal to 1000000"),
     "negative amplitude": (edit(("links", 1, "wave", "amplitude"), -0.05),
                            ("links", 1, "wave", "amplitude"), GE0),
     "negative frequency": (edit(("links", 1, "wave", "frequency"), -3.0),
                            ("links", 1, "wave", "frequency"), GE0),
+    "frequency above 100": (edit(("links", 1, "wave", "frequency"), 100.5),
+                            ("links", 1, "wave", "frequency"), "Input should be less than or equal to 100"),
+    "phase above 1000": (edit(("links", 1, "wave", "phase"), 1000.5), ("links", 1, "wave", "phase"),
+                         "Input should be less than or equal to 1000"),
+    "phase below -1000": (edit(("links", 1, "wave", "phase"), -1e200), ("links", 1, "wave", "phase"),
+                          "Input should be greater than or equal to -1000"),
     "negative gravity": (edit(("gravity",), -9.81), ("gravity",), GE0),
+    "gravity above 1000": (edit(("gravity",), 1e4), ("gravity",),
+                           "Input should be less than or equal to 1000"),
     "amplitude equal to length": (
-        edit(("links", 1, "wave", "amplitude"), 0.4), ("links", 1),
-        "Value error, wave.amplitude: must be smaller than the link length (0.4 >= 0.4)"),
+        edit(("links", 1, "wave", "amplitude"), 0.4), ("links", 1, "wave"),
+        "Value error, amplitude: must be smaller than the link length (0.4 >= 0.4)"),
     "amplitude above length": (
-        edit(("links", 1, "wave", "amplitude"), 0.45), ("links", 1),
-        "Value error, wave.amplitude: must be smaller than the link length (0.45 >= 0.4)"),
+        edit(("links", 1, "wave", "amplitude"), 0.45), ("links", 1, "wave"),
+        "Value error, amplitude: must be smaller than the link length (0.45 >= 0.4)"),
+    "amplitude above an invalid length": (
+        edit(("links", 1, "length"), 1e-5), ("links", 1, "length"), GE_LENGTH),
     "nan length": (edit(("links", 0, "length"), math.nan), ("links", 0, "length"), FINITE),
     "inf mass": (edit(("links", 1, "mass"), math.inf), ("links", 1, "mass"), FINITE),
     "-inf inertia": (edit(("links", 0, "inertia"), -math.inf), ("links", 0, "inertia"), FINITE),
@@ -80,12 +113,14 @@ CASES = {
     "inf gravity": (edit(("gravity",), math.inf), ("gravity",), FINITE),
     "nan as a string": (edit(("links", 0, "length"), "nan"), ("links", 0, "length"), FINITE),
     "wave on a passive joint": (
-        edit(("links", 0, "wave"), {"amplitude": 0.05, "frequency": 2.0}), ("links", 0),
-        "Value error, wave: a passive joint cannot carry a wave"),
-    "no active joint": (lambda doc: edit(("links", 1, "joint"), "passive")(drop(("links", 1, "wave"))(doc)), (),
-                        "Value error, links: at least one joint must be active"),
-    "unknown joint kind": (edit(("links", 1, "joint"), "free"), ("links", 1, "joint"),
-                           "Input should be 'passive' or 'active'"),
+        edit(("links", 0, "wave"), {"amplitude": 0.05, "frequency": 2.0}), ("links", 0, "wave"),
+        "Value error, a passive joint cannot carry a wave"),
+    "wave on an unknown joint kind": (edit(("links", 1, "joint"), "free"), ("links", 1, "joint"),
+                                      "Input should be 'passive' or 'active'"),
+    "no active joint": (lambda doc: edit(("links", 1, "joint"), "passive")(drop(("links", 1, "wave"))(doc)),
+                        ("links",), "Value error, at least one joint must be active"),
+    "unknown joint kind": (lambda doc: edit(("links", 1, "joint"), "free")(drop(("links", 1, "wave"))(doc)),
+                           ("links", 1, "joint"), "Input should be 'passive' or 'active'"),
     "more than 8 links": (
         lambda doc: {**doc, "links": doc["links"] * 4 + doc["links"][:1]}, ("links",),
         f"List should have at most {MAX_LINKS} items after validation, not {MAX_LINKS + 1}"),
@@ -119,6 +154,35 @@ def test_rule_reports_location_and_message(case):
 def test_size_limits_are_inclusive(n):
     links = [{"length": 0.3, "mass": 0.2, "joint": "active"}] * n
     assert Robot.model_validate({"links": links}).n == n
+
+
+BOUNDS = {"length": (MIN_LENGTH, MAX_LENGTH), "mass": (MIN_MASS, MAX_MASS),
+          "inertia": (0.0, MAX_INERTIA)}
+
+
+@pytest.mark.parametrize("field", BOUNDS)
+@pytest.mark.parametrize("end", [0, 1], ids=["lower", "upper"])
+def test_link_bounds_are_inclusive(field, end):
+    doc = drop(("links", 1, "wave"))(edit(("links", 1, field), BOUNDS[field][end])(valid()))
+    assert getattr(Robot.model_validate(doc).links[1], field) == BOUNDS[field][end]
+
+
+def test_wave_and_gravity_bounds_are_inclusive():
+    doc = valid()
+    doc["links"][1]["wave"].update(frequency=MAX_FREQUENCY, phase=-MAX_PHASE)
+    doc["gravity"] = MAX_GRAVITY
+    robot = Robot.model_validate(doc)
+    assert (robot.links[1].wave.frequency, robot.links[1].wave.phase, robot.gravity) == (
+        MAX_FREQUENCY, -MAX_PHASE, MAX_GRAVITY)
+
+
+def test_the_stress_ranges_are_valid():
+    """Lengths 1e-2..10 m, mass ratios 1e-3..1e3 and frequencies up to 20 are accepted."""
+    links = [{"length": length, "mass": mass, "inertia": 1e-3, "joint": "active",
+              "wave": {"amplitude": 0.9 * length, "frequency": 20.0, "phase": -3.0}}
+             for length, mass in [(1e-2, 1e-3), (10.0, 1e3), (1e-2, 1e3), (10.0, 1e-3)]]
+    links[0] = {**links[0], "joint": "passive", "wave": None}
+    assert Robot.model_validate({"links": links, "gravity": 9.81}).n == 4
 
 
 def test_amplitude_just_below_length_is_accepted():
