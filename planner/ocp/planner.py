@@ -121,7 +121,8 @@ def _bounds(scene: Scene, prob: Problem, robot: Robot) -> tuple[np.ndarray, np.n
             lay.view(ubx, name)[:] = limit[:, None]
     if task.tracking is not None and task.tracking.mode == "exact":
         passive = robot.passive
-        for name, times in _each(prob, "q"):
+        for name in prob.discrete.knot_blocks:
+            times = prob.discrete.block_times[name][1]
             ref = task.tracking.motion.evaluate(times * task.duration, task.duration)[0]
             for bound in (lbx, ubx):
                 lay.view(bound, name)[passive, :] = ref.T

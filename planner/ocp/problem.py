@@ -158,7 +158,7 @@ def build(key: ProblemKey) -> Problem:
     n, na = s.n, len(s.active_idx)
     lay = Layout()
     if key.free_time:
-        T = lay.add("T")
+        T = lay.add("T", 1)
     params, n_params = _param_layout(key, _knot_count(key))
     P = ca.MX.sym("P", n_params)
     p = _robot_parameters(key, lay, P, params)
@@ -205,7 +205,7 @@ def build(key: ProblemKey) -> Problem:
         tip = f["tips"](disc.q[:, -1], p)[:, -1]
         constraints.append((tip - P[params["tip"]], 0.0, 0.0))
     if key.margin:
-        minors = _margin_function(s).map(K)(disc.knot_q, p, P[params["margin"]])
+        minors = _margin_function(s).map(disc.path_q.size2())(disc.path_q, p, P[params["margin"]])
         constraints.append((minors, 0.0, np.inf))
 
     g = ca.vertcat(*(ca.vec(c) for c, _, _ in constraints))

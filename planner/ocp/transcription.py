@@ -32,6 +32,8 @@ class Discrete:
     weights: np.ndarray  # (K,) quadrature weights, sum 1: int f dt ~ T sum w_j f_j
     tau_steps: ca.MX  # na x S consecutive torque differences in time order
     step_times: np.ndarray  # (S,) the time fractions between those torques
+    path_q: ca.MX  # n x P angles where path constraints hold: the knots and the nodes
+    knot_blocks: tuple[str, ...]  # the angle blocks at the knots (where tracking holds exactly)
     defects: list[ca.MX] = field(default_factory=list)
     block_times: dict[str, tuple[str, np.ndarray]] = field(default_factory=dict)
 
@@ -73,7 +75,7 @@ class Trapezoidal:
         w = np.full(N + 1, 1.0 / N)
         w[[0, -1]] /= 2
         times.update(tau=("tau", t), ddq=("ddq", t))
-        return Discrete(q, dq, q, tau, t, w, tau[:, 1:] - tau[:, :-1], np.diff(t),
+        return Discrete(q, dq, q, tau, t, w, tau[:, 1:] - tau[:, :-1], np.diff(t), q, ("q",),
                         defects, times)
 
     def interpolant(self, sol: dict[str, np.ndarray], breaks: np.ndarray) -> Interpolant:
@@ -112,8 +114,9 @@ class HermiteSimpson:
         times.update(q_mid=("q", tm), dq_mid=("dq", tm), tau=("tau", t), tau_mid=("tau", tm),
                      ddq=("ddq", t), ddq_mid=("ddq", tm))
         steps = ca.horzcat(taum - tau[:, a], tau[:, b] - taum)
-        return Discrete(q, dq, ca.horzcat(q, qm), ca.horzcat(tau, taum), np.concatenate([t, tm]),
-                        w, steps, np.full(2 * N, 0.5 / N), defects, times)
+        knots = ca.horzcat(q, qm)
+        return Discrete(q, dq, knots, ca.horzcat(tau, taum), np.concatenate([t, tm]),
+                        w, steps, np.full(2 * N, 0.5 / N), knots, ("q", "q_mid"), defects, times)
 
     def interpolant(self, sol: dict[str, np.ndarray], breaks: np.ndarray) -> Interpolant:
         h = np.diff(breaks)
@@ -161,7 +164,8 @@ class Collocation:
         times.update(q_col=("q", tc), dq_col=("dq", tc), tau=("tau", tc), ddq=("ddq", tc))
         w = np.tile(self.B, N) / N
         steps = tau[:, 1:] - tau[:, :-1] if N * d > 1 else ca.MX(na, 0)
-        return Discrete(q, dq, qc, tau, tc, w, steps, np.diff(tc), defects, times)
+        return Discrete(q, dq, qc, tau, tc, w, steps, np.diff(tc), ca.horzcat(q, qc),
+                        ("q_col",), defects, times)
 
     def _interval_function(self, n: int) -> ca.Function:
         """Collocation equations and end state of one interval (SX, mapped over intervals)."""
@@ -210,7 +214,7 @@ class MultipleShooting:
         times.update(tau=("tau", t[:-1]))
         return Discrete(q, dq, q[:, :-1], tau, t[:-1], np.full(N, 1.0 / N),
                         tau[:, 1:] - tau[:, :-1] if N > 1 else ca.MX(na, 0), np.diff(t[:-1]),
-                        [x[:, 1:] - end], times)
+                        q, ("q",), [x[:, 1:] - end], times)
 
     def _step(self, n: int, na: int) -> ca.Function:
         x, u = ca.MX.sym("x", 2 * n), ca.MX.sym("u", na)

@@ -1,0 +1,246 @@
+"""The optimal-control planner: convergence order, cache reuse, each task feature, failures."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from planner.dynamics import Dynamics
+from planner.ocp import plan
+from planner.ocp.problem import ProblemKey, problem
+from planner.ocp.verify import coupling_along
+from planner.scene import Scene
+
+ARM = {"links": [
+    {"length": 0.5, "mass": 1.0, "inertia": 0.01, "joint": "active"},
+    {"length": 0.4, "mass": 0.8, "inertia": 0.008, "joint": "active",
+     "wave": {"amplitude": 0.05, "frequency": 3, "phase": 0.3}}], "gravity": 9.81}
+UNDERACTUATED = {**ARM, "links": [{**ARM["links"][0], "joint": "passive"}, ARM["links"][1]],
+                 "gravity": 0.0}
+
+
+def scene(robot=ARM, method="legendre", N=20, degree=3, **task) -> Scene:
+    base = {"duration": 1.0, "initial": {"q": [0.0, 0.5], "dq": [0.0, 0.0]},
+            "final": {"q": [0.6, 1.2], "dq": [0.0, 0.0]}}
+    transcription = {"method": method, "intervals": N, "degree": degree}
+    transcription.update(task.pop("transcription", {}))
+    solver = task.pop("solver", {})
+    return Scene.model_validate({"robot": robot, "task": {**base, **task},
+                                 "transcription": transcription, "solver": solver})
+
+
+def slope(method: str, grids: tuple[int, int], degree: int = 3) -> float:
+    """Observed order of the re-simulation error between two grids."""
+    errors = [plan(scene(method=method, N=N, degree=degree)).verification.resimulation_error
+              for N in grids]
+    return float(np.log(errors[0] / errors[1]) / np.log(grids[1] / grids[0]))
+
+
+@pytest.mark.parametrize("method, degree, grids, order", [
+    ("trapezoidal", 0, (80, 160), 2.0),
+    ("hermite-simpson", 0, (40, 80), 4.0),
+    ("legendre", 2, (20, 40), 3.0),
+    ("legendre", 3, (20, 40), 4.0),
+    ("radau", 3, (20, 40), 4.0),
+])
+def test_resimulation_error_falls_at_the_expected_order(method, degree, grids, order):
+    observed = slope(method, grids, degree or 3)
+    assert observed == pytest.approx(order, abs=0.5)
+
+
+def test_every_transcription_reaches_the_same_optimum():
+    reference = plan(scene(method="legendre", N=40)).objective
+    for method in ("radau", "hermite-simpson", "trapezoidal", "multiple-shooting"):
+        N = 160 if method in ("trapezoidal", "multiple-shooting") else 40
+        result = plan(scene(method=method, N=N))
+        assert result.solver.success, method
+        assert result.objective == pytest.approx(reference, rel=2e-3), method
+
+
+def test_explicit_and_implicit_forms_agree():
+    implicit = plan(scene(N=20))
+    explicit = plan(scene(N=20, transcription={"form": "explicit"}))
+    assert explicit.objective == pytest.approx(implicit.objective, rel=1e-7)
+    assert np.allclose(explicit.tau, implicit.tau, atol=1e-5)
+
+
+def test_same_structure_reuses_the_built_nlp():
+    first = plan(scene(N=17, final={"q": [0.6, 1.2], "dq": [0.0, 0.0]}))
+    misses = problem.cache_info().misses
+    robot = {**ARM, "links": [{**ARM["links"][0], "mass": 2.0}, ARM["links"][1]], "gravity": 3.0}
+    second = plan(scene(robot, N=17, final={"q": [-0.3, 0.9], "dq": [0.0, 0.0]}))
+    assert problem.cache_info().misses == misses
+    assert second.solver.cache_hit and second.solver.build_time == 0.0
+    assert not first.solver.cache_hit or first.solver.build_time == 0.0
+    assert second.solver.success and second.q[-1] == pytest.approx([-0.3, 0.9], abs=1e-9)
+    assert second.objective != pytest.approx(first.objective)
+
+
+def test_unused_features_build_no_constraints():
+    bare = problem(ProblemKey.of(scene(N=10)))
+    tip = problem(ProblemKey.of(scene(N=10, tip_target={"x": 0.5, "y": 0.5}, final={"q": [None, None], "dq": [0, 0]})))
+    margin = problem(ProblemKey.of(scene(UNDERACTUATED, N=10, coupling_margin=0.01)))
+    plain = problem(ProblemKey.of(scene(UNDERACTUATED, N=10)))
+    assert tip.lbg.size == bare.lbg.size + 2
+    assert margin.lbg.size == plain.lbg.size + 10 * 3 + 11  # a minor per knot and node (1 x 1)
+    assert "ref" not in bare.params and "margin" not in bare.params and "tip" not in bare.params
+    no_gravity = ProblemKey.of(scene(UNDERACTUATED, N=10)).structure
+    assert not no_gravity.gravity
+
+
+def test_boundary_conditions_hold_exactly():
+    result = plan(scene(N=20))
+    assert result.q[0] == [0.0, 0.5] and result.dq[0] == [0.0, 0.0]
+    assert result.q[-1] == pytest.approx([0.6, 1.2], abs=1e-12)
+    assert result.dq[-1] == pytest.approx([0.0, 0.0], abs=1e-12)
+
+
+def test_torque_limit_is_respected_and_binds():
+    # Trapezoidal torques are linear between nodes, so bounds at the nodes hold everywhere.
+    free = plan(scene(method="trapezoidal", N=40))
+    limit = 0.8 * float(np.abs(free.tau).max())
+    bounded = plan(scene(method="trapezoidal", N=40, torque_limit=limit, duration=1.5))
+    assert bounded.solver.success
+    peak = float(np.abs(bounded.dense.tau).max())
+    assert peak <= limit * (1 + 1e-6)
+    assert peak >= limit * (1 - 1e-6)
+
+
+def test_tip_target_is_reached():
+    result = plan(scene(N=20, tip_target={"x": 0.6, "y": 0.55},
+                        final={"q": [None, None], "dq": [0.0, 0.0]}))
+    robot = Scene.model_validate(scene().model_dump()).robot
+    tip = Dynamics(robot).tips(result.q[-1])[-1]
+    assert result.solver.success
+    assert tip == pytest.approx([0.6, 0.55], abs=1e-8)
+
+
+def test_free_final_time_stays_in_its_bounds_and_trades_against_effort():
+    slow = plan(scene(N=20, duration={"min": 0.5, "max": 3.0}, objective={"effort": 1.0, "time": 0.1}))
+    fast = plan(scene(N=20, duration={"min": 0.5, "max": 3.0}, objective={"effort": 1.0, "time": 10.0}))
+    assert slow.solver.success and fast.solver.success
+    assert 0.5 - 1e-9 <= fast.duration < slow.duration <= 3.0 + 1e-9
+
+
+@pytest.mark.parametrize("method, tol", [("radau", 1e-12), ("hermite-simpson", 1e-12),
+                                         ("legendre", 1e-5)])
+def test_exact_tracking_follows_the_passive_profile(method, tol):
+    # Tracking holds exactly at the knots; Radau and Hermite-Simpson have knots at the nodes,
+    # Legendre's nodes follow by continuity (error of order h^(d+1)).
+    motion = {"profile": "beta", "alpha": 3, "beta": 3, "start": [0.0], "end": [0.3]}
+    sc = scene(UNDERACTUATED, method=method, N=20, duration=2.0,
+               final={"q": [None, None], "dq": [None, None]},
+               tracking={"motion": motion, "mode": "exact"})
+    result = plan(sc)
+    reference = sc.task.tracking.motion.evaluate(np.asarray(result.t), 2.0)[0]
+    assert result.solver.success
+    assert np.abs(np.asarray(result.q)[:, [0]] - reference).max() < tol
+
+
+def test_weighted_tracking_pulls_towards_the_profile():
+    motion = {"profile": "quintic", "start": [0.0], "end": [0.3]}
+    common = dict(duration=2.0, final={"q": [None, None], "dq": [None, None]})
+    loose = plan(scene(UNDERACTUATED, N=20, **common,
+                       tracking={"motion": motion, "mode": "weighted", "weight": 1.0}))
+    tight = plan(scene(UNDERACTUATED, N=20, **common,
+                       tracking={"motion": motion, "mode": "weighted", "weight": 1e4}))
+    ref = Scene.model_validate(scene(UNDERACTUATED, **common, tracking={"motion": motion})
+                               .model_dump()).task.tracking.motion
+    err = lambda p: np.abs(np.asarray(p.q)[:, 0] - ref.evaluate(np.asarray(p.t), 2.0)[0][:, 0]).max()  # noqa: E731
+    assert tight.solver.success and loose.solver.success
+    assert err(tight) < 0.1 * err(loose)
+
+
+MARGIN_TASK = dict(method="hermite-simpson", N=20, duration=3.0, coupling_margin=0.03,
+                   final={"q": [0.2, 1.4], "dq": [0.0, 0.0]})
+
+
+def test_coupling_margin_holds_at_every_knot():
+    sc = scene(UNDERACTUATED, **MARGIN_TASK)
+    result = plan(sc)
+    sigma, _ = coupling_along(sc.robot, np.asarray(result.q))
+    assert result.solver.success
+    assert sigma.min() >= 0.03 - 1e-7
+    assert sigma.min() <= 0.03 + 1e-6  # the margin binds on this task
+
+
+def test_a_margin_the_start_violates_is_reported_infeasible():
+    sc = scene(UNDERACTUATED, **{**MARGIN_TASK, "coupling_margin": 0.05})
+    assert coupling_along(sc.robot, np.array([sc.task.final.q]))[0][0] < 0.05
+    result = plan(sc)
+    assert not result.solver.success
+    assert result.solver.status == "Infeasible_Problem_Detected"
+    assert result.solver.message == "the task is infeasible (constraints cannot all hold)"
+
+
+def test_wave_co_design_returns_bounded_waves_that_keep_the_margin():
+    sc = scene(UNDERACTUATED, **{**MARGIN_TASK, "coupling_margin": 0.02},
+               co_design={"amplitude_max": 0.08, "frequency": [3.0]})
+    result = plan(sc)
+    assert result.solver.success
+    (wave,) = result.waves
+    assert wave.joint == 1 and wave.frequency == 3.0
+    assert 0.0 <= wave.amplitude <= 0.08 * (1 + 1e-6)  # Ipopt relaxes bounds by 1e-8
+    designed = sc.robot.with_waves({1: {"amplitude": wave.amplitude, "frequency": 3.0,
+                                        "phase": wave.phase}})
+    sigma, _ = coupling_along(designed, np.asarray(result.q))
+    assert sigma.min() >= 0.008 - 1e-7
+
+
+def test_progress_is_reported_and_cancellation_stops_the_solve():
+    seen = []
+
+    def stop_at_three(progress) -> bool:
+        seen.append(progress)
+        return progress.iteration < 3
+
+    result = plan(scene(UNDERACTUATED, N=20, duration=2.0), progress=stop_at_three)
+    assert [p.iteration for p in seen] == [0, 1, 2, 3]
+    assert all(np.isfinite(p.objective) and p.inf_pr >= 0 for p in seen)
+    assert result.solver.status == "User_Requested_Stop" and not result.solver.success
+    assert result.solver.message == "the solve was cancelled"
+
+
+def test_iteration_limit_is_a_structured_failure():
+    result = plan(scene(UNDERACTUATED, N=20, duration=2.0, solver={"max_iter": 2}))
+    assert result.solver.status == "Maximum_Iterations_Exceeded"
+    assert not result.solver.success and result.solver.iterations <= 3
+    assert all(np.isfinite(np.asarray(result.q)).ravel())
+
+
+def test_infeasible_task_is_reported_not_raised():
+    result = plan(scene(N=10, torque_limit=1e-3))
+    assert not result.solver.success
+    assert result.solver.status in {"Infeasible_Problem_Detected", "Restoration_Failed",
+                                    "Maximum_Iterations_Exceeded", "Local_Infeasibility"}
+    assert np.isfinite(result.objective)
+
+
+def test_warm_start_from_a_plan_saves_iterations():
+    cold = plan(scene(N=20))
+    warm = plan(scene(N=20), warm_start=cold)
+    assert warm.solver.success
+    assert warm.solver.iterations < cold.solver.iterations
+    assert warm.objective == pytest.approx(cold.objective, rel=1e-6)
+
+
+def test_plan_reports_waveless_singular_crossings():
+    # Without inertia and waves M_pa = m2 l1 l2 cos(q0 - q1) changes sign where the links are
+    # perpendicular. Between these ends it does; with the wave it keeps its sign (a scalar
+    # M_pa that changed sign could not be kept away from zero), so a margin can hold.
+    robot = {**UNDERACTUATED, "links": [{**link, "inertia": 0.0} for link in UNDERACTUATED["links"]]}
+    sc = scene(robot, method="hermite-simpson", N=30, duration=3.0, coupling_margin=0.008,
+               initial={"q": [0.0, 0.8], "dq": [0.0, 0.0]}, final={"q": [0.1, 1.8], "dq": [0.0, 0.0]})
+    ends = np.array([sc.task.initial.q, sc.task.final.q])
+    waveless_det = coupling_along(sc.robot.without_waves(), ends)[1]
+    wavy_sigma, wavy_det = coupling_along(sc.robot, ends)
+    assert waveless_det[0] * waveless_det[1] < 0 < wavy_det[0] * wavy_det[1]
+    assert wavy_sigma.min() > 0.008
+    result = plan(sc)
+    crossings = result.verification.waveless_singular_crossings
+    assert result.solver.success and crossings
+    for crossing in crossings:
+        assert abs(np.cos(crossing.q[0] - crossing.q[1])) < 1e-8
+        assert crossing.sigma_min < 1e-12
+    sigma, _ = coupling_along(sc.robot, np.asarray(result.q))
+    assert sigma.min() >= 0.008 - 1e-7
