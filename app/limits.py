@@ -28,13 +28,14 @@ def nodes(transcription: Transcription) -> int:
 
 def _points(body: BaseModel) -> list[tuple[list[str], int]]:
     """How many points each sized field of a request asks for: top-level lists (states,
-    configurations, sample times), a `samples` count, a grid's size."""
+    configurations, sample times), `samples` and `certification_points` counts, a grid's
+    size."""
     sizes = []
     for name in type(body).model_fields:
         value = getattr(body, name)
         if isinstance(value, list):
             sizes.append(([name], len(value)))
-        elif name == "samples" and isinstance(value, int):
+        elif name in ("samples", "certification_points") and isinstance(value, int):
             sizes.append(([name], value))
         elif name == "grid" and value is not None and hasattr(value, "size"):
             sizes.append(([name, "points"], value.size))

@@ -19,7 +19,7 @@ from app.jobs import JobRunner, SolveFunction, load_function
 from app.logging import RequestIdMiddleware, configure
 from app.metrics import Metrics, MetricsMiddleware
 from app.openapi import document
-from app.routes import dynamics, health, plans
+from app.routes import dynamics, examples, health, plans
 from app.settings import Settings, get_settings
 from app.store import SqliteJobStore
 
@@ -57,7 +57,7 @@ def create_app(settings: Settings | None = None, solve: SolveFunction | None = N
     errors.install(app)
     app.include_router(health.router)
     secured = [Depends(require_api_key)]
-    for router in (dynamics.router, plans.router):
+    for router in (dynamics.router, plans.router, examples.router):
         app.include_router(router, dependencies=secured)
     app.add_middleware(BodyLimitMiddleware, limit=settings.max_body_bytes)
     app.add_middleware(MetricsMiddleware, metrics=app.state.metrics)

@@ -85,7 +85,8 @@ def test_an_overflowing_state_is_refused_not_answered_with_infinity(api):
     (lambda b: b["states"][0].update(q=[0.0]),
      [(["body", "states", 0, "q"], "needs 2 entries, one per joint")]),
     (lambda b: b["robot"]["links"][0].update(length=-1),
-     [(["body", "robot", "links", 0, "length"], "Input should be greater than 0")]),
+     [(["body", "robot", "links", 0, "length"],
+       "Input should be greater than or equal to 0.0001")]),
     (lambda b: b["robot"]["links"][1]["wave"].update(amplitude=0.5),
      [(["body", "robot", "links", 1, "wave", "amplitude"],
        "must be smaller than the link length (0.5 >= 0.4)")]),
@@ -186,3 +187,49 @@ def test_simulation_field_errors(api):
                "initial": {"q": [0, 0], "dq": [0, 0]}}
     assert errors_of(api.post("/v1/simulate", json=request)) == [
         (["body", "t"], "must be strictly increasing")]
+
+
+def wave_request() -> dict:
+    robot = {**WAVELESS, "gravity": 0.0, "links": [WAVELESS["links"][0],
+                                                   {**WAVELESS["links"][1], "inertia": 0.005}]}
+    return {"robot": robot, "amplitude_max": 0.06, "frequency_max": 3, "margin": 0.02,
+            "region": {"lower": [0.0, 1.4], "upper": [0.2, 1.8]}, "starts": 1,
+            "certification_points": 400}
+
+
+def test_designed_waves_keep_the_certified_margin_on_an_independent_grid(api):
+    r = api.post("/v1/waves/design", json=wave_request())
+    assert r.status_code == 200, r.text
+    result = strict_json(r.text)
+    assert result["status"] == "certified" and result["certified_sigma_min"] >= 0.02
+    (wave,) = result["waves"]
+    assert wave["joint"] == 1 and 0 < wave["amplitude"] <= 0.06
+    grid = {"lower": [0.0, 1.4], "upper": [0.2, 1.8], "points": [7, 53]}
+    report = api.post("/v1/coupling", json={"robot": result["robot"], "grid": grid}).json()
+    assert report["min_sigma"]["sigma_min"] >= result["certified_sigma_min"]
+
+
+def test_wave_design_needs_a_region_or_a_motion(api):
+    request = wave_request()
+    request.pop("region")
+    assert errors_of(api.post("/v1/waves/design", json=request)) == [
+        (["body", "region"], "give exactly one of region and motion")]
+
+
+def test_the_examples_are_listed_and_fetched_by_name(api):
+    from app.routes.examples import ENDPOINTS
+
+    listed = api.get("/v1/examples").json()
+    names = [e["name"] for e in listed]
+    assert "seed-arm-waves" in names and len(set(names)) == len(names)
+    assert {e["kind"] for e in listed} <= set(ENDPOINTS)
+    assert api.get("/v1/examples/seed-arm-waves").json() == listed[names.index("seed-arm-waves")]
+    r = api.get("/v1/examples/nope")
+    assert r.status_code == 404 and r.json()["detail"].startswith("no example called 'nope'")
+
+
+def test_the_seed_arm_examples_run(api):
+    plain, wavy = (api.get(f"/v1/examples/seed-arm-{k}").json()["request"]
+                   for k in ("waveless", "waves"))
+    assert strict_json(api.post("/v1/inverse-dynamics", json=plain).text)["status"] == "singular"
+    assert strict_json(api.post("/v1/inverse-dynamics", json=wavy).text)["status"] == "completed"

@@ -14,6 +14,8 @@ import httpx
 import pytest
 from service_fixtures import TWO_LINK, LiveServer, wait_final
 
+from app.routes.examples import ENDPOINTS
+
 QUICK = {"robot": TWO_LINK,
          "task": {"duration": 2.0, "initial": {"q": [0.0, 0.0], "dq": [0.0, 0.0]},
                   "final": {"q": [1.0, None], "dq": [0.0, 0.0]}},
@@ -71,6 +73,26 @@ def test_cancel_stops_a_long_plan(server):
     assert job["plan"]["solver"]["status"] == "User_Requested_Stop"
     assert job["plan"]["solver"]["iterations"] >= running["progress"]["iteration"]
     assert took < 3.0
+
+
+@pytest.mark.slow
+def test_every_example_runs_on_its_endpoint(server):
+    with httpx.Client(base_url=server.url, timeout=300) as http:
+        listed = http.get("/v1/examples").json()
+        assert listed
+        for item in listed:
+            path = ENDPOINTS[item["kind"]]
+            r = http.post(path, json=item["request"])
+            assert r.status_code in (200, 202), (item["name"], r.text)
+            if item["kind"] == "plan":
+                job = wait_final(http, r.json()["id"], timeout=300)
+                assert job["status"] == "succeeded", (item["name"], job["error"])
+                assert http.get(f"/v1/plans/{job['id']}").json()["plan"] == job["plan"]
+            elif item["kind"] == "wave-design":
+                assert r.json()["status"] == "certified", item["name"]
+            elif item["kind"] == "inverse-dynamics":
+                expected = "singular" if item["name"].endswith("waveless") else "completed"
+                assert r.json()["status"] == expected, item["name"]
 
 
 def _alive(pgid: int) -> bool:

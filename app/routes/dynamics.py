@@ -1,5 +1,5 @@
-"""Synchronous computations: dynamics at states, coupling analysis, inverse dynamics,
-forward simulation. Each runs in a worker thread, bounded by the compute limiter."""
+"""Synchronous computations: dynamics at states, coupling analysis, wave design, inverse
+dynamics, forward simulation. Each runs in a worker thread, bounded by the compute limiter."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from fastapi import APIRouter
 
 from app.deps import LimiterDep, SettingsDep
 from app.routes._compute import compute
-from planner import coupling, evaluation, inverse, simulate
+from planner import coupling, evaluation, inverse, simulate, waves
 
 router = APIRouter(prefix="/v1", tags=["dynamics"])
 
@@ -22,6 +22,13 @@ async def dynamics(request: evaluation.DynamicsRequest, settings: SettingsDep,
 async def coupling_analysis(request: coupling.CouplingRequest, settings: SettingsDep,
                             limiter: LimiterDep) -> coupling.CouplingReport:
     return await compute(coupling.analyse, request, settings, limiter)
+
+
+@router.post("/waves/design",
+             summary="Waves that keep sigma_min(M_pa) >= margin over a region or a motion")
+async def wave_design(request: waves.WaveDesignRequest, settings: SettingsDep,
+                      limiter: LimiterDep) -> waves.WaveDesignResult:
+    return await compute(waves.design, request, settings, limiter)
 
 
 @router.post("/inverse-dynamics",
