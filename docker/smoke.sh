@@ -132,10 +132,9 @@ def plan_example(base: str) -> tuple[str, dict]:
             return PLAN_SCENE, json.load(file)
     status, _, body = request(base, "GET", "/v1/examples")
     expect(status == 200, f"/v1/examples: expected 200, got {status}: {body}")
-    items = body.get("examples", body) if isinstance(body, dict) else body
-    for item in items:
-        if item.get("kind") == "plan":
-            return item.get("name", "?"), item.get("scene") or item.get("request") or item["body"]
+    for item in body:
+        if item["kind"] == "plan":
+            return item["name"], item["request"]
     raise Failure("/v1/examples offers no example of kind 'plan'")
 
 
