@@ -50,8 +50,10 @@ EXCHANGE_ROUNDS = 6
 """Largest number of NLP solves per starting point (exchange iterations)."""
 EXCHANGE_TOL = 0.01
 """The exchange stops when the dense minimum is within this fraction of the NLP bound."""
-_IPOPT = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "expand": True,
+_IPOPT = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",
           "ipopt.max_iter": 250, "ipopt.tol": 1e-9, "ipopt.acceptable_tol": 1e-6}
+"""Ipopt settings. The motion NLP is also expanded to SX (builds once per ladder size,
+then evaluates ten times faster); the region NLP, rebuilt at every exchange, is not."""
 
 
 # --------------------------------------------------------------------------- requests
@@ -149,29 +151,54 @@ def _with_waves(s: Structure, base, amplitude, frequency, phase) -> ca.MX:
     return ca.vertcat(*entries)
 
 
-def _bound(G, s2):
-    """Smooth constraints (all >= 0) equivalent to lambda_min(G) >= s2 for symmetric G."""
+def _bound(G, s2, c):
+    """Smooth constraints, all >= 0, for lambda_min(G) >= s2 (G symmetric r x r), each
+    made dimensionless by the normalisers c (see `_normalisers`), so that Ipopt's
+    tolerances mean the same relative accuracy for every r and every arm.
+
+    r = 1: G - s2. r = 2: the closed-form smaller eigenvalue minus s2. r >= 3: the leading
+    principal minors of G - s2 I (for k < r these only exclude indefinite matrices).
+    """
     r = G.shape[0]
-    D = G - s2 * ca.SX.eye(r)
     if r == 1:
-        return D
+        return (G - s2) / c[0]
     if r == 2:
-        return ca.vertcat(ca.trace(D), ca.det(D))
-    return ca.vertcat(*[ca.det(D[:k, :k]) for k in range(1, r + 1)])
+        half_trace, half_gap = (G[0, 0] + G[1, 1]) / 2, (G[0, 0] - G[1, 1]) / 2
+        spread = ca.sqrt(half_gap**2 + G[0, 1] ** 2 + (1e-12 * half_trace) ** 2)
+        return (half_trace - spread - s2) / c[0]
+    D = G - s2 * ca.SX.eye(r)
+    return ca.vertcat(*[ca.det(D[:k, :k]) / c[k - 1] for k in range(1, r + 1)])
 
 
 def _n_bound(s: Structure) -> int:
     r = len(s.passive_idx)
-    return 1 if r == 1 else 2 if r == 2 else r
+    return 1 if r <= 2 else r
+
+
+def _normalisers(mpa: np.ndarray) -> np.ndarray:
+    """Scales of the constraints of `_bound` at each block of a batch (K, r, c) -> (K, r).
+
+    With G = M_pa M_pa^T and g its largest eigenvalue over the batch: c[k-1] = g times the
+    product of the k - 1 largest eigenvalues of G's leading k x k block, so that the k-th
+    minor of G - s2 I divided by c[k-1] is about (its smallest eigenvalue - s2) / g.
+    """
+    G = mpa @ mpa.transpose(0, 2, 1)
+    K, r = G.shape[:2]
+    scale = max(float(np.linalg.eigvalsh(G)[:, -1].max()), 1e-300)
+    c = np.full((K, r), scale)
+    for k in range(2, r + 1):
+        eig = np.linalg.eigvalsh(G[:, :k, :k])[:, 1:]  # the k - 1 largest
+        c[:, k - 1] *= np.maximum(eig.prod(axis=1), (1e-12 * scale) ** (k - 1))
+    return c
 
 
 @lru_cache(maxsize=16)
 def _sample_bound(s: Structure) -> ca.Function:
-    """bound(q, p, s2): the constraints of `_bound` for M_pa(q) M_pa(q)^T at one point."""
+    """bound(q, p, s2, c): the constraints of `_bound` for M_pa(q) M_pa(q)^T at one point."""
     sym = derive(s)
     mpa = sym.mass[s.passive_idx, s.active_idx]
-    s2 = ca.SX.sym("s2")
-    return ca.Function("bound", [sym.q, sym.p, s2], [_bound(ca.mtimes(mpa, mpa.T), s2)])
+    s2, c = ca.SX.sym("s2"), ca.SX.sym("c", len(s.passive_idx))
+    return ca.Function("bound", [sym.q, sym.p, s2, c], [_bound(ca.mtimes(mpa, mpa.T), s2, c)])
 
 
 def _decision(na: int):
@@ -184,10 +211,10 @@ def _region_nlp(s: Structure, count: int) -> ca.Function:
     na = len(s.active_idx)
     a, eps, sig = _decision(na)
     base, freq = ca.MX.sym("p", s.n_params), ca.MX.sym("n", na)
-    Q = ca.MX.sym("Q", s.n, count)
+    Q, C = ca.MX.sym("Q", s.n, count), ca.MX.sym("C", len(s.passive_idx), count)
     p = _with_waves(s, base, a, freq, eps)
-    g = _sample_bound(s).map(count)(Q, p, sig**2)
-    nlp = {"x": ca.vertcat(a, eps, sig), "p": ca.vertcat(base, freq, ca.vec(Q)),
+    g = _sample_bound(s).map(count)(Q, p, sig**2, C)
+    nlp = {"x": ca.vertcat(a, eps, sig), "p": ca.vertcat(base, freq, ca.vec(Q), ca.vec(C)),
            "f": -sig, "g": ca.vec(g)}
     return ca.nlpsol("waves_region", "ipopt", nlp, _IPOPT)
 
@@ -200,7 +227,7 @@ def _node(s: Structure) -> ca.Function:
     na, npas = len(A), len(P)
     z = ca.SX.sym("z", 3 * na + (npas if na > npas else 0))
     qp, dqp, ddqp = ca.SX.sym("qp", npas), ca.SX.sym("dqp", npas), ca.SX.sym("ddqp", npas)
-    s2 = ca.SX.sym("s2")
+    s2, c = ca.SX.sym("s2"), ca.SX.sym("c", npas)
     q, dq = ca.SX.zeros(s.n), ca.SX.zeros(s.n)
     q[P], q[A], dq[P], dq[A] = qp, z[:na], dqp, z[na:2 * na]
     mass = ca.Function("Mh", [sym.q, sym.dq, sym.p], [sym.mass, sym.bias])
@@ -210,8 +237,8 @@ def _node(s: Structure) -> ca.Function:
     residual = [ca.mtimes(M[P, P], ddqp) + ca.mtimes(mpa, ddqa) + h[P]]
     if na > npas:  # minimum norm: ddq_a in the row space of M_pa
         residual.append(ddqa - ca.mtimes(mpa.T, z[3 * na:]))
-    return ca.Function("node", [z, qp, dqp, ddqp, sym.p, s2],
-                       [ca.vertcat(*residual), _bound(ca.mtimes(mpa, mpa.T), s2)])
+    return ca.Function("node", [z, qp, dqp, ddqp, sym.p, s2, c],
+                       [ca.vertcat(*residual), _bound(ca.mtimes(mpa, mpa.T), s2, c)])
 
 
 def _interval(na: int, nz: int) -> ca.Function:
@@ -233,13 +260,15 @@ def _motion_nlp(s: Structure, K: int) -> tuple[ca.Function, int]:
     base, freq = ca.MX.sym("p", s.n_params), ca.MX.sym("n", na)
     QP, DQP, DDQP = (ca.MX.sym(name, npas, K + 1) for name in ("qp", "dqp", "ddqp"))
     H, X0 = ca.MX.sym("h", 1, K), ca.MX.sym("x0", 2 * na)
+    C = ca.MX.sym("C", npas, K + 1)
     p = _with_waves(s, base, a, freq, eps)
-    residual, bound = _node(s).map(K + 1)(Z, QP, DQP, DDQP, p, sig**2)
+    residual, bound = _node(s).map(K + 1)(Z, QP, DQP, DDQP, p, sig**2, C)
     continuity = _interval(na, nz).map(K)(Z[:, :-1], Z[:, 1:], H)
     g = ca.vertcat(Z[:2 * na, 0] - X0, ca.vec(residual), ca.vec(continuity), ca.vec(bound))
     nlp = {"x": ca.vertcat(a, eps, sig, ca.vec(Z)), "f": -sig, "g": g,
-           "p": ca.vertcat(base, freq, ca.vec(QP), ca.vec(DQP), ca.vec(DDQP), H.T, X0)}
-    return ca.nlpsol("waves_motion", "ipopt", nlp, _IPOPT), nz
+           "p": ca.vertcat(base, freq, ca.vec(QP), ca.vec(DQP), ca.vec(DDQP), H.T, X0,
+                           ca.vec(C))}
+    return ca.nlpsol("waves_motion", "ipopt", nlp, {**_IPOPT, "expand": True}), nz
 
 
 # --------------------------------------------------------------------------- candidates
@@ -309,6 +338,8 @@ class Certificate:
 class _RegionProblem:
     """Keep sigma_min >= s over a box: samples, NLP and dense-grid certification."""
 
+    SAMPLES = "grid points of the box, joined by the dense grid's worst points"
+
     def __init__(self, request: WaveDesignRequest, s: Structure, base: Robot):
         self.s, self.base = s, base
         self.p = parameters(base, s)
@@ -335,7 +366,9 @@ class _RegionProblem:
     def optimise(self, c: Candidate, upper: np.ndarray) -> Candidate:
         solver = _region_nlp(self.s, len(self.samples))
         x0 = np.concatenate([c.amplitude, c.phase, [max(c.bound, 0.0)]])
-        par = np.concatenate([self.p, c.frequency, self.samples.ravel()])
+        p = _params(self.s, self.p, [c])[0]
+        C = _normalisers(evaluate(self.s, "Mpa", self.samples, p))
+        par = np.concatenate([self.p, c.frequency, self.samples.ravel(), C.ravel()])
         sol = solver(x0=x0, p=par, lbx=_lbx(upper), ubx=_ubx(upper), lbg=0.0, ubg=np.inf)
         x = np.array(sol["x"]).ravel()
         return _candidate_from(solver, x, c.frequency, upper)
@@ -392,6 +425,9 @@ def _candidate_from(solver: ca.Function, x: np.ndarray, frequency: np.ndarray,
 class _MotionProblem:
     """Keep sigma_min >= s along the inverse-dynamics motion: collocation NLP and a dense
     inverse-dynamics check."""
+
+    SAMPLES = ("collocation nodes of the inverse dynamics, refined around the times where "
+               "the dense check fell short")
 
     LADDER = (40, 80, 160, 320)  # collocation intervals: few sizes, few NLP builds
     SCREEN_STEPS = 100
@@ -472,9 +508,11 @@ class _MotionProblem:
         qp, dqp, ddqp = self.motion.passive_motion.evaluate(self.times, self.motion.duration)
         x0 = np.concatenate([c.amplitude, c.phase, [max(c.bound, 0.0)], Z.ravel(order="F")])
         init = self.motion.active_initial
-        par = np.concatenate([self.p, c.frequency, qp.T.ravel(order="F"),
-                              dqp.T.ravel(order="F"), ddqp.T.ravel(order="F"),
-                              np.diff(self.times), init.q, init.dq])
+        q = np.empty((len(self.times), self.s.n))
+        q[:, self.s.passive_idx], q[:, self.s.active_idx] = qp, Z[:len(init.q)].T
+        C = _normalisers(evaluate(self.s, "Mpa", q, _params(self.s, self.p, [c])[0]))
+        par = np.concatenate([self.p, c.frequency, qp.ravel(), dqp.ravel(), ddqp.ravel(),
+                              np.diff(self.times), init.q, init.dq, C.ravel()])
         extra = Z.size
         n_res = solver.size_out("g")[0] - (K + 1) * _n_bound(self.s)
         lbg = np.concatenate([np.zeros(n_res), np.zeros((K + 1) * _n_bound(self.s))])
@@ -579,16 +617,16 @@ def design(request: WaveDesignRequest) -> WaveDesignResult:
     for k in order:
         start = cands[k]
         start.bound = float(scores[k])
-        c, cert = _exchange(problem, start, upper)
+        c, cert = _exchange(problem, start, upper, best[1].value if best else -math.inf)
         if best is None or cert.value > best[1].value:
             best = (c, cert)
     c, cert = best
     status = "certified" if cert.value >= request.margin else "infeasible"
     certified = max(cert.value, 0.0)
-    method = (f"For each of the {len(order)} best screened starts (integer frequencies "
-              f"1..{request.frequency_max}, {_phases_per_joint(request)} phases per joint), "
-              f"Ipopt maximised a lower bound on sigma_min(M_pa) at sample points, with "
-              f"exchange of the worst dense points; certified: {cert.describe}.")
+    method = (f"From the {len(order)} best of {len(cands)} screened starts (integer "
+              f"frequencies 1..{request.frequency_max}, {_phases_per_joint(request)} phases "
+              f"per joint), Ipopt maximised a lower bound on sigma_min(M_pa) at the "
+              f"{problem.SAMPLES}; certified: {cert.describe}.")
     return WaveDesignResult(status=status, waves=c.specs(base), certified_sigma_min=certified,
                             method=method, robot=c.robot(base))
 
@@ -611,16 +649,21 @@ def _diverse(cands: list[Candidate], scores: list[float], count: int) -> list[in
     return (first + rest)[:count]
 
 
-def _exchange(problem, start: Candidate, upper: np.ndarray) -> tuple[Candidate, Certificate]:
-    """Solve the NLP, certify, add the failing samples, solve again; keep the best certified."""
-    c = start
+def _exchange(problem, start: Candidate, upper: np.ndarray,
+              incumbent: float) -> tuple[Candidate, Certificate]:
+    """Solve the NLP, certify, add the failing samples, solve again; keep the best certified.
+
+    Stops early when the NLP's bound cannot beat the `incumbent` certified value."""
+    c, previous = start, math.inf
     best: tuple[Candidate, Certificate] | None = None
     for _ in range(EXCHANGE_ROUNDS):
         c = problem.optimise(c, upper)
         cert = problem.certify(c)
         if best is None or cert.value > best[1].value:
             best = (c, cert)
-        if cert.converged or not c.solved:
+        stalled = c.bound > previous * (1 - EXCHANGE_TOL)  # the added samples changed nothing
+        if cert.converged or not c.solved or stalled or c.bound <= incumbent:
             break
+        previous = c.bound
         problem.exchange(cert)
     return best

@@ -1,0 +1,177 @@
+"""Wave design: every certificate is checked by an independent dense random sample, with
+an independent mass matrix (d'Alembert, no CasADi), and by the inverse dynamics."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from conftest import point_mass_dynamics
+from pydantic import ValidationError
+
+from planner.coupling import CouplingRequest, analyse
+from planner.examples import MARGIN, example, seed_start, two_link_start
+from planner.inverse import InverseDynamicsRequest, solve
+from planner.model import Robot
+from planner.waves import AMPLITUDE_FRACTION, WaveDesignRequest, WaveDesignResult, design
+
+TOLERANCE = 1e-12
+"""Allowed shortfall of the random sample below a certified value [kg m^2]: rounding only,
+since the certificate already bounds sigma_min between its grid points."""
+
+
+def independent_sigma(robot: Robot, q) -> float:
+    M, _ = point_mass_dynamics(robot, q, np.zeros(robot.n))
+    block = M[np.ix_(robot.passive, robot.active)]
+    return float(np.linalg.svd(block, compute_uv=False)[len(robot.passive) - 1])
+
+
+def random_minimum(robot: Robot, lower, upper, rng, count: int) -> float:
+    lower, upper = np.asarray(lower), np.asarray(upper)
+    Q = rng.uniform(lower, upper, (count, len(lower)))
+    return min(independent_sigma(robot, q) for q in Q)
+
+
+def check_waves(result: WaveDesignResult, request: WaveDesignRequest) -> None:
+    """Waves within the requested bounds, and the returned robot carrying them."""
+    assert [w.joint for w in result.waves] == request.robot.active
+    for wave in result.waves:
+        length = request.robot.links[wave.joint].length
+        assert 0.0 <= wave.amplitude <= min(request.amplitude_max, AMPLITUDE_FRACTION * length)
+        assert 1 <= wave.frequency <= request.frequency_max
+        assert -math.pi <= wave.phase < math.pi
+        carried = result.robot.links[wave.joint].wave
+        assert (carried.amplitude, carried.frequency, carried.phase) == (
+            wave.amplitude, wave.frequency, wave.phase)
+
+
+def region_request(robot: Robot, lower, upper, **options) -> WaveDesignRequest:
+    return WaveDesignRequest.model_validate({
+        "robot": robot.model_dump(), "amplitude_max": 0.06, "frequency_max": 4,
+        "margin": 0.01, "region": {"lower": lower, "upper": upper}, **options})
+
+
+# --------------------------------------------------------------------------- region
+
+
+def test_two_link_box_around_the_singularity_is_certified(rng):
+    robot = example("two-link-waveless").request["robot"]
+    q0, q1 = two_link_start()
+    lower, upper = [q0 - 0.1, q1 - 0.1], [q0 + 0.1, q1 + 0.1]
+    req = region_request(Robot.model_validate(robot), lower, upper,
+                         certification_points=10_000)
+    result = design(req)
+    assert result.status == "certified"
+    assert result.certified_sigma_min >= req.margin
+    check_waves(result, req)
+    assert random_minimum(result.robot, lower, upper, rng, 20_000) >= (
+        result.certified_sigma_min - TOLERANCE)
+    assert independent_sigma(req.robot, [q0, q1]) < 1e-15  # singular without the wave
+    assert "100 x 100 grid" in result.method
+
+
+def test_seed_arm_box_in_all_four_joints_is_certified(rng):
+    robot = Robot.model_validate(example("seed-arm-waveless").request["robot"])
+    q = np.array(seed_start())
+    lower, upper = (q - 0.03).tolist(), (q + 0.03).tolist()
+    req = region_request(robot, lower, upper, certification_points=10_000)
+    result = design(req)
+    assert result.status == "certified"
+    check_waves(result, req)
+    assert random_minimum(result.robot, lower, upper, rng, 5_000) >= (
+        result.certified_sigma_min - TOLERANCE)
+
+
+def alternating(joints: str) -> Robot:
+    """Point masses (absolute inertia 0), joints given as 'p'/'a' letters."""
+    return Robot.model_validate({"links": [
+        {"length": 0.5 - 0.05 * k, "mass": 1.0 - 0.1 * k, "joint": "passive" if j == "p"
+         else "active"} for k, j in enumerate(joints)], "rotational_inertia": "absolute"})
+
+
+@pytest.mark.parametrize("joints, free, frequency_max", [("paa", [1, 2], 2),
+                                                        ("papapa", [3, 5], 1)])
+def test_singular_points_of_non_square_and_three_row_blocks_are_lifted(joints, free,
+                                                                      frequency_max, rng):
+    """1 x 2 block (one passive joint) and 3 x 3 (six links): a box around a waveless
+    singular point, found by the coupling analysis, gets a positive certified value."""
+    robot = alternating(joints)
+    lower, upper = [0.3] * robot.n, [0.3] * robot.n
+    lower[-1], upper[-1] = 0.5, 3.0
+    if joints == "paa":
+        lower[1] = upper[1] = 0.3 + math.pi / 2
+    report = analyse(CouplingRequest(robot=robot, grid={"lower": lower, "upper": upper,
+                                                        "points": 26}, threshold=0.01))
+    q = np.array(report.singular_points[0].q)
+    assert independent_sigma(robot, q) < 1e-8
+    lower, upper = q.copy(), q.copy()
+    lower[free] -= 0.1
+    upper[free] += 0.1
+    req = region_request(robot, lower.tolist(), upper.tolist(), frequency_max=frequency_max,
+                         starts=1, certification_points=900)
+    result = design(req)
+    check_waves(result, req)
+    assert result.certified_sigma_min > 1e-3
+    assert random_minimum(result.robot, lower, upper, rng, 2_000) >= (
+        result.certified_sigma_min - TOLERANCE)
+
+
+def test_an_unreachable_margin_is_infeasible_with_the_best_value_found(rng):
+    robot = Robot.model_validate(example("two-link-waveless").request["robot"])
+    q0, q1 = two_link_start()
+    lower, upper = [q0 - 0.1, q1 - 0.1], [q0 + 0.1, q1 + 0.1]
+    req = region_request(robot, lower, upper, margin=1.0, certification_points=2_500,
+                         starts=2)
+    result = design(req)
+    assert result.status == "infeasible"
+    assert 0.0 < result.certified_sigma_min < 1.0
+    check_waves(result, req)
+    assert random_minimum(result.robot, lower, upper, rng, 5_000) >= (
+        result.certified_sigma_min - TOLERANCE)
+
+
+# --------------------------------------------------------------------------- motion
+
+
+@pytest.mark.parametrize("name", ["two-link-wave-design", "seed-arm-wave-design"])
+def test_motion_design_is_certified_by_an_independent_inverse_dynamics(name):
+    req = WaveDesignRequest.model_validate(example(name).request)
+    result = design(req)
+    assert result.status == "certified" and result.certified_sigma_min >= MARGIN
+    check_waves(result, req)
+    m = req.motion
+    check = solve(InverseDynamicsRequest(
+        robot=result.robot, passive_motion=m.passive_motion, duration=m.duration,
+        active_initial=m.active_initial, samples=3_001))  # other samples than the design's
+    assert check.status == "completed"
+    assert min(check.sigma_min) >= result.certified_sigma_min - 1e-9
+    assert "2,001 evenly spaced samples" in result.method
+
+
+# --------------------------------------------------------------------------- bad requests
+
+
+def message(**changes) -> str:
+    with pytest.raises(ValidationError) as exc:
+        WaveDesignRequest.model_validate({**example("two-link-wave-design").request,
+                                          **changes})
+    (error,) = exc.value.errors()
+    return error["msg"]
+
+
+def test_messages_of_bad_requests():
+    region = {"lower": [0.0, 1.0], "upper": [0.1, 1.1]}
+    assert message(region=region) == (
+        "Value error, region: give exactly one of region and motion")
+    assert message(motion=None) == "Value error, region: give exactly one of region and motion"
+    assert message(motion=None, region={"lower": [0.0], "upper": [0.1]}) == (
+        "Value error, region: lower and upper need 2 entries each, one per joint")
+    assert message(motion=None, region={"lower": [0.0, 1.0], "upper": [0.1, 0.9]}) == (
+        "Value error, region.upper: every entry must be >= the matching entry of lower")
+    motion = example("two-link-wave-design").request["motion"]
+    assert message(motion={**motion, "active_initial": {"q": [], "dq": []}}) == (
+        "Value error, motion.active_initial: q and dq need 1 entry each, one per active joint")
+    assert message(frequency_max=0) == "Input should be greater than or equal to 1"
+    assert message(margin=-0.1) == "Input should be greater than 0"
+    assert message(amplitude_max=math.inf) == "Input should be a finite number"
