@@ -10,7 +10,7 @@ coupling block M_pa is exactly singular (the active angle solves det M_pa = 0):
 For each: the waveless inverse dynamics (it stops at once), the wave design along the
 motion, and the inverse dynamics with the designed waves (it completes). The designed
 waves below are the output of `planner.waves.design` on the wave-design example, rounded
-to 8 digits (`tests/test_examples.py` re-derives them).
+to 8 digits (`tests/test_waves.py` re-derives them).
 """
 
 from __future__ import annotations
@@ -44,8 +44,8 @@ class Example(BaseModel):
 
 TWO_LINK_WAVE = Wave(amplitude=0.06, frequency=3, phase=-2.1883119)
 """Designed wave of the two-link arm's elbow (joint 1)."""
-SEED_WAVES = {1: Wave(amplitude=0.06, frequency=4, phase=-2.8508886),
-              3: Wave(amplitude=0.06, frequency=4, phase=0.23560738)}
+SEED_WAVES = {1: Wave(amplitude=0.06, frequency=4, phase=-2.8508593),
+              3: Wave(amplitude=0.06, frequency=4, phase=0.23561034)}
 """Designed waves of the seed arm's active joints 1 and 3."""
 
 DURATION = 2.0

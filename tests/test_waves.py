@@ -11,7 +11,7 @@ from conftest import point_mass_dynamics
 from pydantic import ValidationError
 
 from planner.coupling import CouplingRequest, analyse
-from planner.examples import MARGIN, example, seed_start, two_link_start
+from planner.examples import MARGIN, example, seed_arm, seed_start, two_link, two_link_start
 from planner.inverse import InverseDynamicsRequest, solve
 from planner.model import Robot
 from planner.waves import AMPLITUDE_FRACTION, WaveDesignRequest, WaveDesignResult, design
@@ -134,12 +134,17 @@ def test_an_unreachable_margin_is_infeasible_with_the_best_value_found(rng):
 # --------------------------------------------------------------------------- motion
 
 
-@pytest.mark.parametrize("name", ["two-link-wave-design", "seed-arm-wave-design"])
-def test_motion_design_is_certified_by_an_independent_inverse_dynamics(name):
+@pytest.mark.parametrize("name, arm", [("two-link-wave-design", two_link),
+                                       ("seed-arm-wave-design", seed_arm)])
+def test_motion_design_is_certified_by_an_independent_inverse_dynamics(name, arm):
     req = WaveDesignRequest.model_validate(example(name).request)
     result = design(req)
     assert result.status == "certified" and result.certified_sigma_min >= MARGIN
     check_waves(result, req)
+    for wave in result.waves:  # the waves the examples carry
+        built_in = arm(True).links[wave.joint].wave
+        assert (wave.amplitude, wave.frequency) == (built_in.amplitude, built_in.frequency)
+        assert abs(wave.phase - built_in.phase) < 1e-3
     m = req.motion
     check = solve(InverseDynamicsRequest(
         robot=result.robot, passive_motion=m.passive_motion, duration=m.duration,

@@ -1,0 +1,80 @@
+"""Built-in examples: every request validates, the starts are exactly singular without
+waves, the seed arm is the seed's, and seed_crossing() straddles a singularity."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from planner.coupling import CouplingRequest, analyse
+from planner.dynamics import Dynamics
+from planner.examples import (MARGIN, example, examples, seed_arm, seed_crossing,
+                              seed_start, two_link, two_link_start)
+from planner.inverse import InverseDynamicsRequest
+from planner.waves import WaveDesignRequest
+
+MODELS = {"inverse-dynamics": InverseDynamicsRequest, "wave-design": WaveDesignRequest,
+          "coupling": CouplingRequest}
+
+
+def test_names_are_unique_and_found():
+    names = [item.name for item in examples()]
+    assert len(names) == len(set(names))
+    for name in names:
+        assert example(name).name == name
+    with pytest.raises(KeyError, match="no example called 'nope'; known: two-link-waveless"):
+        example("nope")
+
+
+def test_each_arm_has_the_three_inverse_dynamics_and_design_requests():
+    names = {item.name: item.kind for item in examples()}
+    for arm in ("two-link", "seed-arm"):
+        assert names[f"{arm}-waveless"] == "inverse-dynamics"
+        assert names[f"{arm}-wave-design"] == "wave-design"
+        assert names[f"{arm}-waves"] == "inverse-dynamics"
+
+
+@pytest.mark.parametrize("item", [item for item in examples() if item.kind in MODELS],
+                         ids=lambda item: item.name)
+def test_every_request_validates_and_is_plain_json(item):
+    MODELS[item.kind].model_validate(item.request)
+    assert json.loads(json.dumps(item.request, allow_nan=False)) == item.request
+
+
+def test_the_seed_arm_is_the_seeds():
+    robot = seed_arm(False)
+    assert [link.length for link in robot.links] == [0.5, 0.4, 0.4, 0.3]
+    assert [link.mass for link in robot.links] == [1.0, 0.8, 0.6, 0.4]
+    assert [link.inertia for link in robot.links] == [0.01, 0.008, 0.006, 0.004]
+    assert robot.passive == [0, 2] and robot.active == [1, 3]
+    assert [link.wave is not None for link in seed_arm(True).links] == [False, True, False, True]
+
+
+@pytest.mark.parametrize("arm, start", [(two_link, two_link_start), (seed_arm, seed_start)])
+def test_the_motion_starts_exactly_singular_without_waves_and_regular_with(arm, start):
+    q = start()
+    assert abs(Dynamics(arm(False)).coupling(q).det) < 1e-16
+    assert Dynamics(arm(True)).coupling(q).sigma_min > MARGIN
+
+
+@pytest.mark.parametrize("name, arm", [("two-link-waves", two_link),
+                                       ("seed-arm-waves", seed_arm)])
+def test_the_wave_examples_carry_the_designed_waves_and_the_same_motion(name, arm):
+    wavy, plain = example(name).request, example(name.replace("waves", "waveless")).request
+    assert wavy["robot"] == arm(True).model_dump(mode="json")
+    assert {k: v for k, v in wavy.items() if k != "robot"} == (
+        {k: v for k, v in plain.items() if k != "robot"})
+
+
+def test_seed_crossing_straddles_a_waveless_singularity():
+    a, b = seed_crossing()
+    dyn = Dynamics(seed_arm(False))
+    assert dyn.coupling(a).det * dyn.coupling(b).det < 0.0
+    report = analyse(CouplingRequest(robot=seed_arm(False), configurations=[a, b]))
+    (point,) = report.singular_points
+    assert abs(point.det) < 1e-15
+    u = np.dot(np.subtract(point.q, a), np.subtract(b, a)) / np.sum(np.subtract(b, a) ** 2)
+    assert np.allclose(point.q, np.add(a, u * np.subtract(b, a)), atol=1e-12)
+    assert abs(Dynamics(seed_arm(True)).coupling(point.q).sigma_min) > MARGIN
