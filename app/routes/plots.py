@@ -1,0 +1,54 @@
+"""A plan job's figure (PNG or SVG), drawn by `planner.plots` off the event loop."""
+
+from __future__ import annotations
+
+from anyio import to_thread
+from fastapi import APIRouter, Response
+
+from app.deps import LimiterDep, StoreDep
+from app.errors import ApiError
+from app.openapi import problems
+from app.store import JobRecord
+from planner import plots
+from planner.ocp.result import Plan
+from planner.scene import Scene
+
+router = APIRouter(prefix="/v1/plans", tags=["plans"])
+
+
+def _image(fmt: plots.Format) -> dict:
+    return {200: {"content": {plots.MEDIA_TYPES[fmt]: {"schema": {"type": "string",
+                                                                   "format": "binary"}}},
+                  "description": "snapshots of the arm, joint angles, torques and "
+                                 "sigma_min(M_pa) with and without waves; waveless "
+                                 "singular crossings marked"},
+            **problems(404, 409)}
+
+
+def _draw(record: JobRecord | None, job_id: str, fmt: plots.Format) -> bytes:
+    if record is None:
+        raise ApiError(404, "not-found", "No such plan job", f"there is no plan job {job_id!r}")
+    if record.plan is None:
+        why = f" ({record.error})" if record.error else ""
+        raise ApiError(409, "no-plan", "The job has no plan yet",
+                       f"plan job {job_id!r} is {record.status}{why}; a plot needs its plan")
+    robot = Scene.model_validate(record.scene).robot
+    return plots.plan_plot(Plan.model_validate(record.plan), robot, fmt)
+
+
+async def _plot(job_id: str, store: StoreDep, limiter: LimiterDep, fmt: plots.Format) -> Response:
+    record = await to_thread.run_sync(store.get, job_id)
+    body = await to_thread.run_sync(_draw, record, job_id, fmt, limiter=limiter)
+    return Response(body, media_type=plots.MEDIA_TYPES[fmt])
+
+
+@router.get("/{job_id}/plot.png", summary="The plan's figure as PNG", response_class=Response,
+            responses=_image("png"))
+async def plan_plot_png(job_id: str, store: StoreDep, limiter: LimiterDep) -> Response:
+    return await _plot(job_id, store, limiter, "png")
+
+
+@router.get("/{job_id}/plot.svg", summary="The plan's figure as SVG", response_class=Response,
+            responses=_image("svg"))
+async def plan_plot_svg(job_id: str, store: StoreDep, limiter: LimiterDep) -> Response:
+    return await _plot(job_id, store, limiter, "svg")
