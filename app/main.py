@@ -8,9 +8,11 @@ from __future__ import annotations
 
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
+from pathlib import Path
 
 from anyio import CapacityLimiter
 from fastapi import Depends, FastAPI
+from fastapi.staticfiles import StaticFiles
 
 from app import errors
 from app.body_limit import BodyLimitMiddleware
@@ -19,7 +21,7 @@ from app.jobs import JobRunner, SolveFunction, load_function
 from app.logging import RequestIdMiddleware, configure
 from app.metrics import Metrics, MetricsMiddleware
 from app.openapi import document
-from app.routes import dynamics, examples, health, plans
+from app.routes import dynamics, examples, health, plans, plots
 from app.settings import Settings, get_settings
 from app.store import SqliteJobStore
 
@@ -57,12 +59,14 @@ def create_app(settings: Settings | None = None, solve: SolveFunction | None = N
     errors.install(app)
     app.include_router(health.router)
     secured = [Depends(require_api_key)]
-    for router in (dynamics.router, plans.router, examples.router):
+    for router in (dynamics.router, plans.router, examples.router, plots.router):
         app.include_router(router, dependencies=secured)
     app.add_middleware(BodyLimitMiddleware, limit=settings.max_body_bytes)
     app.add_middleware(MetricsMiddleware, metrics=app.state.metrics)
     app.add_middleware(RequestIdMiddleware)
     app.openapi = lambda: document(app)
+    viewer = StaticFiles(directory=Path(__file__).parent / "static", html=True)
+    app.mount("/", viewer, name="viewer")
     return app
 
 
