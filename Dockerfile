@@ -15,7 +15,7 @@ ENV PIP_DISABLE_PIP_VERSION_CHECK=1 \
     PYTHONDONTWRITEBYTECODE=1
 RUN python3 -m venv /opt/venv
 WORKDIR /src
-COPY pyproject.toml README.md ./
+COPY pyproject.toml ./
 # Dependencies first, in their own layer: a change to the code alone reuses it.
 RUN --mount=type=secret,id=ca_bundle,required=false \
     --mount=type=secret,id=pip_conf,required=false \
@@ -24,6 +24,7 @@ RUN --mount=type=secret,id=ca_bundle,required=false \
     && python3 -c "import tomllib; print(*tomllib.load(open('pyproject.toml', 'rb'))['project']['dependencies'], sep='\n')" \
        > /tmp/requirements.txt \
     && /opt/venv/bin/pip install --no-cache-dir -r /tmp/requirements.txt
+COPY README.md ./
 COPY planner/ planner/
 COPY app/ app/
 RUN --mount=type=secret,id=ca_bundle,required=false \
