@@ -7,8 +7,10 @@ configurations where it loses rank are inertial coupling singularities.
 Evaluation is batched: one CasADi `Function.map` evaluates M_pa at a chunk of
 configurations, numpy takes the determinants and singular values of the whole batch.
 Singular points are found by sign changes of det between neighbouring configurations
-(square blocks), refined by Brent's method on the straight segment between them, and by
-local minima of sigma_min below the threshold, refined by a local minimisation.
+(square blocks), refined on the straight segment between them by a bracketing root
+finder (Chandrupatla's method, which like Brent's keeps the bracket and converges
+superlinearly; all segments at once), and by local minima of sigma_min below the
+threshold, refined by a local minimisation.
 """
 
 from __future__ import annotations
@@ -20,7 +22,8 @@ from typing import Literal
 import casadi as ca
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
-from scipy.optimize import brentq, minimize, minimize_scalar
+from scipy.optimize import minimize, minimize_scalar
+from scipy.optimize.elementwise import find_root
 
 from planner.dynamics import derive, functions
 from planner.model import Robot, Structure, parameters
@@ -50,7 +53,8 @@ class Grid(BaseModel):
 
     lower: list[float] = Field(min_length=1, description="lower corner, one angle per joint [rad]")
     upper: list[float] = Field(min_length=1, description="upper corner, one angle per joint [rad]")
-    points: int | list[int] = Field(default=51, description="grid points per axis (>= 2)")
+    points: int | list[int] = Field(
+        default=51, description="grid points per axis (>= 2 where lower < upper)")
 
     @model_validator(mode="after")
     def _consistent(self) -> Grid:
@@ -61,8 +65,8 @@ class Grid(BaseModel):
         counts = self.points if isinstance(self.points, list) else [self.points] * len(self.lower)
         if len(counts) != len(self.lower):
             raise ValueError(f"points: needs 1 or {len(self.lower)} entries")
-        if any(c < 2 for c in counts):
-            raise ValueError("points: every axis needs at least 2 points")
+        if any(c < 1 or (c < 2 and u > lo) for c, lo, u in zip(counts, self.lower, self.upper)):
+            raise ValueError("points: an axis with lower < upper needs at least 2 points")
         return self
 
     def axes(self) -> list[np.ndarray]:
@@ -238,13 +242,15 @@ def evaluate(s: Structure, name: str, configurations, p) -> np.ndarray:
         args = [_pad(Q[start:stop], size).T,
                 P if P.ndim == 1 else _pad(P[start:stop], size).T]
         flat = np.array(f(*args))  # (rows, cols * size): the outputs side by side
-        out[start:stop] = flat.reshape(rows, cols, size, order="F").transpose(2, 0, 1)[:stop - start]
+        stacked = flat.reshape(rows, cols, size, order="F").transpose(2, 0, 1)
+        out[start:stop] = stacked[:stop - start]
     return out
 
 
 def _pad(rows: np.ndarray, size: int) -> np.ndarray:
     """Repeat the last row up to `size` rows."""
-    return rows if len(rows) == size else np.vstack([rows, np.repeat(rows[-1:], size - len(rows), 0)])
+    missing = size - len(rows)
+    return np.vstack([rows, np.repeat(rows[-1:], missing, axis=0)]) if missing else rows
 
 
 def blocks(robot: Robot, configurations, structure: Structure | None = None) -> np.ndarray:
@@ -294,31 +300,37 @@ def _edges(shape: tuple[int, ...]) -> list[tuple[np.ndarray, np.ndarray]]:
     return pairs
 
 
-def _det_along(robot: Robot, s: Structure, a: np.ndarray, b: np.ndarray):
-    """det M_pa on the segment q(u) = a + u (b - a), u in [0, 1]."""
-    f, p = functions(s)["Mpa"], parameters(robot, s)
-    rows = len(s.passive_idx)
-
-    def det(u: float) -> float:
-        return float(np.linalg.det(np.array(f(a + u * (b - a), p)).reshape(rows, rows)))
-    return det
-
-
 def _sign_changes(robot: Robot, s: Structure, Q: np.ndarray, det: np.ndarray,
-                  pairs) -> list[SingularPoint]:
-    """Refine every sign change of det between neighbours with Brent's method."""
-    found: list[SingularPoint] = []
-    zero = np.flatnonzero(det == 0.0)
-    for k in zero:
-        found.append(_singular(robot, s, Q[k], "det-sign-change"))
-    for lo, hi in pairs:
-        change = np.flatnonzero(det[lo] * det[hi] < 0.0)
-        for e in change:
-            a, b = Q[lo[e]], Q[hi[e]]
-            u = brentq(_det_along(robot, s, a, b), 0.0, 1.0, xtol=1e-15, rtol=1e-15,
-                       maxiter=200)
-            found.append(_singular(robot, s, a + u * (b - a), "det-sign-change"))
-    return found
+                  pairs) -> tuple[list[SingularPoint], int]:
+    """Grid points with det = 0, and every sign change of det between neighbours refined
+    on the straight segment between them (all edges at once: Chandrupatla's bracketing
+    method, scipy.optimize.elementwise.find_root, to machine precision).
+
+    Returns at most MAX_SINGULAR points and the number left out."""
+    zeros = np.flatnonzero(det == 0.0)
+    lo = np.concatenate([a[det[a] * det[b] < 0.0] for a, b in pairs] or [np.empty(0, int)])
+    hi = np.concatenate([b[det[a] * det[b] < 0.0] for a, b in pairs] or [np.empty(0, int)])
+    skipped = max(len(zeros) + len(lo) - MAX_SINGULAR, 0)
+    zeros = zeros[:MAX_SINGULAR]
+    lo, hi = lo[:MAX_SINGULAR - len(zeros)], hi[:MAX_SINGULAR - len(zeros)]
+    found = [_singular(robot, s, Q[k], "det-sign-change") for k in zeros]
+    if len(lo) == 0:
+        return found, skipped
+    start, step = Q[lo], Q[hi] - Q[lo]
+    p = parameters(robot, s)
+
+    def det_along(u: np.ndarray, *columns: np.ndarray) -> np.ndarray:
+        n = len(columns) // 2
+        q = np.stack([a + u * d for a, d in zip(columns[:n], columns[n:])], axis=-1)
+        return measures(evaluate(s, "Mpa", q.reshape(-1, s.n), p))[0].reshape(u.shape)
+
+    res = find_root(det_along, (np.zeros(len(lo)), np.ones(len(lo))),
+                    args=(*start.T, *step.T), tolerances={"xatol": 1e-16, "xrtol": 1e-15})
+    points = start + res.x[:, None] * step
+    det_r, smin, _ = measures(evaluate(s, "Mpa", points, p))
+    found += [SingularPoint(q=q.tolist(), det=float(d), sigma_min=float(m),
+                            source="det-sign-change") for q, d, m in zip(points, det_r, smin)]
+    return found, skipped
 
 
 def _singular(robot: Robot, s: Structure, q: np.ndarray, source) -> SingularPoint:
@@ -424,18 +436,18 @@ def analyse(request: CouplingRequest) -> CouplingReport:
     det, smin, smax = measures(blocks(robot, Q, s))
 
     singular: list[SingularPoint] = []
+    omitted = 0
     if split.kind != "fewer-active":
         if det is not None:
-            singular += _sign_changes(robot, s, Q, det, pairs)
+            singular, omitted = _sign_changes(robot, s, Q, det, pairs)
         near = _near_sign_change(det, pairs, len(Q))
         idx = _local_minima(smin.copy(), pairs, request.threshold, near)
-        budget = max(MAX_SINGULAR - len(singular), 0)
+        budget = MAX_SINGULAR - len(singular)
+        omitted += max(len(idx) - budget, 0)
         if is_path:
             singular += _path_minima(robot, s, Q, idx[:budget])
         else:
             singular += _minima_points(robot, s, Q, idx[:budget], boxes)
-    omitted_singular = max(len(singular) - MAX_SINGULAR, 0)
-    singular = singular[:MAX_SINGULAR]
 
     k = int(np.argmin(smin))
     best = MinSigma(q=Q[k].tolist(), sigma_min=float(smin[k]))
@@ -448,7 +460,7 @@ def analyse(request: CouplingRequest) -> CouplingReport:
     results = [PointResult(q=Q[i].tolist(), det=None if det is None else float(det[i]),
                            sigma_min=float(smin[i]), condition=cond[i]) for i in range(listed)]
     return CouplingReport(split=split, results=results, results_omitted=len(Q) - listed,
-                          singular_points=singular, singular_points_omitted=omitted_singular,
+                          singular_points=singular, singular_points_omitted=omitted,
                           min_sigma=best)
 
 

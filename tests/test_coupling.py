@@ -11,8 +11,8 @@ import pytest
 from conftest import point_mass_dynamics
 from pydantic import ValidationError
 
-from planner.coupling import (MAX_POINTS, MAX_RESULTS, CouplingRequest, analyse, blocks,
-                              measures)
+from planner.coupling import (MAX_POINTS, MAX_RESULTS, MAX_SINGULAR, CouplingRequest, analyse,
+                              blocks, measures)
 from planner.model import Robot
 
 L0, L1, M1, I1 = 0.5, 0.4, 0.5, 0.005
@@ -207,7 +207,9 @@ def test_grid_bounds_must_be_ordered_and_axes_sampled():
     assert message(robot=robot, grid={"lower": [0, 1], "upper": [1, 0]}) == (
         "Value error, upper: every entry must be >= the matching entry of lower")
     assert message(robot=robot, grid={"lower": [0, 0], "upper": [1, 1], "points": 1}) == (
-        "Value error, points: every axis needs at least 2 points")
+        "Value error, points: an axis with lower < upper needs at least 2 points")
+    CouplingRequest.model_validate({"robot": robot, "grid": {
+        "lower": [0, 0], "upper": [0, 1], "points": [1, 5]}})
 
 
 def test_a_robot_without_passive_joints_has_no_coupling_block():
@@ -223,3 +225,16 @@ def test_non_finite_angles_and_extra_fields_are_rejected():
         "Input should be a finite number")
     assert message(robot=robot, configurations=[[0.0, 0.0]], extra=1) == (
         "Extra inputs are not permitted")
+
+
+def test_singular_points_are_capped_and_the_rest_counted():
+    """A 600 x 300 grid over two turns of q1 crosses the singular curve on ~1,200 edges."""
+    report = analyse(CouplingRequest(robot=two_link(), grid={
+        "lower": [-1.0, -2 * math.pi], "upper": [1.0, 2 * math.pi], "points": [300, 600]}))
+    refined = len(report.singular_points)
+    assert refined == MAX_SINGULAR
+    assert report.singular_points_omitted > 0
+    expected = math.acos(-I1 / (M1 * L0 * L1))
+    for point in report.singular_points[:50]:
+        relative = (point.q[1] - point.q[0] + math.pi) % (2 * math.pi) - math.pi
+        assert abs(abs(relative) - expected) < 1e-9
