@@ -1,0 +1,250 @@
+"""The `undertow` command: its outputs, progress, exit codes and error messages."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import httpx
+import numpy as np
+import pytest
+from service_fixtures import free_port
+from test_plots import CROSSING_SCENE
+
+from planner import cli
+from planner.examples import example, examples
+from planner.inverse import InverseDynamicsResult
+from planner.ocp import Plan, plan
+from planner.scene import Scene
+from planner.waves import WaveDesignResult
+
+UNDERTOW = Path(sys.executable).with_name("undertow")
+PNG = b"\x89PNG\r\n\x1a\n"
+
+
+def write_json(path: Path, data) -> str:
+    path.write_text(json.dumps(data))
+    return str(path)
+
+
+def run(capsys, *argv: str) -> tuple[int, str, str]:
+    code = cli.main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_the_installed_command_documents_its_exit_codes():
+    r = subprocess.run([str(UNDERTOW), "--help"], capture_output=True, text=True, timeout=60,
+                       check=False)
+    assert r.returncode == 0
+    for code in ("0    success", "1    the computation ran", "2    bad input", "3    I/O error",
+                 "130  interrupted"):
+        assert code in r.stdout
+    for command in ("serve", "examples", "plan", "design-wave", "inverse"):
+        assert command in r.stdout
+
+
+# --------------------------------------------------------------------------- examples
+
+
+def test_examples_lists_every_example_and_filters_by_kind(capsys):
+    code, out, _ = run(capsys, "examples")
+    assert code == 0
+    assert [line.split()[0] for line in out.splitlines()] == [e.name for e in examples()]
+    code, out, _ = run(capsys, "examples", "--kind", "coupling")
+    names = [line.split()[0] for line in out.splitlines()]
+    assert code == 0 and names == [e.name for e in examples() if e.kind == "coupling"] != []
+
+
+def test_examples_writes_a_request_body(capsys, tmp_path):
+    target = tmp_path / "request.json"
+    code, out, err = run(capsys, "examples", "--name", "two-link-waves", "-o", str(target))
+    assert code == 0 and out == ""
+    assert json.loads(target.read_text()) == example("two-link-waves").request
+    assert f"undertow inverse {target} -o OUT.json" in err
+    code, out, _ = run(capsys, "examples", "--name", "two-link-waves")
+    assert code == 0 and json.loads(out) == example("two-link-waves").request
+
+
+def test_an_unknown_example_is_bad_input_naming_the_known_ones(capsys):
+    code, out, err = run(capsys, "examples", "--name", "nope")
+    assert code == cli.BAD_INPUT and out == ""
+    assert err.startswith("undertow examples: --name: no example called 'nope'; known: ")
+    assert "two-link-waves" in err
+    code, _, err = run(capsys, "examples", "--kind", "coupling", "--name", "two-link-waves")
+    assert code == 2 and "'two-link-waves' is of kind 'inverse-dynamics', not 'coupling'" in err
+
+
+# --------------------------------------------------------------------------- plan
+
+
+def test_plan_writes_the_library_plan_a_figure_and_a_progress_line_per_iteration(
+        capsys, tmp_path, monkeypatch):
+    monkeypatch.setattr(cli, "PROGRESS_PERIOD", 0.0)
+    scene, out, figure = write_json(tmp_path / "s.json", CROSSING_SCENE), tmp_path / "p.json", tmp_path / "p.png"
+    code, stdout, err = run(capsys, "plan", scene, "-o", str(out), "--plot", str(figure))
+    assert code == 0 and stdout == ""
+    written = Plan.model_validate_json(out.read_text())
+    reference = plan(Scene.model_validate(CROSSING_SCENE))
+    assert written.solver.success
+    assert written.objective == pytest.approx(reference.objective, rel=1e-9)
+    assert np.allclose(written.q, reference.q, rtol=0.0, atol=1e-9)
+    assert figure.read_bytes().startswith(PNG)
+    iterations = [int(line.split("iteration")[1].split("/")[0])
+                  for line in err.splitlines() if line.startswith("[")]
+    assert iterations == list(range(written.solver.iterations + 1))
+    assert f"Solve_Succeeded: optimal solution found; {written.solver.iterations} iterations" in err
+    crossings = len(written.verification.waveless_singular_crossings)
+    assert f"{crossings} waveless singular crossing(s)" in err
+
+
+def test_quiet_plan_prints_nothing_and_a_solver_failure_exits_1_with_the_plan(capsys, tmp_path):
+    failing = {**CROSSING_SCENE, "solver": {"max_iter": 3}}
+    out = tmp_path / "plan.json"
+    code, stdout, err = run(capsys, "plan", write_json(tmp_path / "s.json", failing),
+                            "-o", str(out), "--quiet")
+    assert code == cli.FAILED and stdout == "" and err == ""
+    written = Plan.model_validate_json(out.read_text())
+    assert written.solver.status == "Maximum_Iterations_Exceeded" and not written.solver.success
+
+
+def test_plan_to_stdout(capsys, tmp_path):
+    code, stdout, _ = run(capsys, "plan", write_json(tmp_path / "s.json", CROSSING_SCENE),
+                          "-o", "-", "-q")
+    assert code == 0 and Plan.model_validate_json(stdout).solver.success
+
+
+def test_invalid_fields_are_each_named(capsys, tmp_path):
+    bad = json.loads(json.dumps(CROSSING_SCENE))
+    bad["robot"]["links"][1]["wave"]["amplitude"] = 0.5
+    bad["transcription"]["intervals"] = 0
+    path = write_json(tmp_path / "bad.json", bad)
+    code, _, err = run(capsys, "plan", path, "-o", str(tmp_path / "p.json"))
+    assert code == cli.BAD_INPUT and not (tmp_path / "p.json").exists()
+    assert err.splitlines() == [
+        f"undertow plan: {path}: 2 invalid field(s)",
+        "  robot.links[1].wave.amplitude: must be smaller than the link length (0.5 >= 0.4)",
+        "  transcription.intervals: Input should be greater than or equal to 1"]
+
+    short = json.loads(json.dumps(CROSSING_SCENE))
+    short["task"]["initial"]["q"] = [0.0]
+    code, _, err = run(capsys, "plan", write_json(tmp_path / "short.json", short), "-o", "-")
+    assert code == 2 and err.splitlines()[1] == "  task.initial.q: needs 2 entries, one per joint"
+
+
+def test_unreadable_json_and_a_bad_plot_name_are_bad_input(capsys, tmp_path):
+    broken = tmp_path / "broken.json"
+    broken.write_text('{"robot": [1, 2,]}')
+    code, _, err = run(capsys, "plan", str(broken), "-o", "-")
+    assert code == 2
+    assert err == f"undertow plan: {broken}: not valid JSON (line 1, column 17: Expecting value)\n"
+    scene = write_json(tmp_path / "s.json", CROSSING_SCENE)
+    code, _, err = run(capsys, "plan", scene, "-o", "-", "--plot", "plan.jpg")
+    assert code == 2 and "plot: the file name must end in .png or .svg" in err
+
+
+def test_files_that_cannot_be_read_or_written_are_io_errors(capsys, tmp_path):
+    code, _, err = run(capsys, "plan", str(tmp_path / "missing.json"), "-o", "-")
+    assert code == cli.IO_ERROR
+    assert err == f"undertow plan: cannot read {tmp_path / 'missing.json'}: No such file or directory\n"
+    request = write_json(tmp_path / "r.json", example("two-link-waves").request)
+    target = tmp_path / "no" / "such" / "dir" / "out.json"
+    code, _, err = run(capsys, "inverse", request, "-o", str(target))
+    assert code == 3 and err.startswith(f"undertow inverse: cannot write {target}: ")
+    assert list(tmp_path.iterdir()) == [tmp_path / "r.json"]  # nothing half-written
+
+
+def test_usage_errors_exit_2(capsys):
+    with pytest.raises(SystemExit) as stop:
+        cli.main(["plan", "scene.json"])
+    assert stop.value.code == 2
+    assert "the following arguments are required: -o/--output" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------- inverse, design
+
+
+def test_inverse_completes_or_stops_singular_with_exit_codes_0_and_1(capsys, tmp_path):
+    out, figure = tmp_path / "out.json", tmp_path / "out.svg"
+    request = write_json(tmp_path / "waves.json", example("two-link-waves").request)
+    code, _, err = run(capsys, "inverse", request, "-o", str(out), "--plot", str(figure))
+    assert code == 0 and err == "completed: completed\n"
+    assert InverseDynamicsResult.model_validate_json(out.read_text()).status == "completed"
+    assert figure.read_bytes().startswith(b"<?xml")
+
+    request = write_json(tmp_path / "plain.json", example("two-link-waveless").request)
+    code, _, err = run(capsys, "inverse", request, "-o", str(out))
+    result = InverseDynamicsResult.model_validate_json(out.read_text())
+    assert code == cli.FAILED and result.status == "singular"
+    assert err == f"singular: {result.message}\n"
+
+
+def test_design_wave_certifies_the_two_link_example(capsys, tmp_path):
+    out = tmp_path / "waves.json"
+    request = write_json(tmp_path / "r.json", example("two-link-wave-design").request)
+    code, _, err = run(capsys, "design-wave", request, "-o", str(out), "-q")
+    result = WaveDesignResult.model_validate_json(out.read_text())
+    assert code == 0 and err == ""
+    assert result.status == "certified" and result.certified_sigma_min >= 0.02
+
+
+# --------------------------------------------------------------------------- processes
+
+
+def test_serve_runs_the_service_and_the_viewer(tmp_path):
+    port = free_port()
+    env = {**os.environ, "UNDERTOW_DB_PATH": str(tmp_path / "jobs.sqlite3"),
+           "UNDERTOW_INSTANCE": "cli-test", "UNDERTOW_LOG_LEVEL": "WARNING"}
+    proc = subprocess.Popen([str(UNDERTOW), "serve", "--port", str(port), "--workers", "1"],
+                            env=env, cwd=tmp_path, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, start_new_session=True)
+    try:
+        base = f"http://127.0.0.1:{port}"
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            assert proc.poll() is None, proc.stderr.read().decode()
+            try:
+                if httpx.get(base + "/healthz", timeout=1).status_code == 200:
+                    break
+            except httpx.HTTPError:
+                time.sleep(0.1)
+        page = httpx.get(base + "/")
+        assert page.status_code == 200 and page.headers["content-type"].startswith("text/html")
+        assert '<script src="viewer.js"></script>' in page.text
+        assert httpx.get(base + "/viewer.js").status_code == 200
+        assert httpx.get(base + "/v1/examples").json()[0]["name"] == examples()[0].name
+    finally:
+        os.killpg(proc.pid, signal.SIGTERM)
+        proc.wait(30)
+
+
+SLOW_SCENE = {  # the seed arm rest-to-rest across a waveless singularity: many iterations
+    "robot": example("seed-arm-waves").request["robot"],
+    "task": {"duration": 2.0, "initial": {"q": [0.1, 0.6, -0.7, -2.6], "dq": [0.0] * 4},
+             "final": {"q": [0.3, 1.0, -0.5, -2.0], "dq": [0.0] * 4}},
+    "transcription": {"method": "legendre", "intervals": 20},
+    "solver": {"max_iter": 3000, "tol": 1e-14, "max_wall_time": 120},
+}
+
+
+def test_the_first_ctrl_c_stops_the_solve_and_still_writes_the_plan(tmp_path):
+    out = tmp_path / "plan.json"
+    scene = write_json(tmp_path / "s.json", SLOW_SCENE)
+    proc = subprocess.Popen([str(UNDERTOW), "plan", scene, "-o", str(out)], cwd=tmp_path,
+                            stderr=subprocess.PIPE, text=True)
+    lines = []
+    for line in proc.stderr:  # non-terminal stderr: a progress line at once, then each second
+        lines.append(line)
+        if line.startswith("["):
+            proc.send_signal(signal.SIGINT)
+            break
+    rest = proc.communicate(timeout=120)[1]
+    assert proc.returncode == cli.INTERRUPTED, "".join(lines) + rest
+    written = Plan.model_validate_json(out.read_text())
+    assert written.solver.status == "User_Requested_Stop"
+    assert "stopping at the next iteration (Ctrl-C again to abort)" in rest

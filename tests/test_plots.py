@@ -1,0 +1,268 @@
+"""Figures of plans and inverse-dynamics results, and the plot endpoints."""
+
+from __future__ import annotations
+
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+import pytest
+from fake_solvers import fake_plan
+from matplotlib.figure import Figure
+from service_fixtures import client, two_link_scene
+
+from planner import plots
+from planner.dynamics import Dynamics
+from planner.examples import example
+from planner.inverse import InverseDynamicsRequest, solve
+from planner.ocp import Plan, plan
+from planner.ocp.verify import coupling_along
+from planner.scene import Scene
+
+PNG = b"\x89PNG\r\n\x1a\n"
+
+# Without inertia and waves M_pa = m2 l1 l2 cos(q0 - q1): this rest-to-rest motion makes the
+# links perpendicular (waveless singular) several times; the wave keeps M_pa regular.
+CROSSING_SCENE = {
+    "robot": {"links": [{"length": 0.5, "mass": 1.0, "joint": "passive"},
+                        {"length": 0.4, "mass": 0.8, "joint": "active",
+                         "wave": {"amplitude": 0.05, "frequency": 3, "phase": 0.3}}]},
+    "task": {"duration": 3.0, "coupling_margin": 0.008,
+             "initial": {"q": [0.0, 0.8], "dq": [0.0, 0.0]},
+             "final": {"q": [0.1, 1.8], "dq": [0.0, 0.0]}},
+    "transcription": {"method": "hermite-simpson", "intervals": 30},
+}
+
+
+@pytest.fixture(scope="module")
+def scene() -> Scene:
+    return Scene.model_validate(CROSSING_SCENE)
+
+
+@pytest.fixture(scope="module")
+def crossing_plan(scene) -> Plan:
+    result = plan(scene)
+    assert result.solver.success and len(result.verification.waveless_singular_crossings) >= 2
+    return result
+
+
+def time_axes(fig: Figure) -> dict[str, object]:
+    """The plan figure's time axes by what they show."""
+    names = {"q [rad]": "angles", "active torque [N m]": "torques",
+             "sigma_min(M_pa) [kg m^2]": "sigma"}
+    return {names[ax.get_ylabel()]: ax for ax in fig.axes if ax.get_ylabel() in names}
+
+
+def marks(ax, prefix: str) -> list[float]:
+    """x positions of the vertical lines whose gid starts with `prefix`."""
+    return sorted(float(line.get_xdata()[0]) for line in ax.get_lines()
+                  if (line.get_gid() or "").startswith(prefix))
+
+
+# --------------------------------------------------------------------------- plan figure
+
+
+def test_every_time_axis_marks_each_waveless_crossing_at_its_time(crossing_plan, scene):
+    fig = plots.plan_figure(crossing_plan, scene.robot)
+    times = sorted(c.time for c in crossing_plan.verification.waveless_singular_crossings)
+    axes = time_axes(fig)
+    assert set(axes) == {"angles", "torques", "sigma"}
+    for ax in axes.values():
+        assert marks(ax, plots.CROSSING_GID) == pytest.approx(times, abs=0.0)
+
+
+def test_a_plan_without_crossings_has_no_marks(crossing_plan, scene):
+    data = crossing_plan.model_dump()
+    data["verification"]["waveless_singular_crossings"] = []
+    fig = plots.plan_figure(Plan.model_validate(data), scene.robot)
+    for ax in time_axes(fig).values():
+        assert marks(ax, plots.CROSSING_GID) == []
+
+
+def test_the_sigma_panel_shows_both_robots_along_the_dense_path(crossing_plan, scene):
+    ax = time_axes(plots.plan_figure(crossing_plan, scene.robot))["sigma"]
+    curves = {line.get_label(): line for line in ax.get_lines()
+              if not (line.get_gid() or "").startswith(plots.CROSSING_GID)}
+    q = np.asarray(crossing_plan.dense.q)
+    waveless = curves["without waves"].get_ydata()
+    wavy = next(line for label, line in curves.items() if label.startswith("with waves")).get_ydata()
+    assert np.allclose(waveless, np.clip(coupling_along(scene.robot.without_waves(), q)[0], 1e-12, None))
+    assert np.allclose(wavy, np.clip(coupling_along(scene.robot, q)[0], 1e-12, None))
+    assert ax.get_yscale() == "log"
+    t = np.asarray(crossing_plan.dense.t)
+    for c in crossing_plan.verification.waveless_singular_crossings:
+        k = int(np.argmin(np.abs(t - c.time)))
+        assert waveless[k] < 1e-2 * np.median(waveless)  # the dip is where the mark is
+
+
+def test_the_snapshots_draw_the_links_through_the_dynamics_tips(crossing_plan, scene):
+    fig = plots.plan_figure(crossing_plan, scene.robot, snapshots=4)
+    strip = [ax for ax in fig.axes if ax.get_title().startswith("t = ")]
+    assert len(strip) == 4
+    first = strip[0]
+    links = next(line for line in first.get_lines() if len(line.get_xdata()) == scene.robot.n + 1)
+    tips = np.vstack([[0.0, 0.0], Dynamics(scene.robot).tips(crossing_plan.dense.q[0])])
+    assert np.allclose(links.get_xdata(), tips[:, 1]) and np.allclose(links.get_ydata(), -tips[:, 0])
+
+
+def test_the_wavy_mass_path_passes_through_each_wavy_tip(make_robot, rng):
+    for _ in range(5):
+        robot = make_robot(int(rng.integers(2, 6)))
+        q = rng.uniform(-np.pi, np.pi, robot.n)
+        tips = np.vstack([[0.0, 0.0], Dynamics(robot).tips(q)])
+        for j in robot.active:
+            point = tips[j] + plots.wave_path(robot, j, np.array([q[j]]))[0]
+            assert np.allclose(point, tips[j + 1], atol=1e-12)
+
+
+def test_plan_robot_takes_the_plans_waves(crossing_plan, scene):
+    data = crossing_plan.model_dump()
+    data["waves"] = [{"joint": 1, "amplitude": 0.02, "frequency": 2.0, "phase": -1.0}]
+    robot = plots.plan_robot(scene.robot, Plan.model_validate(data))
+    assert robot.links[1].wave.model_dump() == {"amplitude": 0.02, "frequency": 2.0, "phase": -1.0}
+    assert robot.links[0] == scene.robot.links[0]
+
+
+def test_png_and_svg_bytes(crossing_plan, scene):
+    png = plots.plan_plot(crossing_plan, scene.robot, "png")
+    svg = plots.plan_plot(crossing_plan, scene.robot, "svg")
+    assert png.startswith(PNG) and len(png) > 50_000
+    assert svg.startswith(b"<?xml") and b"<svg" in svg[:2000] and len(svg) > 50_000
+    crossings = len(crossing_plan.verification.waveless_singular_crossings)
+    ids = [f'id="{plots.CROSSING_GID}-{panel}-{k}"'.encode()
+           for panel in ("angles", "torques", "sigma") for k in range(crossings)]
+    assert all(svg.count(i) == 1 for i in ids)
+
+
+def test_figures_render_from_several_threads_at_once(crossing_plan, scene):
+    with ThreadPoolExecutor(2) as pool:
+        images = list(pool.map(lambda _: plots.plan_plot(crossing_plan, scene.robot), range(2)))
+    assert len(set(images)) == 1 and images[0].startswith(PNG)
+
+
+def test_format_names():
+    assert plots.format_of("out/PLAN.SVG") == "svg" and plots.format_of("a.png") == "png"
+    with pytest.raises(ValueError, match=r"^plot: the file name must end in \.png or \.svg"):
+        plots.format_of("plan.jpg")
+    with pytest.raises(ValueError, match="format: must be one of png, svg"):
+        plots.render(Figure(), "pdf")
+
+
+# --------------------------------------------------------------------------- inverse dynamics
+
+
+def singular_midway() -> InverseDynamicsRequest:
+    """The two-link waveless motion started 0.3 rad away from the singular elbow angle."""
+    request = example("two-link-waveless").request
+    request["active_initial"]["q"] = [request["active_initial"]["q"][0] - 0.3]
+    return InverseDynamicsRequest.model_validate(request)
+
+
+def test_the_inverse_figure_marks_a_singular_stop():
+    request = singular_midway()
+    result = solve(request)
+    assert result.status == "singular" and 0.0 < result.singularity.time < request.duration
+    fig = plots.inverse_figure(result, request)
+    assert len(fig.axes) == 3
+    for ax in fig.axes:
+        assert marks(ax, plots.STOP_GID) == [result.singularity.time]
+    sigma = fig.axes[2]
+    assert sigma.get_yscale() == "log" and sigma.get_xlim() == (0.0, request.duration)
+    assert any(line.get_ydata()[0] == request.sigma_threshold for line in sigma.get_lines())
+
+
+def test_a_completed_inverse_result_has_no_stop_mark():
+    request = InverseDynamicsRequest.model_validate(example("two-link-waves").request)
+    result = solve(request)
+    assert result.status == "completed"
+    fig = plots.inverse_figure(result, request)
+    assert all(marks(ax, plots.STOP_GID) == [] for ax in fig.axes)
+    assert plots.inverse_plot(result, request, "svg").startswith(b"<?xml")
+
+
+def test_a_start_on_the_singularity_still_draws():
+    request = InverseDynamicsRequest.model_validate(example("seed-arm-waveless").request)
+    result = solve(request)
+    assert result.status == "singular" and result.t == []
+    fig = plots.inverse_figure(result, request)
+    assert all(marks(ax, plots.STOP_GID) == [0.0] for ax in fig.axes)
+    assert plots.render(fig).startswith(PNG)
+
+
+# --------------------------------------------------------------------------- endpoints
+
+
+def finished(api, scene: dict, timeout: float = 20.0) -> dict:
+    job = api.post("/v1/plans", json=scene).json()
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        job = api.get(f"/v1/plans/{job['id']}").json()
+        if job["status"] in ("succeeded", "failed", "cancelled"):
+            return job
+        time.sleep(0.05)
+    raise AssertionError("the job did not end")
+
+
+@pytest.fixture(scope="module")
+def api(tmp_path_factory):
+    with client(tmp_path_factory.mktemp("plots"), solve=fake_plan, workers=1) as c:
+        yield c
+
+
+@pytest.mark.parametrize("fmt, media", [("png", "image/png"), ("svg", "image/svg+xml")])
+def test_the_plot_endpoint_serves_the_library_figure(api, fmt, media):
+    scene = two_link_scene(iterations=2)
+    job = finished(api, scene)
+    r = api.get(f"/v1/plans/{job['id']}/plot.{fmt}")
+    assert r.status_code == 200 and r.headers["content-type"] == media
+    expected = plots.plan_plot(Plan.model_validate(job["plan"]),
+                               Scene.model_validate(scene).robot, fmt)
+    assert r.content == expected
+
+
+def test_a_failed_job_with_its_last_iterate_is_drawn(api):
+    job = finished(api, two_link_scene(iterations=2, tol=0.6))
+    assert job["status"] == "failed" and job["plan"] is not None
+    assert api.get(f"/v1/plans/{job['id']}/plot.png").content.startswith(PNG)
+
+
+def test_unknown_job_is_404_and_a_job_without_plan_is_409(api):
+    r = api.get("/v1/plans/nope/plot.png")
+    assert r.status_code == 404 and r.headers["content-type"] == "application/problem+json"
+    assert r.json()["detail"] == "there is no plan job 'nope'"
+
+    broken = finished(api, two_link_scene(iterations=2, tol=0.3))  # the solver raises
+    r = api.get(f"/v1/plans/{broken['id']}/plot.svg")
+    assert r.status_code == 409 and r.headers["content-type"] == "application/problem+json"
+    assert r.json()["type"] == "urn:undertow:problem:no-plan"
+    assert r.json()["detail"].startswith(f"plan job {broken['id']!r} is failed (")
+
+    slow = api.post("/v1/plans", json=two_link_scene(iterations=200)).json()
+    r = api.get(f"/v1/plans/{slow['id']}/plot.png")
+    assert r.status_code == 409
+    assert r.json()["detail"] in (f"plan job {slow['id']!r} is {s}; a plot needs its plan"
+                                  for s in ("queued", "running"))
+    api.delete(f"/v1/plans/{slow['id']}")
+
+
+def test_drawing_does_not_block_the_event_loop(tmp_path, monkeypatch):
+    from app.routes import plots as route
+
+    drawing = threading.Event()
+
+    def slow_plot(plan, robot, fmt):
+        drawing.set()
+        time.sleep(1.0)
+        return b"drawn"
+
+    monkeypatch.setattr(route.plots, "plan_plot", slow_plot)
+    with client(tmp_path, solve=fake_plan) as api:
+        job = finished(api, two_link_scene(iterations=1))
+        with ThreadPoolExecutor(1) as pool:
+            image = pool.submit(api.get, f"/v1/plans/{job['id']}/plot.png")
+            assert drawing.wait(10)
+            start = time.monotonic()
+            assert api.get("/healthz").status_code == 200
+            assert time.monotonic() - start < 0.5 and not image.done()
+            assert image.result().content == b"drawn"
