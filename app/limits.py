@@ -43,13 +43,21 @@ def _points(body: BaseModel) -> list[tuple[list[str], int]]:
 
 
 def _request_errors(body: BaseModel, settings: Settings) -> list[FieldError]:
-    """Links of the robot and the number of points a request asks for."""
+    """Links of the robot, the number of points a request asks for, and the size of a
+    wave design's search."""
     errors = []
     robot = getattr(body, "robot", None)
     if robot is not None and robot.n > settings.max_links:
         errors.append(field_error(["body", "robot", "links"],
                                   f"at most {settings.max_links} links on this server "
                                   f"(UNDERTOW_MAX_LINKS), got {robot.n}", "limit"))
+    for name, cap, var in (("starts", settings.max_wave_starts, "UNDERTOW_MAX_WAVE_STARTS"),
+                           ("frequency_max", settings.max_wave_frequency,
+                            "UNDERTOW_MAX_WAVE_FREQUENCY")):
+        value = getattr(body, name, None)
+        if isinstance(value, int) and value > cap:
+            errors.append(field_error(["body", name], f"at most {cap} on this server ({var}), "
+                                                      f"got {value}", "limit"))
     for loc, size in _points(body):
         if size > settings.max_points:
             errors.append(field_error(["body", *loc],

@@ -33,6 +33,9 @@ class Settings(BaseSettings):
     max_wait: float = Field(default=30.0, ge=0.0, description="cap on POST /v1/plans?wait= [s]")
     max_points: int = Field(default=20_000, ge=2, description="states, configurations, grid "
                             "points, samples or time steps one request may ask for")
+    max_wave_starts: int = Field(default=8, ge=1, description="NLP starts of one wave design")
+    max_wave_frequency: int = Field(default=6, ge=1, description="largest frequency_max of one "
+                                    "wave design (the screening grows as its power)")
     compute_threads: int = Field(default=4, ge=1, description="concurrent synchronous computations")
     retry_after: int = Field(default=5, ge=1, description="Retry-After [s] when the queue is full")
     log_level: str = Field(default="INFO")

@@ -193,8 +193,8 @@ def wave_request() -> dict:
     robot = {**WAVELESS, "gravity": 0.0, "links": [WAVELESS["links"][0],
                                                    {**WAVELESS["links"][1], "inertia": 0.005}]}
     return {"robot": robot, "amplitude_max": 0.06, "frequency_max": 3, "margin": 0.02,
-            "region": {"lower": [0.0, 1.4], "upper": [0.2, 1.8]}, "starts": 1,
-            "certification_points": 400}
+            "region": {"lower": [0.0, 1.4], "upper": [0.2, 1.8]}, "starts": 4,
+            "certification_points": 2000}
 
 
 def test_designed_waves_keep_the_certified_margin_on_an_independent_grid(api):
@@ -233,3 +233,24 @@ def test_the_seed_arm_examples_run(api):
                    for k in ("waveless", "waves"))
     assert strict_json(api.post("/v1/inverse-dynamics", json=plain).text)["status"] == "singular"
     assert strict_json(api.post("/v1/inverse-dynamics", json=wavy).text)["status"] == "completed"
+
+
+@pytest.mark.parametrize("path", ["/v1/dynamics", "/v1/simulate"])
+def test_the_documented_examples_are_accepted(api, path):
+    content = api.app.openapi()["paths"][path]["post"]["requestBody"]["content"]
+    examples = content["application/json"]["examples"]
+    assert examples
+    for example in examples.values():
+        r = api.post(path, json=example["value"])
+        assert r.status_code == 200, r.text
+        strict_json(r.text)
+
+
+def test_the_wave_design_search_is_bounded_by_the_server(tmp_path):
+    request = {**wave_request(), "starts": 9, "frequency_max": 7}
+    with client(tmp_path) as c:
+        r = c.post("/v1/waves/design", json=request)
+    assert errors_of(r) == [
+        (["body", "starts"], "at most 8 on this server (UNDERTOW_MAX_WAVE_STARTS), got 9"),
+        (["body", "frequency_max"],
+         "at most 6 on this server (UNDERTOW_MAX_WAVE_FREQUENCY), got 7")]

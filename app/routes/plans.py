@@ -5,7 +5,7 @@ from __future__ import annotations
 import uuid
 from typing import Annotated
 
-from fastapi import APIRouter, Query, Response
+from fastapi import APIRouter, Body, Query, Response
 from starlette.concurrency import run_in_threadpool
 
 from app.deps import RunnerDep, SettingsDep, StoreDep
@@ -13,6 +13,7 @@ from app.errors import ApiError, field_error, invalid
 from app.jobs import QueueFull
 from app.limits import check_scene
 from app.openapi import problems
+from app.schema_examples import body_examples
 from app.schemas import Job, JobList, JobSummary
 from app.store import FINAL, JobRecord, JobStatus, JobStore
 from planner.scene import Scene
@@ -32,7 +33,8 @@ def _found(record: JobRecord | None, job_id: str) -> JobRecord:
              responses={200: {"model": Job, "description": "the job ended within `wait`"},
                         202: {"description": "queued; poll the Location", "links": _LINKS},
                         **problems(429)})
-async def create_plan(scene: Scene, response: Response, settings: SettingsDep,
+async def create_plan(scene: Annotated[Scene, Body(openapi_examples=body_examples("plan"))],
+                      response: Response, settings: SettingsDep,
                       runner: RunnerDep, store: StoreDep,
                       wait: Annotated[float, Query(ge=0.0, description=(
                           "seconds to wait for the job to end (at most UNDERTOW_MAX_WAIT)"))] = 0.0
