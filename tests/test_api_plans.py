@@ -168,3 +168,18 @@ def test_scene_and_query_validation(api):
     assert errors_of(api.get("/v1/plans?status=done")) == [
         (["query", "status"],
          "Input should be 'queued', 'running', 'succeeded', 'failed' or 'cancelled'")]
+
+
+def test_metrics_report_solve_durations_and_jobs_by_state(api):
+    api.post("/v1/plans?wait=5", json=two_link_scene(iterations=2))
+    deadline = time.monotonic() + 5  # the parent records the outcome right after the job
+    while True:
+        text = api.get("/metrics").text
+        lines = [line for line in text.splitlines()
+                 if line.startswith('undertow_solve_duration_seconds_count{status="succeeded"}')]
+        if lines and float(lines[0].split()[-1]) >= 1 or time.monotonic() > deadline:
+            break
+        time.sleep(0.05)
+    assert lines and float(lines[0].split()[-1]) >= 1
+    succeeded = api.get("/v1/plans?status=succeeded&limit=100").json()["items"]
+    assert f'undertow_jobs{{state="succeeded"}} {float(len(succeeded))}' in text
