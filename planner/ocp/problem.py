@@ -213,7 +213,7 @@ def build(key: ProblemKey) -> Problem:
     ubg = np.concatenate([np.full(c.numel(), hi) for c, _, hi in constraints])
     monitor = IterationMonitor(lay.size, g.numel(), n_params)
     opts = {
-        "expand": key.integrator != "cvodes",
+        "expand": key.method != "multiple-shooting",
         "print_time": False,
         "iteration_callback": monitor,
         "ipopt": {"print_level": 0, "sb": "yes", "tol": key.tol, "max_iter": 100000,
