@@ -149,6 +149,7 @@ class _Problem:
         self.P, self.A = self.s.passive_idx, self.s.active_idx
         self.motion, self.T = request.passive_motion, request.duration
         self.accel = active_acceleration(self.s)
+        self.mpa = functions(self.s)["Mpa"]
         self.threshold = request.sigma_threshold
 
     def full(self, t, xa: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -166,8 +167,10 @@ class _Problem:
         return np.concatenate([x[len(self.A):], ddq_a])
 
     def sigma(self, t: float, x: np.ndarray) -> float:
+        """sigma_min(M_pa) [kg m^2] at time t and active state x."""
         q, _, _ = self.full(t, x[None, :])
-        return float(measures(blocks(self.robot, q, self.s))[1][0])
+        block = np.array(self.mpa(q[0], self.p)).reshape(len(self.P), len(self.A))
+        return float(measures(block[None])[1][0])
 
 
 def solve(request: InverseDynamicsRequest) -> InverseDynamicsResult:

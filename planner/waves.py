@@ -330,6 +330,11 @@ class Certificate:
     converged: bool
     describe: str
     worst: np.ndarray = field(default_factory=lambda: np.empty(0))
+    reached: float = 1.0  # fraction of the motion the inverse dynamics completed
+
+    def beats(self, other: Certificate | None) -> bool:
+        """Higher certified value; among motions that stop, the one that gets further."""
+        return other is None or (self.value, self.reached) > (other.value, other.reached)
 
 
 # --------------------------------------------------------------------------- region
@@ -371,7 +376,7 @@ class _RegionProblem:
         par = np.concatenate([self.p, c.frequency, self.samples.ravel(), C.ravel()])
         sol = solver(x0=x0, p=par, lbx=_lbx(upper), ubx=_ubx(upper), lbg=0.0, ubg=np.inf)
         x = np.array(sol["x"]).ravel()
-        return _candidate_from(solver, x, c.frequency, upper)
+        return _candidate_from(solver, x, c, upper)
 
     def certify(self, c: Candidate) -> Certificate:
         """Dense-grid minimum minus the Lipschitz bound between grid points."""
@@ -383,12 +388,13 @@ class _RegionProblem:
         value = float(smin.min()) - lipschitz
         order = np.argsort(smin)[:8]
         converged = smin.min() >= c.bound * (1 - EXCHANGE_TOL)
-        shape = " x ".join(str(self.dense_points) for _ in self.free) or "1"
+        shape = " x ".join(str(self.dense_points) for _ in self.free)
         describe = (f"sigma_min evaluated on a dense {shape} grid of the region "
                     f"({len(self.dense):,} points, independent of the "
                     f"{len(self.samples)} optimisation samples); between grid points it "
                     f"can fall by at most {lipschitz:.3g} (largest |dM_pa/dq_i| on the grid "
-                    f"times half the spacing), which the certified value subtracts")
+                    f"times half the spacing), which the certified value subtracts"
+                    ) if len(self.free) else "sigma_min evaluated at the region's single point"
         return Certificate(value, bool(converged), describe, self.dense[order])
 
     def exchange(self, cert: Certificate) -> None:
@@ -411,11 +417,15 @@ def _ubx(upper: np.ndarray, extra: int = 0) -> np.ndarray:
     return np.concatenate([upper, np.inf * np.ones(na), [np.inf], np.inf * np.ones(extra)])
 
 
-def _candidate_from(solver: ca.Function, x: np.ndarray, frequency: np.ndarray,
+def _candidate_from(solver: ca.Function, x: np.ndarray, start: Candidate,
                     upper: np.ndarray, guess: np.ndarray | None = None) -> Candidate:
-    na = len(frequency)
+    """The NLP's waves (amplitudes clipped to their bounds, phases wrapped); the start,
+    marked unsolved, when the NLP returned a non-finite point."""
+    na = len(start.frequency)
+    if not np.all(np.isfinite(x)):
+        return Candidate(start.amplitude, start.frequency, start.phase, start.bound, False)
     solved = solver.stats()["return_status"] in ("Solve_Succeeded", "Solved_To_Acceptable_Level")
-    return Candidate(np.clip(x[:na], 0.0, upper), frequency.copy(), _wrap(x[na:2 * na]),
+    return Candidate(np.clip(x[:na], 0.0, upper), start.frequency.copy(), _wrap(x[na:2 * na]),
                      float(x[2 * na]), solved, guess)
 
 
@@ -522,7 +532,7 @@ class _MotionProblem:
         x = np.array(sol["x"]).ravel()
         na = len(upper)
         Z = x[2 * na + 1:].reshape(nz, K + 1, order="F")
-        return _candidate_from(solver, x, c.frequency, upper, Z)
+        return _candidate_from(solver, x, c, upper, Z)
 
     def certify(self, c: Candidate) -> Certificate:
         """Dense inverse-dynamics samples: their minimum minus the bound between samples."""
@@ -530,8 +540,11 @@ class _MotionProblem:
         sigma = np.array(result.sigma_min)
         if result.status != "completed" or len(sigma) == 0:
             stop = result.singularity.time if result.singularity else 0.0
-            return Certificate(0.0, False, f"the inverse dynamics stopped at t = {stop:.4g} s",
-                               np.array([stop]))
+            return Certificate(0.0, False,
+                               f"the inverse dynamics with these waves stopped at t = "
+                               f"{stop:.4g} s of {self.motion.duration:g} s, where sigma_min "
+                               f"fell to margin / 2", np.array([stop]),
+                               reached=stop / self.motion.duration)
         q, dq = np.array(result.q), np.array(result.dq)
         p = _params(self.s, self.p, [c])[0]
         jac = evaluate(self.s, "dMpa", q, p)  # (K, r*c, n)
@@ -617,8 +630,9 @@ def design(request: WaveDesignRequest) -> WaveDesignResult:
     for k in order:
         start = cands[k]
         start.bound = float(scores[k])
-        c, cert = _exchange(problem, start, upper, best[1].value if best else -math.inf)
-        if best is None or cert.value > best[1].value:
+        floor = max(request.margin, best[1].value if best else -math.inf)
+        c, cert = _exchange(problem, start, upper, floor)
+        if cert.beats(best[1] if best else None):
             best = (c, cert)
     c, cert = best
     status = "certified" if cert.value >= request.margin else "infeasible"
@@ -650,19 +664,20 @@ def _diverse(cands: list[Candidate], scores: list[float], count: int) -> list[in
 
 
 def _exchange(problem, start: Candidate, upper: np.ndarray,
-              incumbent: float) -> tuple[Candidate, Certificate]:
+              floor: float) -> tuple[Candidate, Certificate]:
     """Solve the NLP, certify, add the failing samples, solve again; keep the best certified.
 
-    Stops early when the NLP's bound cannot beat the `incumbent` certified value."""
+    Stops early when the NLP's bound falls below `floor` (the margin, or the best value
+    certified so far): more samples would only lower it further."""
     c, previous = start, math.inf
     best: tuple[Candidate, Certificate] | None = None
     for _ in range(EXCHANGE_ROUNDS):
         c = problem.optimise(c, upper)
         cert = problem.certify(c)
-        if best is None or cert.value > best[1].value:
+        if cert.beats(best[1] if best else None):
             best = (c, cert)
         stalled = c.bound > previous * (1 - EXCHANGE_TOL)  # the added samples changed nothing
-        if cert.converged or not c.solved or stalled or c.bound <= incumbent:
+        if cert.converged or not c.solved or stalled or c.bound < floor:
             break
         previous = c.bound
         problem.exchange(cert)

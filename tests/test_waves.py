@@ -154,6 +154,15 @@ def test_motion_design_is_certified_by_an_independent_inverse_dynamics(name, arm
     assert "2,001 evenly spaced samples" in result.method
 
 
+def test_a_motion_that_cannot_keep_the_margin_is_infeasible_and_says_where_it_stops():
+    req = WaveDesignRequest.model_validate({**example("two-link-wave-design").request,
+                                            "margin": 1.0, "frequency_max": 2, "starts": 2})
+    result = design(req)
+    assert result.status == "infeasible" and result.certified_sigma_min == 0.0
+    check_waves(result, req)
+    assert "the inverse dynamics with these waves stopped at t = 0 s of 2 s" in result.method
+
+
 # --------------------------------------------------------------------------- bad requests
 
 
