@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import os
 import platform
 import sys
 import tempfile
@@ -59,13 +60,15 @@ async def run(url: str, requests: int) -> dict:
     limits = httpx.Limits(max_connections=requests)
     async with httpx.AsyncClient(base_url=url, timeout=120, limits=limits) as http:
         await http.post("/v1/plans?wait=60", json=SCENE)  # build the NLP once (cache warm-up)
+        load = os.getloadavg()[0]
         t0 = time.perf_counter()
         answers = await asyncio.gather(*(submit(http) for _ in range(requests)))
         stop = time.perf_counter() + DEADLINE
         accepted = [(job_id, start) for status, _, job_id, start in answers if job_id]
         ends = await asyncio.gather(*(follow(http, j, stop) for j, _ in accepted))
         t1 = max((end for _, end in ends), default=time.perf_counter())
-    return {"answers": answers, "accepted": accepted, "ends": ends, "t0": t0, "t1": t1}
+    return {"answers": answers, "accepted": accepted, "ends": ends, "t0": t0, "t1": t1,
+            "load": load}
 
 
 def percentiles(values: list[float]) -> tuple[float, float]:
@@ -89,7 +92,9 @@ def report(result: dict, args: argparse.Namespace, command: str) -> tuple[str, b
         "",
         f"Command: `{command}`",
         "",
-        (f"Machine: {platform.machine()}, Python {platform.python_version()}, "
+        (f"Machine: {platform.machine()}, {os.cpu_count()} cores (1-minute load average "
+         f"{result['load']:.1f} when the run started: other work shares them), "
+         f"Python {platform.python_version()}, "
          f"{args.workers} solver worker processes, queue of {args.max_queued} "
          f"(so at most {args.workers + args.max_queued} unfinished plans)."),
         ("Scene: a two-link arm (one passive, one wavy active joint), legendre collocation, "
