@@ -127,6 +127,7 @@ class ProgressBar:
         self.stream, self.max_iter, self.visible = stream, max_iter, visible
         self.tty = stream.isatty()
         self.last_draw, self.stop, self.drawn = -float("inf"), False, False
+        self.latest = None
 
     def line(self, progress) -> str:
         filled = min(_BAR, round(_BAR * progress.iteration / max(self.max_iter, 1)))
@@ -135,6 +136,7 @@ class ProgressBar:
                 f"inf_pr {progress.inf_pr:.2e}  {progress.elapsed:6.1f} s")
 
     def __call__(self, progress) -> bool:
+        self.latest = progress
         now = time.monotonic()
         period = 0.1 if self.tty else PROGRESS_PERIOD
         if self.visible and now - self.last_draw >= period:
@@ -145,8 +147,9 @@ class ProgressBar:
         return not self.stop
 
     def close(self) -> None:
+        """On a terminal: redraw the last iteration and end the line."""
         if self.tty and self.drawn:
-            self.stream.write("\n")
+            self.stream.write(self.line(self.latest) + "\n")
             self.stream.flush()
 
 

@@ -65,8 +65,8 @@ def plan_figure(plan: Plan, robot: Robot, snapshots: int = SNAPSHOTS) -> Figure:
     tau = np.asarray(plan.dense.tau)
     crossings = [c.time for c in plan.verification.waveless_singular_crossings]
 
-    fig = Figure(figsize=(11.0, 10.0), layout="constrained")
-    rows = fig.add_gridspec(4, 1, height_ratios=[1.15, 1, 1, 1.1])
+    fig = Figure(figsize=(11.0, 9.0), layout="constrained")
+    rows = fig.add_gridspec(4, 1, height_ratios=[0.8, 1, 1, 1.1])
     strip = rows[0].subgridspec(1, snapshots + 1, width_ratios=[1.0] * snapshots + [1.1])
     _snapshots(fig, strip, robot, t, q, snapshots)
     ax_q = fig.add_subplot(rows[1])
@@ -243,7 +243,7 @@ def _angles(ax: Axes, t: np.ndarray, q: np.ndarray, robot: Robot | None) -> None
     for j in range(q.shape[1]):
         active = robot is not None and robot.links[j].joint == "active"
         ax.plot(t, q[:, j], lw=1.6, ls="-" if active or robot is None else "--",
-                label=_joint_label(robot, j))
+                color=f"C{j % 10}", label=_joint_label(robot, j))
     ax.set_ylabel("q [rad]")
     ax.grid(True, alpha=0.3)
 
@@ -251,7 +251,7 @@ def _angles(ax: Axes, t: np.ndarray, q: np.ndarray, robot: Robot | None) -> None
 def _torques(ax: Axes, t: np.ndarray, tau: np.ndarray, robot: Robot | None) -> None:
     active = robot.active if robot is not None else list(range(tau.shape[1]))
     for col, j in enumerate(active):
-        ax.plot(t, tau[:, col], lw=1.6, label=f"tau{j}")
+        ax.plot(t, tau[:, col], lw=1.6, color=f"C{j % 10}", label=f"tau{j}")
     magnitude = np.abs(tau[np.isfinite(tau)])
     if magnitude.size and magnitude.max() > _SPIKE * max(np.median(magnitude), 1e-12):
         typical = max(float(np.percentile(magnitude, 90)), 1e-9)

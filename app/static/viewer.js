@@ -11,7 +11,7 @@
   const FINAL = new Set(["succeeded", "failed", "cancelled"]);
   const POLL_MS = 250;
   const SIGMA_FLOOR = 1e-12;
-  const COLORS = ["#1f6fb4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#17becf"];
+  const COLORS = ["#1f6fb4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#17becf", "#bcbd22"];
   const C = { ink: "#1d2733", muted: "#8a94a0", grid: "#eef1f5", active: "#ff7f0e", passive: "#555555",
               with: "#1f6fb4", without: "#9a9a9a", mark: "#d62728" };
 
@@ -176,11 +176,16 @@
       });
       row.insertCell().append(joint);
       for (const [field, step] of LINK_FIELDS) {
-        row.insertCell().append(numberInput(link[field], step, `robot.links.${i}.${field}`, (input) => {
-          const v = parseFloat(input.value);
-          input.classList.toggle("invalid", !Number.isFinite(v));
-          if (Number.isFinite(v)) { link[field] = v; sceneEdited(); }
-        }));
+        const input = numberInput(link[field], step, `robot.links.${i}.${field}`, (el) => {
+          const v = parseFloat(el.value);
+          const blank = field === "inertia" && el.value.trim() === "";
+          el.classList.toggle("invalid", !Number.isFinite(v) && !blank);
+          if (blank) delete link[field];
+          else if (Number.isFinite(v)) link[field] = v;
+          sceneEdited();
+        });
+        if (field === "inertia") input.placeholder = "0";
+        row.insertCell().append(input);
       }
       for (const [field, step] of WAVE_FIELDS) {
         const wave = link.wave || {};
