@@ -254,3 +254,17 @@ def test_the_wave_design_search_is_bounded_by_the_server(tmp_path):
         (["body", "starts"], "at most 8 on this server (UNDERTOW_MAX_WAVE_STARTS), got 9"),
         (["body", "frequency_max"],
          "at most 6 on this server (UNDERTOW_MAX_WAVE_FREQUENCY), got 7")]
+
+
+def test_inverse_dynamics_field_errors(api):
+    request = inverse_request(gravity=0.0)
+    request["passive_motion"] = {**request["passive_motion"], "start": [0.0, 0.1],
+                                 "end": [0.3, 0.2]}
+    request["active_initial"] = {"q": [0.2, 0.0], "dq": [0.0]}
+    errors = errors_of(api.post("/v1/inverse-dynamics", json=request))
+    assert errors == [(["body", "passive_motion"],
+                       "needs 1 angle per time, one per passive joint")]
+    request = inverse_request(gravity=0.0)
+    request["duration"] = 0
+    assert errors_of(api.post("/v1/inverse-dynamics", json=request)) == [
+        (["body", "duration"], "Input should be greater than 0")]
