@@ -244,3 +244,19 @@ def test_plan_reports_waveless_singular_crossings():
         assert crossing.sigma_min < 1e-12
     sigma, _ = coupling_along(sc.robot, np.asarray(result.q))
     assert sigma.min() >= 0.008 - 1e-7
+
+
+def test_compiled_nlp_is_cached_on_disk_and_solves_identically(tmp_path, monkeypatch):
+    monkeypatch.setenv("UNDERTOW_CACHE_DIR", str(tmp_path))
+    reference = plan(scene(N=12))
+    compiled = plan(scene(N=12, solver={"jit": True}))
+    libraries = list(tmp_path.glob("nlp_*.so"))
+    assert len(libraries) == 1
+    assert compiled.solver.success
+    assert compiled.objective == pytest.approx(reference.objective, rel=1e-9)
+    assert compiled.solver.iterations == reference.solver.iterations
+    problem.cache_clear()  # a new process: the library is loaded, not rebuilt
+    stamp = libraries[0].stat().st_mtime_ns
+    again = plan(scene(N=12, solver={"jit": True}))
+    assert libraries[0].stat().st_mtime_ns == stamp
+    assert again.objective == pytest.approx(reference.objective, rel=1e-9)

@@ -7,6 +7,12 @@ weights) enters as a parameter or a bound, so one NLP serves every scene of its 
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
+import threading
+import os
+import subprocess
+import tempfile
 import time
 from dataclasses import dataclass, field
 from functools import lru_cache
@@ -42,6 +48,7 @@ class ProblemKey:
     time: bool
     smoothness: bool
     tol: float
+    jit: bool
 
     @classmethod
     def of(cls, scene: Scene) -> ProblemKey:
@@ -68,7 +75,12 @@ class ProblemKey:
             time=task.objective.time > 0,
             smoothness=task.objective.smoothness > 0,
             tol=scene.solver.tol,
+            jit=scene.solver.jit,
         )
+
+    def digest(self) -> str:
+        """A stable hash of the key: names the compiled NLP in the disk cache."""
+        return hashlib.sha256(repr(self).encode()).hexdigest()[:20]
 
 
 @dataclass
@@ -213,7 +225,6 @@ def build(key: ProblemKey) -> Problem:
     ubg = np.concatenate([np.full(c.numel(), hi) for c, _, hi in constraints])
     monitor = IterationMonitor(lay.size, g.numel(), n_params)
     opts = {
-        "expand": key.method != "multiple-shooting",
         "print_time": False,
         "iteration_callback": monitor,
         "ipopt": {"print_level": 0, "sb": "yes", "tol": key.tol, "max_iter": 100000,
@@ -221,11 +232,47 @@ def build(key: ProblemKey) -> Problem:
     }
     if key.integrator == "cvodes":
         opts["ipopt"]["hessian_approximation"] = "limited-memory"
-    solver = ca.nlpsol("plan", "ipopt", {"x": lay.vector(), "p": P, "f": cost, "g": g}, opts)
+    nlp = {"x": lay.vector(), "p": P, "f": cost, "g": g}
+    if key.jit and key.integrator != "cvodes":
+        solver = ca.nlpsol("plan", "ipopt", compiled_nlp(key, nlp, opts), opts)
+    else:
+        expand = key.method != "multiple-shooting"
+        solver = ca.nlpsol("plan", "ipopt", nlp, {**opts, "expand": expand})
     accel = ca.Function("accelerations", [lay.vector(), P], list(accelerations.values()),
                         ["x", "P"], list(accelerations))
     return Problem(key, lay, transcription, disc, params, n_params, lbg, ubg, solver, monitor,
                    time.perf_counter() - start, accel)
+
+
+_CODEGEN = threading.Lock()  # code generation writes into the working directory
+
+
+def cache_dir() -> str:
+    """Where compiled NLPs are kept: $UNDERTOW_CACHE_DIR, else ~/.cache/undertow."""
+    default = os.path.join(os.path.expanduser("~"), ".cache", "undertow")
+    return os.environ.get("UNDERTOW_CACHE_DIR", default)
+
+
+def compiled_nlp(key: ProblemKey, nlp: dict, opts: dict) -> str:
+    """Path of the NLP's functions compiled to a shared library, built on first use.
+
+    The graph is generated unexpanded, so each per-knot function (and its derivatives)
+    becomes one loop in C: a few MB of code that gcc compiles in seconds, where the
+    expanded graph would be tens of MB. The file is named by the key's hash and written
+    atomically, so processes sharing the cache never see a partial library.
+    """
+    folder = cache_dir()
+    os.makedirs(folder, exist_ok=True)
+    library = os.path.join(folder, f"nlp_{key.digest()}.so")
+    if os.path.exists(library):
+        return library
+    generator = ca.nlpsol("plan", "ipopt", nlp, {**opts, "expand": False})
+    with _CODEGEN, tempfile.TemporaryDirectory(dir=folder) as work, contextlib.chdir(work):
+        source = generator.generate_dependencies("nlp.c", {"with_header": False})
+        subprocess.run(["gcc", "-O1", "-fPIC", "-shared", source, "-o", "nlp.so"],
+                       check=True, capture_output=True)
+        os.replace("nlp.so", library)
+    return library
 
 
 def _knot_count(key: ProblemKey) -> int:
