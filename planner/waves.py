@@ -7,20 +7,23 @@ of configurations, or along the motion that the inverse dynamics then produces. 
 already on the robot are replaced.
 
 How:
-1. Screening. For every frequency combination and a few phases per joint (full
-   amplitude), sigma_min is evaluated at the samples (box) or at the start (motion), and
-   the best candidates start an NLP.
-2. NLP (Ipopt). With the frequencies fixed, maximise s subject to
-   lambda_min(M_pa M_pa^T) >= s^2 at every sample, written as smooth constraints on
-   D = M_pa M_pa^T - s^2 I: D >= 0 (one passive joint), trace D >= 0 and det D >= 0 (two),
-   the leading principal minors of D >= 0 (more). Along a motion the samples are the
-   nodes of a collocation of the inverse dynamics whose active states are NLP variables
-   (passive rows M_pp ddq_p + M_pa ddq_a + h_p = 0 at the nodes, ddq_a piecewise linear).
+1. Screening. Every frequency combination with a few phases per joint (full amplitude)
+   is scored: over a box by sigma_min at the optimisation samples; along a motion by a
+   fixed-step RK4 inverse dynamics of all candidates at once. The best starts, one per
+   frequency combination first, go to the NLP.
+2. NLP (Ipopt). With the frequencies fixed, maximise s over amplitudes and phases
+   subject to lambda_min(M_pa M_pa^T) >= s^2 at every sample, as smooth dimensionless
+   constraints (see `_bound`). Along a motion the samples are the nodes of a collocation
+   of the inverse dynamics whose active states are NLP variables (passive rows
+   M_pp ddq_p + M_pa ddq_a + h_p = 0 at the nodes, ddq_a piecewise linear in time).
 3. Certification, independent of the NLP's samples: a dense grid of the box with a
    Lipschitz bound between grid points, or the inverse dynamics of `planner.inverse.solve`
    at dense samples with a bound between samples. Where the dense check falls below the
-   NLP's bound, the worst configurations join the samples (or the time grid is refined
-   around the worst times) and the NLP is solved again (exchange method).
+   NLP's bound, the worst configurations join the samples (or the collocation intervals
+   around the worst times are halved) and the NLP is solved again (exchange method).
+
+The result is "certified" when the certified value reaches the margin, else
+"infeasible" with the best value found (which proves nothing about other waves).
 """
 
 from __future__ import annotations
@@ -35,7 +38,7 @@ import casadi as ca
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from planner.coupling import check_split, evaluate, measures
+from planner.coupling import evaluate, measures
 from planner.dynamics import derive
 from planner.inverse import (ActiveState, InverseDynamicsRequest, InverseDynamicsResult,
                              active_acceleration, check_motion, check_prescribable, solve)
@@ -98,7 +101,6 @@ class WaveDesignRequest(BaseModel):
 
     @model_validator(mode="after")
     def _consistent(self) -> WaveDesignRequest:
-        check_split(self.robot)
         check_prescribable(self.robot)
         n = self.robot.n
         if (self.region is None) == (self.motion is None):
@@ -146,7 +148,7 @@ def wave_structure(robot: Robot) -> Structure:
 def _with_waves(s: Structure, base, amplitude, frequency, phase) -> ca.MX:
     """The parameter vector `base` with the active joints' (a, n, eps) put in their slots."""
     entries = [base[i] for i in range(s.n_params)]
-    for k, (joint, slot) in enumerate(sorted(wave_slots(s).items())):
+    for k, slot in enumerate(sorted(wave_slots(s).values())):  # active joints in order
         entries[slot:slot + 3] = [amplitude[k], frequency[k], phase[k]]
     return ca.vertcat(*entries)
 
