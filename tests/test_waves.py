@@ -83,6 +83,19 @@ def test_seed_arm_box_in_all_four_joints_is_certified(rng):
         result.certified_sigma_min - TOLERANCE)
 
 
+@pytest.mark.slow
+def test_seed_arm_box_with_the_default_dense_grid_survives_a_large_random_sample(rng):
+    robot = Robot.model_validate(example("seed-arm-waveless").request["robot"])
+    q = np.array(seed_start())
+    lower, upper = (q - 0.05).tolist(), (q + 0.05).tolist()
+    req = region_request(robot, lower, upper, frequency_max=6, starts=8)
+    result = design(req)
+    check_waves(result, req)
+    assert "14 x 14 x 14 x 14 grid" in result.method
+    assert random_minimum(result.robot, lower, upper, rng, 50_000) >= (
+        result.certified_sigma_min - TOLERANCE)
+
+
 def alternating(joints: str) -> Robot:
     """Point masses (absolute inertia 0), joints given as 'p'/'a' letters."""
     return Robot.model_validate({"links": [
