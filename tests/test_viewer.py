@@ -1,0 +1,227 @@
+"""The browser viewer at "/", in Debian's chromium driven headless by Playwright against a
+live uvicorn on 127.0.0.1.
+
+The set-up installs what is missing: chromium with apt-get (the test is skipped only when
+apt itself is unavailable) and the playwright package into this interpreter with pip.
+Running the plan test saves docs/img/viewer.png.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import importlib.util
+import json
+import os
+import shutil
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import httpx
+import pytest
+from service_fixtures import ROOT, LiveServer
+from test_plots import CROSSING_SCENE
+
+CHROMIUM = Path("/usr/bin/chromium")
+ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+        "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+SCREENSHOT = ROOT / "docs" / "img" / "viewer.png"
+PLAN_TIMEOUT = 180_000  # [ms]
+APT_TIMEOUT, PIP_TIMEOUT = 900, 600  # [s]
+COLORS = {"active": (255, 127, 14), "link": (43, 52, 64), "with": (31, 111, 180),
+          "without": (154, 154, 154), "mark": (214, 39, 40)}
+
+
+# --------------------------------------------------------------------------- set-up
+
+
+@contextlib.contextmanager
+def setup_lock() -> Iterator[None]:
+    """One installer at a time across pytest-xdist workers."""
+    with open(Path("/tmp") / "undertow-viewer-setup.lock", "w") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+def ensure_chromium() -> None:
+    """Install Debian's chromium unless /usr/bin/chromium exists; skip without apt-get."""
+    if CHROMIUM.exists():
+        return
+    apt = shutil.which("apt-get")
+    if apt is None:
+        pytest.skip("Debian's chromium is missing and apt-get is not available to install it")
+    env = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
+    install = [apt, "-o", "DPkg::Lock::Timeout=300", "install", "-y", "-q",
+               "--no-install-recommends", "chromium"]
+    result = subprocess.run(install, env=env, capture_output=True, text=True,
+                            timeout=APT_TIMEOUT, check=False)
+    if result.returncode != 0:  # stale package lists: refresh once and retry
+        subprocess.run([apt, "-o", "DPkg::Lock::Timeout=300", "update", "-q"], env=env,
+                       capture_output=True, timeout=APT_TIMEOUT, check=False)
+        result = subprocess.run(install, env=env, capture_output=True, text=True,
+                                timeout=APT_TIMEOUT, check=False)
+    assert result.returncode == 0 and CHROMIUM.exists(), (
+        f"apt-get install chromium failed:\n{result.stdout[-2000:]}\n{result.stderr[-2000:]}")
+
+
+def ensure_playwright() -> None:
+    """pip install playwright into the running interpreter when it is missing."""
+    if importlib.util.find_spec("playwright") is not None:
+        return
+    result = subprocess.run([sys.executable, "-m", "pip", "install", "-q", "playwright"],
+                            capture_output=True, text=True, timeout=PIP_TIMEOUT, check=False)
+    assert result.returncode == 0, f"pip install playwright failed:\n{result.stderr[-3000:]}"
+    importlib.invalidate_caches()
+
+
+@pytest.fixture(scope="module")
+def browser():
+    with setup_lock():
+        ensure_chromium()
+        ensure_playwright()
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as playwright:
+        instance = playwright.chromium.launch(executable_path=str(CHROMIUM), args=ARGS)
+        yield instance
+        instance.close()
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    with LiveServer(tmp_path_factory.mktemp("viewer") / "jobs.sqlite3") as live:
+        yield live
+
+
+@pytest.fixture
+def page(browser):
+    context = browser.new_context(viewport={"width": 1440, "height": 1000})
+    view = context.new_page()
+    view.page_errors = []
+    view.on("pageerror", lambda error: view.page_errors.append(str(error)))
+    yield view
+    context.close()
+
+
+# --------------------------------------------------------------------------- helpers
+
+COUNT_COLORS = """([id, colors]) => {
+  const c = document.getElementById(id);
+  const data = c.getContext("2d").getImageData(0, 0, c.width, c.height).data;
+  const counts = Object.fromEntries(Object.keys(colors).map((k) => [k, 0]));
+  for (let i = 0; i < data.length; i += 4) {
+    for (const [k, [r, g, b]] of Object.entries(colors)) {
+      if (Math.abs(data[i] - r) + Math.abs(data[i + 1] - g) + Math.abs(data[i + 2] - b) < 30
+          && data[i + 3] > 200) counts[k] += 1;
+    }
+  }
+  return counts;
+}"""
+
+ARM_DIGEST = """() => {
+  const c = document.getElementById("arm");
+  const data = c.getContext("2d").getImageData(0, 0, c.width, c.height).data;
+  let h = 0;
+  for (let i = 0; i < data.length; i += 7) h = (h * 31 + data[i]) % 1000000007;
+  return h;
+}"""
+
+
+def colors(page, canvas: str, *names: str) -> dict[str, int]:
+    """Pixels of each named colour on a canvas."""
+    return page.evaluate(COUNT_COLORS, [canvas, {n: COLORS[n] for n in names}])
+
+
+def choose_scene(page, server) -> str:
+    """The first plan example when the server has one, otherwise a pasted scene."""
+    plans = [e for e in httpx.get(server.url + "/v1/examples").json() if e["kind"] == "plan"]
+    if plans:
+        page.wait_for_function(f"document.getElementById('example').value === {plans[0]['name']!r}")
+        return plans[0]["name"]
+    page.click("#json-box summary")
+    page.fill("#scene-json", json.dumps(CROSSING_SCENE))
+    page.click("#apply-json")
+    page.click("#json-box summary")
+    return "pasted"
+
+
+# --------------------------------------------------------------------------- tests
+
+
+def test_plan_an_example_and_watch_it(page, server):
+    page.goto(server.url + "/")
+    choose_scene(page, server)
+    assert page.locator("#links tbody tr").count() >= 2
+    page.click("#plan")
+    page.wait_for_function("['succeeded', 'failed', 'cancelled']"
+                           ".includes(document.getElementById('p-status').textContent)",
+                           timeout=PLAN_TIMEOUT)
+    job_id = page.get_attribute("#json", "href").rsplit("/", 1)[1]
+    job = httpx.get(f"{server.url}/v1/plans/{job_id}").json()
+    assert job["status"] == "succeeded", job.get("error")
+    plan = job["plan"]
+
+    # progress and summary agree with the API
+    assert page.text_content("#p-iteration").startswith(f"{job['progress']['iteration']} / ")
+    assert plan["solver"]["status"] in page.text_content("#summary")
+    crossings = plan["verification"]["waveless_singular_crossings"]
+    assert page.locator("#crossings li").count() == len(crossings) + 1
+
+    # the plots: torques, sigma_min with and without waves, crossings marked
+    page.wait_for_function("document.getElementById('time').disabled === false")
+    page.wait_for_timeout(300)
+    sigma = colors(page, "sigma-plot", "with", "without", "mark")
+    assert sigma["with"] > 500 and sigma["without"] > 300, sigma
+    assert (sigma["mark"] > 50) == bool(crossings), sigma
+    assert sum(colors(page, "torque-plot", "with", "active").values()) > 300
+    assert sum(colors(page, "angle-plot", "with", "active").values()) > 300
+
+    # the arm moves; links, masses and the wavy mass path are drawn
+    first = page.evaluate(ARM_DIGEST)
+    page.wait_for_timeout(400)
+    assert page.evaluate(ARM_DIGEST) != first, "the arm does not animate"
+    arm = colors(page, "arm", "active", "link")
+    assert arm["active"] > 300 and arm["link"] > 300, arm
+
+    page.click("#play")  # pause at the first waveless crossing, then save the screenshot
+    if crossings:
+        page.locator("#crossings li").nth(1).click()
+        assert page.text_content("#time-label").startswith(f"t = {crossings[0]['time']:.2f} ")
+    assert page.page_errors == []
+    SCREENSHOT.parent.mkdir(parents=True, exist_ok=True)
+    page.screenshot(path=str(SCREENSHOT), full_page=True)
+
+
+def test_field_errors_are_shown_at_the_field(page, server):
+    page.goto(server.url + "/")
+    choose_scene(page, server)
+    row = page.locator("#links tbody tr.active").first
+    index = int(row.locator("td").first.text_content())
+    length = float(row.locator(f"[data-loc='robot.links.{index}.length']").input_value())
+    row.locator(f"[data-loc='robot.links.{index}.wave.amplitude']").fill(str(2 * length))
+    page.click("#plan")
+    page.wait_for_selector("#error:not([hidden])")
+    text = page.text_content("#error")
+    assert "The scene was refused: The request is not valid (422)" in text
+    assert f"robot.links.{index}.wave.amplitude must be smaller than the link length" in text
+    amplitude = page.locator(f"[data-loc='robot.links.{index}.wave.amplitude']")
+    assert "invalid" in amplitude.get_attribute("class")
+    assert page.page_errors == []
+
+
+def test_a_server_with_an_api_key_asks_for_it(page, tmp_path):
+    with LiveServer(tmp_path / "jobs.sqlite3", UNDERTOW_API_KEY="s3cret") as keyed:
+        page.goto(keyed.url + "/")
+        page.wait_for_selector("#key-form:not([hidden])")
+        assert "Missing or wrong API key (401)" in page.text_content("#error")
+        page.fill("#api-key", "s3cret")
+        page.click("#key-form button")
+        page.wait_for_selector("#error", state="hidden")
+        assert page.locator("#example option").count() >= 1
+        assert page.evaluate("localStorage.getItem('undertow.apiKey')") == "s3cret"
+        assert page.page_errors == []
