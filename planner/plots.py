@@ -1,7 +1,8 @@
 """Figures of plans and inverse-dynamics results (matplotlib, Agg; PNG or SVG bytes).
 
-Plan figure: a strip of arm snapshots (links, tip masses, and the wavy mass path
-r_i(q) e(q) of every wavy link drawn around its joint), then the joint angles [rad], the
+Plan figure: a strip of arm snapshots (links, tip masses, and the mass path
+r_i(q) e(q) of every active link drawn around its joint: wavy with a wave, a circle
+without), then the joint angles [rad], the
 active torques [N m] and sigma_min(M_pa) [kg m^2] over time, the last with and without
 the waves. The times where the waveless arm is singular (the plan's
 `waveless_singular_crossings`) are vertical lines on every time axis.
@@ -191,7 +192,7 @@ def _snapshots(fig: Figure, strip, robot: Robot, t: np.ndarray, q: np.ndarray,
         tips = np.vstack([[0.0, 0.0], dyn.tips(q[k])])
         paths = [(tips[j] + wave_path(robot, j, full),
                   tips[j] + wave_path(robot, j, np.linspace(q[:, j].min(), q[:, j].max(), 120)))
-                 for j, link in enumerate(robot.links) if link.wavy]
+                 for j, link in enumerate(robot.links) if link.joint == "active"]
         drawings.append((k, tips, paths))
     extent = np.vstack([trace.reshape(-1, 2), [[0.0, 0.0]]]
                        + [p for _, _, paths in drawings for pair in paths for p in pair])
@@ -226,7 +227,7 @@ def _snapshot_key(ax: Axes) -> None:
     handles = [Line2D([], [], color="#333333", lw=2.2, label="link"),
                Line2D([], [], ls="", marker="o", color=_PASSIVE, label="mass, passive joint"),
                Line2D([], [], ls="", marker="o", color=_ACTIVE, label="mass, active joint"),
-               Line2D([], [], color=_ACTIVE, lw=1.5, label="wavy mass path\nr(q) e(q), swept"),
+               Line2D([], [], color=_ACTIVE, lw=1.5, label="active link's mass\npath r(q) e(q), swept"),
                Line2D([], [], color="#c7c7c7", lw=0.9, label="last tip's path"),
                Line2D([], [], ls="", marker="v", color="#777777", label="gravity (x) down")]
     ax.legend(handles=handles, loc="center left", fontsize=7.5, frameon=False,

@@ -1,5 +1,5 @@
 // undertow plan viewer: load or paste a scene, edit the robot and its waves, plan it through
-// the HTTP API, and watch the result: the arm (with each wavy link's mass path r(q) e(q)),
+// the HTTP API, and watch the result: the arm (with each active link's mass path r(q) e(q)),
 // the torques, sigma_min(M_pa) with and without the waves, and the joint angles.
 // Plain browser JavaScript, no dependencies. Model convention: x along gravity (drawn
 // downwards), y to the right; e(q) = (cos q, sin q).
@@ -467,7 +467,7 @@
     for (let k = 0; k < state.frames.length; k += step) pts.push(...state.frames[k]);
     const stride = Math.max(1, Math.floor(state.frames.length / 8));
     state.robot.links.forEach((link, j) => {
-      if (!(link.wave && link.wave.amplitude > 0)) return;
+      if (link.joint !== "active") return;
       for (let k = 0; k < state.frames.length; k += stride) {
         pts.push(...wavePath(link, state.frames[k][j], 0, 2 * Math.PI, 48));
       }
@@ -501,9 +501,9 @@
     ctx.lineWidth = 1;
     polyline(ctx, state.frames.map((f) => S(f[n])));
 
-    // each wavy link's mass path: the whole curve faint, the part the plan sweeps solid
+    // each active link's mass path: the whole curve faint, the part the plan sweeps solid
     state.robot.links.forEach((link, j) => {
-      if (!(link.wave && link.wave.amplitude > 0)) return;
+      if (link.joint !== "active") return;
       const column = plan.dense.q.map((row) => row[j]);
       const lo = Math.min(...column), hi = Math.max(...column);
       ctx.strokeStyle = "rgba(255,127,14,0.30)";
@@ -691,7 +691,7 @@
     state.view = null;
     $("play").disabled = false;
     $("time").disabled = false;
-    $("arm-caption").textContent = "Links (grey: passive-joint mass, orange: active), each wavy link's mass path r(q) e(q) around its joint (solid: the part this plan sweeps), the last tip's path. Gravity (x) points down.";
+    $("arm-caption").textContent = "Links (grey: passive-joint mass, orange: active), each active link's mass path r(q) e(q) around its joint, wavy where it has a wave (solid: the part this plan sweeps), the last tip's path. Gravity (x) points down.";
   }
 
   function duration() {
