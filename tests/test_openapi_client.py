@@ -1,11 +1,13 @@
-"""A Python client generated from openapi/openapi.json (openapi-python-client) plans a
-scene against a live server, with the API key."""
+"""A Python client generated from openapi/openapi.json (openapi-python-client) lists the
+examples and plans the first plan example (a two-link scene while there is none) against
+a live server, with the API key."""
 
 from __future__ import annotations
 
 import importlib
 import subprocess
 import sys
+import time
 
 import pytest
 from service_fixtures import ROOT, LiveServer
@@ -33,7 +35,8 @@ def generated(tmp_path_factory):
         sys.path.remove(str(out))
 
 
-def test_the_generated_client_plans_a_scene(generated, tmp_path):
+def test_the_generated_client_plans_an_example(generated, tmp_path):
+    from undertow_client.api.examples import list_examples
     from undertow_client.api.plans import create_plan, get_plan
     from undertow_client.models import Job, Problem, Scene
 
@@ -42,11 +45,19 @@ def test_the_generated_client_plans_a_scene(generated, tmp_path):
                                                auth_header_name="X-API-Key", timeout=60)
         anonymous = generated.Client(base_url=live.url, timeout=60)
         with client, anonymous:
-            refused = create_plan.sync_detailed(client=anonymous, body=Scene.from_dict(QUICK))
+            listed = list_examples.sync(client=client)
+            assert listed, "the client lists the examples"
+            plans = [e.request.to_dict() for e in listed if e.kind == "plan"]
+            scene = Scene.from_dict(plans[0] if plans else QUICK)
+            refused = create_plan.sync_detailed(client=anonymous, body=scene)
             assert refused.status_code == 401 and isinstance(refused.parsed, Problem)
-            job = create_plan.sync(client=client, body=Scene.from_dict(QUICK), wait=30.0)
+            job = create_plan.sync(client=client, body=scene, wait=30.0)
+            deadline = time.monotonic() + 300
+            while job.status in ("queued", "running") and time.monotonic() < deadline:
+                time.sleep(0.5)
+                job = get_plan.sync(client=client, job_id=job.id)
             assert isinstance(job, Job), job
             assert job.status == "succeeded" and job.plan.solver.success
             again = get_plan.sync(client=client, job_id=job.id)
     assert again.plan.to_dict() == job.plan.to_dict()
-    assert len(again.plan.t) == 11 and again.plan.q[0] == [0.0, 0.0]
+    assert again.plan.q[0] == scene.task.initial.q
