@@ -15,7 +15,7 @@ from planner.ocp.guess import Guess, hermite_guess, plan_guess
 from planner.ocp.problem import Problem, ProblemKey, problem
 from planner.ocp.result import DenseTrajectory, Plan, Progress, SolverReport, Verification, WaveOut
 from planner.ocp.transcription import Interpolant
-from planner.ocp.verify import verify
+from planner.ocp.verify import coupling_along, verify
 from planner.scene import DurationRange, Scene
 
 DENSE_POINTS = 2000  # about this many dense samples per plan
@@ -174,7 +174,9 @@ def _parameters(scene: Scene, prob: Problem, p_robot: np.ndarray, T: float) -> n
     if "tip" in par:
         P[par["tip"]] = [task.tip_target.x, task.tip_target.y]
     if "margin" in par:
-        P[par["margin"]] = task.coupling_margin
+        start = np.array([task.initial.q])
+        det = coupling_along(_design_robot(scene, prob.key), start)[1]
+        P[par["margin"]] = [task.coupling_margin, 1.0 if det is None or det[0] >= 0 else -1.0]
     return P
 
 

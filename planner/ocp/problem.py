@@ -116,7 +116,7 @@ def _param_layout(key: ProblemKey, n_knots: int) -> tuple[dict[str, slice], int]
     if key.tip:
         sizes["tip"] = 2
     if key.margin:
-        sizes["margin"] = 1
+        sizes["margin"] = 2  # the margin and the sign of det M_pa at the start
     out, k = {}, 0
     for name, size in sizes.items():
         out[name] = slice(k, k + size)
@@ -139,14 +139,19 @@ def _margin_function(s: Structure) -> ca.Function:
     """Leading principal minors of G / margin^2 - I, G the smaller Gram matrix of M_pa.
 
     All minors > 0 <=> G - margin^2 I is positive definite <=> sigma_min(M_pa) > margin.
+    A square block also keeps the sign its determinant has at the start:
+    sign * det(M_pa) / margin^p - 1 >= 0, necessary for the margin (|det| >= margin^p) and
+    what stops a path from jumping through det = 0 between two knots.
     """
     sym = derive(s)
-    margin = ca.SX.sym("margin")
+    margin, sign = ca.SX.sym("margin"), ca.SX.sym("sign")
     mpa = sym.mass[s.passive_idx, s.active_idx]
     gram = ca.mtimes(mpa, mpa.T) if mpa.size1() <= mpa.size2() else ca.mtimes(mpa.T, mpa)
     shifted = gram / margin**2 - ca.SX.eye(gram.size1())
-    minors = ca.vertcat(*(ca.det(shifted[:k, :k]) for k in range(1, gram.size1() + 1)))
-    return ca.Function("margin", [sym.q, sym.p, margin], [minors])
+    minors = [ca.det(shifted[:k, :k]) for k in range(1, gram.size1() + 1)]
+    if mpa.size1() == mpa.size2():
+        minors.append(sign * ca.det(mpa) / margin ** mpa.size1() - 1)
+    return ca.Function("margin", [sym.q, sym.p, margin, sign], [ca.vertcat(*minors)])
 
 
 def _robot_parameters(key: ProblemKey, lay: Layout, P: ca.MX, params: dict) -> ca.MX:
@@ -217,7 +222,8 @@ def build(key: ProblemKey) -> Problem:
         tip = f["tips"](disc.q[:, -1], p)[:, -1]
         constraints.append((tip - P[params["tip"]], 0.0, 0.0))
     if key.margin:
-        minors = _margin_function(s).map(disc.path_q.size2())(disc.path_q, p, P[params["margin"]])
+        margin, sign = P[params["margin"]][0], P[params["margin"]][1]
+        minors = _margin_function(s).map(disc.path_q.size2())(disc.path_q, p, margin, sign)
         constraints.append((minors, 0.0, np.inf))
 
     g = ca.vertcat(*(ca.vec(c) for c, _, _ in constraints))
