@@ -189,9 +189,35 @@ def _coupling_examples() -> list[Example]:
     ]
 
 
+PLAN_ARM = {"links": [
+    {"length": 0.5, "mass": 1.0, "inertia": 0.01, "joint": "passive"},
+    {"length": 0.4, "mass": 0.8, "inertia": 0.008, "joint": "active",
+     "wave": {"amplitude": 0.05, "frequency": 3, "phase": 0.3}}], "gravity": 0.0}
+"""Two links, passive shoulder, wavy active elbow; g = 0 (the planner's test arm)."""
+
+
 def _plan_examples() -> list[Example]:
-    """Optimal-control plans (kind "plan", for POST /v1/plans); see planner.ocp."""
-    return []
+    """Optimal-control plans (kind "plan", for POST /v1/plans); see planner.ocp.
+
+    It starts and ends at rest; without the wave M_pa = I2 + m2 l1 l2 cos(q0 - q1)
+    changes sign between the two configurations, with it the determinant keeps its sign.
+    """
+    rest = [0.0, 0.0]
+    crossing = {
+        "robot": PLAN_ARM,
+        "task": {"duration": 3.0, "initial": {"q": [0.0, 0.8], "dq": rest},
+                 "final": {"q": [0.1, 1.8], "dq": rest}, "coupling_margin": 0.01,
+                 "objective": {"effort": 1.0}},
+        "transcription": {"method": "legendre", "intervals": 40, "degree": 3},
+        "solver": {"max_wall_time": 60.0},
+    }
+    return [
+        Example(name="two-link-plan", title="Two-link arm: rest to rest through a singularity",
+                description="Feed-forward torques that move a passive shoulder and a wavy elbow "
+                            "through configurations where the waveless coupling is singular, "
+                            "keeping sigma_min(M_pa) >= 0.01; the result lists the crossings.",
+                kind="plan", request=crossing),
+    ]
 
 
 def examples() -> list[Example]:

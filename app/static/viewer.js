@@ -619,8 +619,12 @@
       ctx.strokeStyle = "#c5ccd4";
       ctx.strokeRect(this.left, top, W - this.left - this.right, H - top - bottom);
       // marks (waveless singular crossings)
-      ctx.setLineDash([5, 4]); ctx.strokeStyle = C.mark; ctx.lineWidth = 1.2;
-      for (const m of options.marks || []) line(ctx, X(m), top, X(m), H - bottom);
+      // 1 px on a pixel centre: crisp, in exactly the mark colour
+      ctx.setLineDash([5, 4]); ctx.strokeStyle = C.mark; ctx.lineWidth = 1;
+      for (const m of options.marks || []) {
+        const x = Math.round(X(m)) + 0.5;
+        line(ctx, x, top, x, H - bottom);
+      }
       ctx.setLineDash([]);
       // series
       ctx.save();

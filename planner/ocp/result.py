@@ -9,8 +9,9 @@ from pydantic import BaseModel, ConfigDict, Field
 
 @dataclass(frozen=True)
 class Progress:
-    """One Ipopt iteration: objective, primal infeasibility, dual infeasibility (None when
-    the interface does not report it), wall time since the solve started [s]."""
+    """One Ipopt iteration: its number (counting restoration-phase iterations, which
+    `SolverReport.iterations` leaves out), objective, primal infeasibility, dual
+    infeasibility (None: the interface does not report it), wall time since the start [s]."""
 
     iteration: int
     objective: float
