@@ -6,6 +6,7 @@ passive joints at times t (seconds), one row per time and one column per passive
 
 from __future__ import annotations
 
+from functools import cached_property
 from typing import Annotated, Literal, Union
 
 import numpy as np
@@ -107,10 +108,14 @@ class SampledProfile(BaseModel):
             raise ValueError("t: must be strictly increasing")
         return self
 
+    @cached_property
+    def _spline(self) -> CubicSpline:
+        """Built once per profile: the inverse dynamics evaluates it thousands of times."""
+        return CubicSpline(self.t, np.asarray(self.q), bc_type="clamped")
+
     def evaluate(self, t, duration: float) -> Motion:
-        spline = CubicSpline(self.t, np.asarray(self.q), bc_type="clamped")
         tt = np.clip(np.asarray(t, dtype=float), 0.0, self.t[-1])
-        return spline(tt), spline(tt, 1), spline(tt, 2)
+        return self._spline(tt), self._spline(tt, 1), self._spline(tt, 2)
 
     @property
     def n(self) -> int:
