@@ -6,7 +6,7 @@ import time
 
 import pytest
 from fake_solvers import fake_plan
-from service_fixtures import client, two_link_scene
+from service_fixtures import client, two_link_scene, wait_final
 
 
 @pytest.fixture(scope="module")
@@ -15,16 +15,6 @@ def api(tmp_path_factory):
                 max_queued=1, max_wait=5.0, max_horizon=10.0, max_nodes=100,
                 max_wall_time=30.0) as c:
         yield c
-
-
-def poll(api, job_id: str, timeout: float = 20.0) -> dict:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        job = api.get(f"/v1/plans/{job_id}").json()
-        if job["status"] in ("succeeded", "failed", "cancelled"):
-            return job
-        time.sleep(0.05)
-    raise AssertionError(f"job {job_id} did not end")
 
 
 def errors_of(response) -> list[tuple[list, str]]:
@@ -39,7 +29,7 @@ def test_post_answers_202_with_a_location_then_the_plan_arrives(api):
     job = r.json()
     assert r.headers["location"] == f"/v1/plans/{job['id']}"
     assert job["status"] in ("queued", "running") and job["plan"] is None
-    done = poll(api, job["id"])
+    done = wait_final(api, job["id"])
     assert done["status"] == "succeeded" and done["error"] is None
     assert done["plan"]["solver"]["status"] == "Solve_Succeeded"
     assert done["progress"]["iteration"] == 4
@@ -56,7 +46,7 @@ def test_wait_gives_up_with_202_when_the_job_is_slower(api):
     start = time.monotonic()
     r = api.post("/v1/plans?wait=0.3", json=two_link_scene(iterations=50))
     assert r.status_code == 202 and 0.3 <= time.monotonic() - start < 3
-    assert poll(api, r.json()["id"])["status"] == "succeeded"
+    assert wait_final(api, r.json()["id"])["status"] == "succeeded"
 
 
 def test_a_solver_failure_is_a_failed_job_that_keeps_its_plan(api):
@@ -74,7 +64,7 @@ def test_delete_cancels_a_running_plan(api):
         time.sleep(0.05)
     r = api.delete(f"/v1/plans/{job_id}")
     assert r.status_code == 202 and r.json()["cancel_requested"] is True
-    done = poll(api, job_id, timeout=5)
+    done = wait_final(api, job_id, timeout=5)
     assert done["status"] == "cancelled"
     assert done["plan"]["solver"]["status"] == "User_Requested_Stop"
     again = api.delete(f"/v1/plans/{job_id}")
@@ -89,7 +79,7 @@ def test_delete_cancels_a_queued_plan_before_it_starts(api):
     assert r.status_code == 200 and r.json()["status"] == "cancelled"
     for job_id in busy:
         api.delete(f"/v1/plans/{job_id}")
-    assert {poll(api, job_id)["status"] for job_id in busy} == {"cancelled"}
+    assert {wait_final(api, job_id)["status"] for job_id in busy} == {"cancelled"}
     time.sleep(0.3)  # the worker that takes the queued job up must skip it
     job = api.get(f"/v1/plans/{queued}").json()
     assert (job["status"], job["started"], job["plan"]) == ("cancelled", None, None)
@@ -120,7 +110,7 @@ def test_a_full_queue_answers_429_with_retry_after(api):
     assert refused[0].status_code == 429 and refused[0].headers["retry-after"] == "5"
     assert refused[0].json()["type"] == "urn:undertow:problem:queue-full"
     for r in accepted:
-        assert poll(api, r.json()["id"])["status"] == "succeeded"
+        assert wait_final(api, r.json()["id"])["status"] == "succeeded"
 
 
 def test_the_list_pages_newest_first_and_filters(api):
