@@ -7,7 +7,7 @@ HOST   ?= 127.0.0.1
 PORT   ?= 8000
 PYTEST_ARGS ?=
 
-.PHONY: install serve test test-slow openapi bench clean
+.PHONY: install serve test test-slow openapi screenshot clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -28,6 +28,9 @@ test-slow: $(STAMP)
 
 openapi: $(STAMP)
 	$(PY) -m app.openapi_export openapi/openapi.json
+
+screenshot: $(STAMP)
+	UNDERTOW_SCREENSHOT=1 $(PY) -m pytest tests/test_viewer.py -k watch_it -p no:xdist
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache
