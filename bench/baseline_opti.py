@@ -1,0 +1,213 @@
+"""The baseline: a plain CasADi Opti script for a planning scene, written as a user would.
+
+State x = (q, dq), explicit forward dynamics x' = (dq, solve(M, B tau - h)) with M and h
+the library's CasADi Functions called on MX; Legendre collocation of degree d on N equal
+intervals, laid out as in CasADi's direct-collocation example (nodes, d collocation states
+per interval, continuity by the end-point weights D), with the torque as a variable at each
+collocation point (degree d - 1 per interval, the planner's own torque space), so that both
+solve the same continuous problem with the same discretization error.
+
+Same as the planner: objective effort * int |tau|^2 dt by the collocation quadrature;
+boundary states; the coupling margin sigma_min(M_pa) >= delta at the nodes and the
+collocation points, written as the leading principal minors of G / delta^2 - I >= 0,
+G = M_pa M_pa^T (the form of planner/ocp/problem.py `_margin_function`); the initial
+guess of `planner.ocp.guess.hermite_guess`. Different on purpose: Ipopt with its default
+options (monotone barrier update, tol 1e-8), no `expand`, boundary conditions as equality
+constraints, one Opti variable block per quantity indexed interval by interval.
+
+Supports the scenes of bench/common.py: fixed duration, state-to-state, effort objective,
+optional coupling margin.
+
+    .venv/bin/python bench/baseline_opti.py [--N 20] [--degree 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from planner.dynamics import functions, selection  # noqa: E402
+from planner.model import Structure, parameters  # noqa: E402
+from planner.ocp.guess import hermite_guess  # noqa: E402
+from planner.ocp.planner import DENSE_POINTS  # noqa: E402
+from planner.ocp.transcription import Collocation  # noqa: E402
+from planner.ocp.verify import defect, resimulation_error  # noqa: E402
+from planner.scene import Scene  # noqa: E402
+
+WALL_CAP = 600.0  # [s] Ipopt max_wall_time, a safety cap (not an Ipopt default)
+
+
+def collocation_coefficients(d: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Roots [0, tau_1..tau_d] and C (derivatives), D (end values), B (integrals) of the
+    Lagrange basis on them, as in CasADi's direct_collocation example."""
+    root = np.append(0.0, ca.collocation_points(d, "legendre"))
+    C, D, B = np.zeros((d + 1, d + 1)), np.zeros(d + 1), np.zeros(d + 1)
+    for j in range(d + 1):
+        basis = np.poly1d([1.0])
+        for r in range(d + 1):
+            if r != j:
+                basis *= np.poly1d([1.0, -root[r]]) / (root[j] - root[r])
+        D[j] = basis(1.0)
+        derivative = np.polyder(basis)
+        C[j] = [derivative(root[r]) for r in range(d + 1)]
+        B[j] = np.polyint(basis)(1.0)
+    return root, C, D, B
+
+
+@dataclass
+class Baseline:
+    """A built Opti problem and the handles to read its solution."""
+
+    opti: ca.Opti
+    X: ca.MX
+    Xc: list[ca.MX]
+    U: list[ca.MX]
+    cost: ca.MX
+    build_time: float
+    solved: bool = False
+
+
+def build(scene: Scene) -> Baseline:
+    """The Opti problem of a scene (fixed duration; effort objective; optional margin)."""
+    start = time.perf_counter()
+    robot, task = scene.robot, scene.task
+    N, d = scene.transcription.intervals, scene.transcription.degree
+    s = Structure.of(robot)
+    n, na = s.n, len(s.active_idx)
+    p = ca.DM(parameters(robot, s))
+    f = functions(s)
+    Bsel = ca.DM(selection(s))
+    T = float(task.duration)
+    h = T / N
+    root, C, D, Bq = collocation_coefficients(d)
+
+    def xdot(x: ca.MX, u: ca.MX) -> ca.MX:
+        q, dq = x[:n], x[n:]
+        ddq = ca.solve(f["M"](q, p), ca.mtimes(Bsel, u) - f["h"](q, dq, p))
+        return ca.vertcat(dq, ddq)
+
+    margin = task.coupling_margin
+
+    def keep_margin(q: ca.MX) -> None:
+        mpa = f["M"](q, p)[s.passive_idx, s.active_idx]
+        gram = ca.mtimes(mpa, mpa.T) if mpa.size1() <= mpa.size2() else ca.mtimes(mpa.T, mpa)
+        shifted = gram / margin**2 - ca.MX.eye(gram.size1())
+        for k in range(1, gram.size1() + 1):
+            opti.subject_to(ca.det(shifted[:k, :k]) >= 0)
+
+    opti = ca.Opti()
+    X = opti.variable(2 * n, N + 1)
+    Xc = [opti.variable(2 * n, d) for _ in range(N)]
+    U = [opti.variable(na, d) for _ in range(N)]
+    cost = 0
+    for k in range(N):
+        end = D[0] * X[:, k]
+        for j in range(1, d + 1):
+            slope = C[0, j] * X[:, k]
+            for r in range(d):
+                slope = slope + C[r + 1, j] * Xc[k][:, r]
+            opti.subject_to(h * xdot(Xc[k][:, j - 1], U[k][:, j - 1]) == slope)
+            cost = cost + task.objective.effort * Bq[j] * ca.sumsqr(U[k][:, j - 1]) * h
+            end = end + D[j] * Xc[k][:, j - 1]
+            if margin is not None:
+                keep_margin(Xc[k][:n, j - 1])
+        opti.subject_to(X[:, k + 1] == end)
+    if margin is not None:
+        for k in range(N + 1):
+            keep_margin(X[:n, k])
+    opti.subject_to(X[:, 0] == np.concatenate([task.initial.q, task.initial.dq]))
+    opti.subject_to(X[:, N] == np.concatenate([task.final.q, task.final.dq]))
+    opti.minimize(cost)
+    opti.solver("ipopt", {"print_time": False, "record_time": True},
+                {"print_level": 0, "sb": "yes", "max_wall_time": WALL_CAP})
+    set_guess(opti, scene, X, Xc, U, root)
+    return Baseline(opti, X, Xc, U, cost, time.perf_counter() - start)
+
+
+def set_guess(opti: ca.Opti, scene: Scene, X: ca.MX, Xc: list[ca.MX], U: list[ca.MX],
+              root: np.ndarray) -> None:
+    """The planner's own initial guess (cubic Hermite motion and its torques)."""
+    N = scene.transcription.intervals
+    guess = hermite_guess(scene, scene.robot, float(scene.task.duration))
+    nodes = guess(np.linspace(0.0, 1.0, N + 1))
+    opti.set_initial(X, np.vstack([nodes["q"].T, nodes["dq"].T]))
+    for k in range(N):
+        g = guess((k + root[1:]) / N)
+        opti.set_initial(Xc[k], np.vstack([g["q"].T, g["dq"].T]))
+        opti.set_initial(U[k], g["tau"].T)
+
+
+def solve(scene: Scene, built: Baseline | None = None) -> dict:
+    """Solve a built problem again from the initial guess, or build it first.
+
+    Returns build_time (Opti construction plus the nlpsol setup that Opti does inside its
+    first solve; 0 for a problem solved before), solve_time and cpu_time (Ipopt's wall and
+    CPU time from its statistics), iterations, status, objective, and the planner's own
+    checks: re-simulation error and dynamics defect of the collocation interpolant.
+    """
+    first = built is None or not built.solved
+    built = built or build(scene)
+    if built.solved:
+        root = collocation_coefficients(scene.transcription.degree)[0]
+        set_guess(built.opti, scene, built.X, built.Xc, built.U, root)
+    started = time.perf_counter()
+    try:
+        sol = built.opti.solve()
+        stats, value = sol.stats(), sol.value
+    except RuntimeError:  # Ipopt did not succeed: read the last iterate
+        stats, value = built.opti.stats(), built.opti.debug.value
+    total = time.perf_counter() - started
+    built.solved = True
+    solve_time = float(stats.get("t_wall_total", total))
+    result = {"build_time": built.build_time + total - solve_time if first else 0.0,
+              "solve_time": solve_time, "cpu_time": float(stats.get("t_proc_total", math.nan)),
+              "iterations": int(stats.get("iter_count", 0)),
+              "status": stats.get("return_status", "?"), "success": bool(stats.get("success")),
+              "objective": float(value(built.cost))}
+    result.update(verification(scene, built, value))
+    result["stats"] = {k: v for k, v in stats.items() if k.startswith(("t_wall_", "t_proc_", "n_call_"))}
+    return result
+
+
+def verification(scene: Scene, built: Baseline, value) -> dict:
+    """Re-simulation error [rad] and defect [N m s] of the solution's interpolant, computed by
+    the planner's verification code (same interpolant, same CVODES tolerances)."""
+    N, d = scene.transcription.intervals, scene.transcription.degree
+    n = scene.robot.n
+    X = np.array(value(built.X))
+    Xc = np.hstack([np.array(value(x)).reshape(2 * n, d) for x in built.Xc])
+    U = np.hstack([np.array(value(u)).reshape(-1, d) for u in built.U])
+    blocks = {"q": X[:n], "dq": X[n:], "q_col": Xc[:n], "dq_col": Xc[n:], "tau": U}
+    if not all(np.all(np.isfinite(b)) for b in blocks.values()):
+        return {"resimulation_error": math.nan, "defect": math.nan}
+    breaks = np.linspace(0.0, float(scene.task.duration), N + 1)
+    interp = Collocation(N, d, "legendre").interpolant(blocks, breaks)
+    error, _ = resimulation_error(scene.robot, interp, max(1, math.ceil(DENSE_POINTS / N)))
+    return {"resimulation_error": math.nan if error is None else error,
+            "defect": defect(scene.robot, interp)}
+
+
+def main() -> None:
+    from bench.common import seed_scene
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--N", type=int, default=20)
+    parser.add_argument("--degree", type=int, default=3)
+    args = parser.parse_args()
+    result = solve(seed_scene(N=args.N, degree=args.degree))
+    for key, value in result.items():
+        if key != "stats":
+            print(f"{key}: {value}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,162 @@
+"""The planner against a plain CasADi Opti script (bench/baseline_opti.py), in one run.
+
+Scene: the seed's 4-link arm, g = 0, rest to rest in 4 s with coupling margin 0.02
+(bench/common.py `seed_scene`), Legendre collocation of degree 3 at each N given. Both
+start from the planner's initial guess (`hermite_guess`). For each N:
+
+- planner, cold: the NLP cache cleared, one `plan()` (build + solve);
+- planner, warm: `plan()` again `--repeats` times on the cached NLP (median);
+- planner, explicit form: the same, with forward dynamics instead of accelerations as
+  variables (the formulation of the baseline), to separate formulation from machinery;
+- baseline: built once, solved `--baseline-repeats` times from the same guess (median).
+
+Reported: build time, solve time (Ipopt wall time), iterations, objective, re-simulation
+error and defect (the planner's verification applied to both), and the solve-time ratio
+baseline / planner; then where the planner's solve time goes (CasADi's per-function
+statistics, the rest being Ipopt's own linear algebra). Writes docs/benchmarks.md section
+"Planner vs a plain Opti script" and bench/results/planner_speed.csv.
+
+    .venv/bin/python bench/planner_speed.py [--N 100 50] [--repeats 5] [--baseline-repeats 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench import baseline_opti  # noqa: E402
+from bench.common import (DOCS, RESULTS, load, machine_note, median, seed_scene,  # noqa: E402
+                          table, timed, write_csv, write_section)
+from planner.ocp import plan  # noqa: E402
+from planner.ocp.problem import ProblemKey, problem  # noqa: E402
+
+SECTION = "Planner vs a plain Opti script"
+COLUMNS = [("N", "N"), ("who", "solver"), ("build", "build [s]"), ("solve", "solve [s]"),
+           ("solve_min", "fastest [s]"), ("runs", "runs"), ("iterations", "iterations"),
+           ("status", "status"), ("objective", "objective"), ("error", "re-sim. error [rad]"),
+           ("defect", "defect [N m s]"), ("ratio", "baseline / this")]
+PROFILE = [("t_wall_nlp_hess_l", "Hessian of the Lagrangian"),
+           ("t_wall_nlp_jac_g", "constraint Jacobian"), ("t_wall_nlp_g", "constraints"),
+           ("t_wall_nlp_grad_f", "objective gradient"), ("t_wall_nlp_f", "objective"),
+           ("t_wall_callback_fun", "iteration callback")]
+
+
+def planner_rows(N: int, repeats: int, form: str) -> tuple[dict, dict]:
+    """Cold and warm rows of the planner at N (form: implicit or explicit), and the
+    CasADi statistics of its last solve."""
+    scene = seed_scene(N=N, form=form)
+    problem.cache_clear()
+    cold, wall, cpu = timed(lambda: plan(scene))
+    name = "planner" if form == "implicit" else "planner, explicit form"
+    rows = {"cold": _plan_row(N, f"{name}, cold", cold, wall)}
+    warm = [timed(lambda: plan(scene)) for _ in range(repeats)]
+    solves = [p.solver.solve_time for p, _, _ in warm]
+    last = warm[-1][0]
+    rows["warm"] = {**_plan_row(N, f"{name}, warm", last, median(w for _, w, _ in warm)),
+                    "solve": median(solves), "solve_min": min(solves), "runs": repeats}
+    stats = dict(problem(ProblemKey.of(scene)).solver.stats())
+    stats["solve_time"] = last.solver.solve_time
+    return rows, stats
+
+
+def _plan_row(N: int, who: str, p, wall: float) -> dict:
+    v = p.verification
+    return {"N": N, "who": who, "build": p.solver.build_time, "solve": p.solver.solve_time,
+            "solve_min": p.solver.solve_time, "runs": 1, "iterations": p.solver.iterations,
+            "status": p.solver.status, "objective": p.objective,
+            "error": v.resimulation_error, "defect": v.defect, "plan_wall": wall,
+            "crossings": len(v.waveless_singular_crossings), "min_sigma": v.min_sigma}
+
+
+def baseline_row(N: int, repeats: int) -> tuple[dict, dict]:
+    """The baseline built once and solved `repeats` times; its last statistics."""
+    scene = seed_scene(N=N)
+    built = baseline_opti.build(scene)
+    runs = [baseline_opti.solve(scene, built) for _ in range(repeats)]
+    solves = [r["solve_time"] for r in runs]
+    first, last = runs[0], runs[-1]
+    row = {"N": N, "who": "baseline (Opti)", "build": first["build_time"],
+           "solve": median(solves), "solve_min": min(solves), "runs": repeats,
+           "iterations": last["iterations"], "status": last["status"],
+           "objective": last["objective"], "error": last["resimulation_error"],
+           "defect": last["defect"], "cpu": median(r["cpu_time"] for r in runs)}
+    stats = {**last["stats"], "solve_time": last["solve_time"]}
+    return row, stats
+
+
+def profile_rows(N: int, who: str, stats: dict) -> list[dict]:
+    """Where one solve's wall time went: CasADi's per-function times, the rest in Ipopt."""
+    total = stats["solve_time"]
+    rows, used = [], 0.0
+    for key, label in PROFILE:
+        value = float(stats.get(key, 0.0))
+        calls = stats.get("n_call_" + key.split("_", 2)[2])
+        used += value
+        rows.append({"N": N, "who": who, "part": label, "time": value, "share": value / total,
+                     "calls": calls, "per_call": value / calls * 1e3 if calls else None})
+    rest = total - used
+    rows.append({"N": N, "who": who, "part": "Ipopt itself (KKT factorization, line search)",
+                 "time": rest, "share": rest / total, "calls": stats.get("iter_count"),
+                 "per_call": rest / stats["iter_count"] * 1e3 if stats.get("iter_count") else None})
+    return rows
+
+
+def run(grid: list[int], repeats: int, baseline_repeats: int) -> tuple[list[dict], list[dict], list[str]]:
+    rows, profile, loads = [], [], [load()]
+    for N in grid:
+        planner, p_stats = planner_rows(N, repeats, "implicit")
+        explicit, _ = planner_rows(N, repeats, "explicit")
+        base, b_stats = baseline_row(N, baseline_repeats)
+        loads.append(load())
+        for row in (planner["cold"], planner["warm"], explicit["cold"], explicit["warm"], base):
+            row["ratio"] = base["solve"] / row["solve"] if row["solve"] else math.nan
+            rows.append(row)
+        profile += profile_rows(N, "planner, warm", p_stats)
+        profile += profile_rows(N, "baseline", b_stats)
+        print(table(rows[-5:], COLUMNS), flush=True)
+    return rows, profile, loads
+
+
+def report(rows: list[dict], profile: list[dict], loads: list[str], note: str,
+           command: str, took: float) -> str:
+    prof_cols = [("N", "N"), ("who", "solver"), ("part", "part"), ("time", "wall [s]"),
+                 ("share", "share"), ("calls", "calls"), ("per_call", "per call [ms]")]
+    return "\n\n".join([
+        f"Generated by `{command}` in {took / 60:.0f} min on {note}. Load averages after each N: "
+        f"{'; '.join(loads[1:])}. Wall times; `solve` is the median over `runs` solves from "
+        "the same initial guess (`fastest` their minimum), the planner's warm rows reuse the "
+        "cached NLP, the baseline's repeats reuse its built Opti problem. The ratio is the "
+        "baseline's median solve time over the row's (cold rows: over their single solve).",
+        table(rows, COLUMNS),
+        "Where one solve's wall time goes (CasADi's per-function statistics of the last "
+        "solve; the rest is Ipopt's own work, mostly the sparse KKT factorizations and "
+        "back-solves in MUMPS):",
+        table(profile, prof_cols),
+    ])
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--N", type=int, nargs="+", default=[100, 50])
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--baseline-repeats", type=int, default=3)
+    parser.add_argument("--no-write", action="store_true", help="print only")
+    args = parser.parse_args()
+    note, started = machine_note(), time.perf_counter()
+    rows, profile, loads = run(args.N, args.repeats, args.baseline_repeats)
+    command = "bench/planner_speed.py " + " ".join(sys.argv[1:])
+    text = report(rows, profile, loads, note, f".venv/bin/python {command.strip()}",
+                  time.perf_counter() - started)
+    print(text)
+    if not args.no_write:
+        write_csv(RESULTS / "planner_speed.csv", rows)
+        write_section(DOCS / "benchmarks.md", SECTION, text)
+
+
+if __name__ == "__main__":
+    main()
