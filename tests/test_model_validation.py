@@ -11,9 +11,11 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 
+import numpy as np
 import pytest
 from pydantic import ValidationError
 
+from planner.dynamics import Dynamics
 from planner.model import (
     MAX_FREQUENCY,
     MAX_GRAVITY,
@@ -25,6 +27,7 @@ from planner.model import (
     MIN_LENGTH,
     MIN_MASS,
     Robot,
+    Wave,
 )
 
 Doc = dict
@@ -202,3 +205,17 @@ def test_robots_are_immutable():
     with pytest.raises(ValidationError) as info:
         robot.gravity = 1.0
     assert [(e["loc"], e["msg"]) for e in info.value.errors()] == [(("gravity",), "Instance is frozen")]
+
+
+def test_frequency_counts_periods_per_turn_as_documented():
+    """The schema says n periods per full turn; the tip radius of one link repeats n times."""
+    description = Wave.model_json_schema()["properties"]["frequency"]["description"]
+    assert description == "n [-], periods of the wave per full turn (2 pi rad) of the joint angle"
+    n = 3.0
+    robot = Robot.model_validate({"links": [{"length": 1.0, "mass": 1.0, "joint": "active",
+                                             "wave": {"amplitude": 0.2, "frequency": n}}]})
+    dyn, q = Dynamics(robot), np.linspace(0.0, 2 * np.pi, 2001)
+    radius = np.array([np.linalg.norm(dyn.tips([angle])[0]) for angle in q])
+    assert np.allclose(radius, 1.0 + 0.2 * np.sin(n * q), rtol=0, atol=1e-15)
+    maxima = np.flatnonzero((radius[1:-1] > radius[:-2]) & (radius[1:-1] > radius[2:]))
+    assert len(maxima) == n
