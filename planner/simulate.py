@@ -152,12 +152,10 @@ class InitialState(BaseModel):
 
 
 class SimulationRequest(BaseModel):
-    """Torque samples of the active joints, their interpolation, and the initial state.
+    """Torque samples of the active joints, their interpolation, and the initial state."""
 
-    Rules that read other fields (`tau` against `t` and the robot, `initial` against the
-    robot) are checked only when those fields are valid, and reported at the field checked.
-    """
-
+    # Rules that read other fields (tau against t and the robot, initial against the robot)
+    # run only when those fields are valid, and report at the field they check.
     model_config = _STRICT
 
     robot: Robot
