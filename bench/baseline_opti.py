@@ -10,7 +10,10 @@ solve the same continuous problem with the same discretization error.
 Same as the planner: objective effort * int |tau|^2 dt by the collocation quadrature;
 boundary states; the coupling margin sigma_min(M_pa) >= delta at the nodes and the
 collocation points, written as the leading principal minors of G / delta^2 - I >= 0,
-G = M_pa M_pa^T (the form of planner/ocp/problem.py `_margin_function`); the initial
+G = M_pa M_pa^T, and for a square M_pa also sign * det(M_pa) / delta^p - 1 >= 0 with the
+sign det M_pa has at the start (the form of planner/ocp/problem.py `_margin_function`
+since 0b6c7e4: the minors bound sigma_min, the kept sign stops a path from jumping
+through det = 0 between knots); the initial
 guess of `planner.ocp.guess.hermite_guess`. Different on purpose: Ipopt with its default
 options (monotone barrier update, tol 1e-8), no `expand`, boundary conditions as equality
 constraints, one Opti variable block per quantity indexed interval by interval.
@@ -35,13 +38,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from planner.dynamics import functions, selection  # noqa: E402
-from planner.model import Structure, parameters  # noqa: E402
-from planner.ocp.guess import hermite_guess  # noqa: E402
-from planner.ocp.planner import DENSE_POINTS  # noqa: E402
-from planner.ocp.transcription import Collocation  # noqa: E402
-from planner.ocp.verify import defect, resimulation_error  # noqa: E402
-from planner.scene import Scene  # noqa: E402
+from planner.dynamics import functions, selection
+from planner.model import Structure, parameters
+from planner.ocp.guess import hermite_guess
+from planner.ocp.planner import DENSE_POINTS
+from planner.ocp.transcription import Collocation
+from planner.ocp.verify import defect, resimulation_error
+from planner.scene import Scene
 
 WALL_CAP = 600.0  # [s] Ipopt max_wall_time, a safety cap (not an Ipopt default)
 
@@ -96,6 +99,9 @@ def build(scene: Scene) -> Baseline:
         return ca.vertcat(dq, ddq)
 
     margin = task.coupling_margin
+    square = len(s.passive_idx) == na
+    start_block = np.array(f["M"](task.initial.q, p))[np.ix_(s.passive_idx, s.active_idx)]
+    sign = float(np.sign(np.linalg.det(start_block))) if square else 0.0
 
     def keep_margin(q: ca.MX) -> None:
         mpa = f["M"](q, p)[s.passive_idx, s.active_idx]
@@ -103,6 +109,8 @@ def build(scene: Scene) -> Baseline:
         shifted = gram / margin**2 - ca.MX.eye(gram.size1())
         for k in range(1, gram.size1() + 1):
             opti.subject_to(ca.det(shifted[:k, :k]) >= 0)
+        if square:
+            opti.subject_to(sign * ca.det(mpa) / margin**na - 1 >= 0)
 
     opti = ca.Opti()
     X = opti.variable(2 * n, N + 1)

@@ -34,12 +34,12 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 sys.path.insert(0, str(ROOT))
 
-from seed_printed import SEED_ARM  # noqa: E402
-from test_ocp import ARM, UNDERACTUATED  # noqa: E402
+from seed_printed import SEED_ARM
+from test_ocp import ARM, UNDERACTUATED
 
-from planner.ocp import Plan  # noqa: E402
-from planner.ocp.problem import ProblemKey, problem  # noqa: E402
-from planner.scene import Scene  # noqa: E402
+from planner.ocp import Plan
+from planner.ocp.problem import ProblemKey, problem
+from planner.scene import Scene
 
 RESULTS = ROOT / "bench" / "results"
 DOCS = ROOT / "docs"
@@ -112,7 +112,17 @@ def machine_note() -> str:
         cpu = names[0]
     return (f"{cpu}, {os.cpu_count()} cores shared with other work (load average {load()} "
             f"at the start); Python {platform.python_version()}, CasADi {ca.__version__}, "
-            f"NumPy {np.__version__}")
+            f"NumPy {np.__version__}; planner/ at commit {planner_commit()}")
+
+
+def planner_commit() -> str:
+    """The last commit that touched planner/ (the code measured), '+ local changes' if any."""
+    git = ["git", "-C", str(ROOT)]
+    head = subprocess.run([*git, "log", "-1", "--format=%h", "--", "planner"], check=False,
+                          capture_output=True, text=True).stdout.strip() or "unknown"
+    dirty = subprocess.run([*git, "status", "--porcelain", "--", "planner"], check=False,
+                           capture_output=True, text=True).stdout.strip()
+    return head + (" + local changes" if dirty else "")
 
 
 def timed(fn: Callable[[], object]) -> tuple[object, float, float]:
@@ -153,7 +163,7 @@ def isolated(module: str, function: str, kwargs: dict, timeout: float) -> dict:
             f"from bench.{module} import {function} as f; "
             f"out = f(**json.loads(sys.argv[1])); print('RESULT ' + json.dumps(out))")
     try:
-        run = subprocess.run([PYTHON, "-c", code, json.dumps(kwargs)], cwd=ROOT,
+        run = subprocess.run([PYTHON, "-c", code, json.dumps(kwargs)], cwd=ROOT, check=False,
                              capture_output=True, text=True, timeout=timeout)
     except subprocess.TimeoutExpired:
         return {"failure": f"timeout after {timeout:g} s"}
@@ -196,7 +206,7 @@ def write_section(path: Path, heading: str, text: str) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     doc = path.read_text() if path.exists() else ""
     block = f"## {heading}\n\n{text.strip()}\n"
-    pattern = re.compile(rf"^## {re.escape(heading)}\n.*?(?=^## |\Z)", re.S | re.M)
+    pattern = re.compile(rf"^## {re.escape(heading)}\n.*?(?=^## |\Z)", re.DOTALL | re.MULTILINE)
     if pattern.search(doc):
         doc = pattern.sub(lambda _: block + "\n", doc).rstrip() + "\n"
     else:

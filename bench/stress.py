@@ -39,13 +39,24 @@ from scipy.optimize import brentq
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.common import (DOCS, RESULTS, ROOT, SEED_ARM, SEED_TASK, UNDERACTUATED,  # noqa: E402
-                          isolated, machine_note, table, write_csv, write_section)
-from planner.dynamics import Dynamics  # noqa: E402
-from planner.inverse import InverseDynamicsRequest, solve  # noqa: E402
-from planner.model import Robot  # noqa: E402
-from planner.ocp import plan  # noqa: E402
-from planner.scene import Scene  # noqa: E402
+from bench.common import (
+    DOCS,
+    RESULTS,
+    ROOT,
+    SEED_ARM,
+    SEED_TASK,
+    UNDERACTUATED,
+    isolated,
+    machine_note,
+    table,
+    write_csv,
+    write_section,
+)
+from planner.dynamics import Dynamics
+from planner.inverse import InverseDynamicsRequest, solve
+from planner.model import Robot
+from planner.ocp import plan
+from planner.scene import Scene
 
 SIGMAS = (1e-2, 1e-4, 1e-6, 1e-8, 1e-10, 1e-12)
 
@@ -91,7 +102,7 @@ def seed_at(sigma: float) -> np.ndarray:
     sigma_min where sigma_min equals `sigma`."""
     dyn = Dynamics(waveless_seed())
     q0, q1 = np.array(SEED_TASK["initial"]["q"]), np.array(SEED_TASK["final"]["q"])
-    along = lambda s: q0 + s * (q1 - q0)  # noqa: E731
+    along = lambda s: q0 + s * (q1 - q0)
     grid = np.linspace(0.0, 1.0, 401)
     det = np.array([dyn.coupling(along(s)).det for s in grid])
     k = int(np.flatnonzero(np.sign(det[:-1]) != np.sign(det[1:]))[0])
@@ -312,7 +323,7 @@ def invariants(robot: Robot, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> 
     dyn = Dynamics(robot)
     M = dyn.mass_matrix(q)
     eig = np.linalg.eigvalsh((M + M.T) / 2)
-    T, V = dyn.energy(q, dq)
+    T, _ = dyn.energy(q, dq)
     quad = 0.5 * dq @ M @ dq
     step = 1e-4 / max(1.0, float(np.abs(dq).max()), float(np.abs(ddq).max()))
     stencil = [dyn.energy(q + s * dq + 0.5 * s * s * ddq, dq + s * ddq)
@@ -532,20 +543,20 @@ def singular_text(rows: list[dict]) -> str:
     inverse = [r for r in rows if r["part"] == "inverse"]
     plans = [r for r in rows if r["part"] == "plan"]
     return "\n\n".join([
-        "Classical inverse dynamics (`planner.inverse.solve`) started at a configuration with "
+        ("Classical inverse dynamics (`planner.inverse.solve`) started at a configuration with "
         "the given sigma_min(M_pa), the active joints turning at 1 rad/s (so the passive rows "
         "ask for active accelerations near -h_p / sigma_min), the passive joints moving 0.2 rad "
         "in 1 s; once with the default threshold 1e-3, once with a threshold ten times below "
-        f"the start's sigma_min. Each case in its own process, stopped after {INVERSE_TIMEOUT:g} s.",
+        f"the start's sigma_min. Each case in its own process, stopped after {INVERSE_TIMEOUT:g} s."),
         table(inverse, [("arm", "arm"), ("sigma", "sigma_min target"), ("actual", "sigma_min at q"),
                         ("threshold", "threshold"), ("status", "status"), ("stop_time", "stop t [s]"),
                         ("stop_sigma", "sigma_min at stop"), ("max_tau", "max abs tau [N m]"),
                         ("non_finite", "non-finite values"), ("time", "time [s]"),
                         ("failure", "failure")]),
-        "The planner from the same near-singular start (rest to rest, Legendre degree 3, N = 30; "
+        ("The planner from the same near-singular start (rest to rest, Legendre degree 3, N = 30; "
         "2-link: 2 s to (q0 + 0.3, q1 - 0.5); seed arm: 4 s to the reference final "
         "configuration), without and with a coupling margin of 1e-3 (which the start violates "
-        "for sigma_min < 1e-3 on the waveless arm):",
+        "for sigma_min < 1e-3 on the waveless arm):"),
         table(plans, [("arm", "arm"), ("sigma", "sigma_min at start"), ("margin", "margin"),
                       ("status", "status"), ("success", "success"), ("iterations", "iterations"),
                       ("resim_error", "re-sim. error [rad]"), ("min_sigma", "min sigma_min"),
@@ -567,11 +578,11 @@ def scaled_text(rows: list[dict]) -> str:
                         "raised": sum(r.get("status") in ("raised", "crashed") or "failure" in r
                                       for r in mine)})
     return "\n\n".join([
-        "One plan per robot and arm type (Legendre degree 3, N = 30, 60 s wall-time cap): "
+        ("One plan per robot and arm type (Legendre degree 3, N = 30, 60 s wall-time cap): "
         "active joints move +0.5 rad rest to rest; passive joints start at rest and end free, "
         "so every task is feasible and a failure is the solver's. Base robot: 2 links of "
         "0.4 m, 1 kg, I = m l^2 / 50, g = 9.81, a wave (0.1 l, frequency 3, phase 0.3) on "
-        "odd joints; underactuated: even joints passive. Each plan in its own process.",
+        "odd joints; underactuated: even joints passive. Each plan in its own process."),
         table(summary, [("sweep", "sweep"), ("plans", "plans"), ("succeeded", "succeeded"),
                         ("rate", "success rate"), ("worst", "worst re-sim. error [rad]"),
                         ("non_finite", "non-finite values"), ("raised", "raised or crashed")]),
@@ -584,11 +595,11 @@ def scaled_text(rows: list[dict]) -> str:
 
 def random_text(summary: dict) -> str:
     return "\n\n".join([
-        f"{summary['robots']} random robots (`random_robot`: 1 to 8 links, lengths 1e-2..10 m "
+        (f"{summary['robots']} random robots (`random_robot`: 1 to 8 links, lengths 1e-2..10 m "
         "and masses 1e-3..1e3 kg log-uniform, inertias 0 or up to m l^2, random joint types, "
         "waves of amplitude up to 0.9 l and frequency up to 20, g 0 or up to 20, both "
         "rotational conventions), one random state each (q in [-pi, pi], dq and ddq in [-3, 3]). "
-        f"Took {summary['time']:.0f} s. Worst over all robots:",
+        f"Took {summary['time']:.0f} s. Worst over all robots:"),
         table([{"check": "asymmetry max abs(M - M') / max abs(M)", "worst": summary["worst asymmetry"],
                 "bound": "0 (exact)"},
                {"check": "definiteness lambda_min / lambda_max of M", "worst": summary["worst definiteness"],
@@ -598,26 +609,26 @@ def random_text(summary: dict) -> str:
                {"check": "power abs(dq'(M ddq + h) - dE/dt) / scale", "worst": summary["worst power"],
                 "bound": "~1e-9 (finite differences)"}],
               [("check", "invariant"), ("worst", "worst value"), ("bound", "expected")]),
-        "The same invariants run under hypothesis in tests/test_stress.py "
-        "(`test_random_robots_keep_the_dynamics_invariants`, 1000 examples, slow).",
+        ("The same invariants run under hypothesis in tests/test_stress.py "
+        "(`test_random_robots_keep_the_dynamics_invariants`, 1000 examples, slow)."),
     ])
 
 
 def service_text(faults: list[dict], bodies: list[dict], fuzz: dict) -> str:
     keys = list(dict.fromkeys(k for r in faults for k in r))
     return "\n\n".join([
-        "A live uvicorn (`app.main:app`, 2 worker processes, tests/service_fixtures.py "
-        "`LiveServer`) on 127.0.0.1 with a temporary store.",
+        ("A live uvicorn (`app.main:app`, 2 worker processes, tests/service_fixtures.py "
+        "`LiveServer`) on 127.0.0.1 with a temporary store."),
         table(faults, [(k, k) for k in keys]),
-        "Hand-made malformed bodies, each POSTed to /v1/plans and /v1/dynamics; `ok` means a "
-        "4xx answer with an application/problem+json body:",
+        ("Hand-made malformed bodies, each POSTed to /v1/plans and /v1/dynamics; `ok` means a "
+        "4xx answer with an application/problem+json body:"),
         table(bodies, [("body", "body"), ("path", "path"), ("status", "status"), ("ok", "ok"),
                        ("detail", "detail")]),
-        f"Schemathesis {_schemathesis_version()} against the committed openapi/openapi.json, "
+        (f"Schemathesis {_schemathesis_version()} against the committed openapi/openapi.json, "
         f"positive and negative generation (`--mode all`), {fuzz['examples per operation']} "
         "examples per operation, checks not_a_server_error, response_schema_conformance, "
         f"status_code_conformance, content_type_conformance; exit code {fuzz['exit code']}, "
-        f"{fuzz['time [s]']} s:",
+        f"{fuzz['time [s]']} s:"),
         "```\n" + fuzz["summary"] + "\n```",
     ])
 

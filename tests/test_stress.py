@@ -18,11 +18,22 @@ from service_fixtures import ROOT, client
 
 sys.path.insert(0, str(ROOT))
 
-from bench.stress import (SIGMAS, inverse_case, invariants, malformed_bodies,  # noqa: E402
-                          non_finite, plan_case, scaled_case, scaled_cases, seed_at,
-                          two_link_at, waveless_seed, waveless_two_link)
-from planner.dynamics import Dynamics  # noqa: E402
-from planner.model import Robot  # noqa: E402
+from bench.stress import (
+    SIGMAS,
+    invariants,
+    inverse_case,
+    malformed_bodies,
+    non_finite,
+    plan_case,
+    scaled_case,
+    scaled_cases,
+    seed_at,
+    two_link_at,
+    waveless_seed,
+    waveless_two_link,
+)
+from planner.dynamics import Dynamics
+from planner.model import Robot
 
 STRUCTURED = {"Infeasible_Problem_Detected", "Restoration_Failed", "Local_Infeasibility",
               "Maximum_Iterations_Exceeded", "Maximum_WallTime_Exceeded",
