@@ -38,6 +38,13 @@ from planner.profiles import PassiveMotion, SampledProfile
 
 _STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
+RESOLUTION = 1e-8
+"""Smallest sigma_min(M_pa) / max_i M_ii the integration follows. The entries of M carry
+rounding of about 1e-16 max_i M_ii, and the active accelerations divide by sigma_min, so
+closer to the singularity the right-hand side is noise at the tolerance's scale and
+DOP853's steps collapse (docs/stability.md, "Near-singular configurations"). The motion
+stops at this floor when it lies above `sigma_threshold`, and says so."""
+
 
 class ActiveState(BaseModel):
     """Angles [rad] and rates [rad/s] of the active joints only, in joint order."""
@@ -143,17 +150,18 @@ def active_acceleration(s: Structure) -> ca.Function:
 
 
 class _Problem:
-    """The active-state ODE x_a' = (dq_a, ddq_a) along the prescribed passive motion."""
+    """The active-state ODE x_a' = (dq_a, ddq_a) along a prescribed passive motion (any
+    object with `evaluate(t, duration) -> (q, dq, ddq)`)."""
 
-    def __init__(self, request: InverseDynamicsRequest):
-        self.robot = request.robot
+    def __init__(self, robot: Robot, motion, duration: float, threshold: float):
+        self.robot = robot
         self.s = Structure.of(self.robot)
         self.p = parameters(self.robot, self.s)
         self.P, self.A = self.s.passive_idx, self.s.active_idx
-        self.motion, self.T = request.passive_motion, request.duration
+        self.motion, self.T = motion, duration
         self.accel = active_acceleration(self.s)
-        self.mpa = functions(self.s)["Mpa"]
-        self.threshold = request.sigma_threshold
+        self.mass = functions(self.s)["M"]
+        self.threshold = threshold
 
     def full(self, t, xa: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """All joints' q, dq and the passive ddq at times t (K,) for active states (K, 2 na)."""
@@ -169,30 +177,45 @@ class _Problem:
         ddq_a = np.array(self.accel(q[0], dq[0], ddqp[0], self.p)).ravel()
         return np.concatenate([x[len(self.A):], ddq_a])
 
-    def sigma(self, t: float, x: np.ndarray) -> float:
-        """sigma_min(M_pa) [kg m^2] at time t and active state x."""
+    def sigma(self, t: float, x: np.ndarray) -> tuple[float, float]:
+        """sigma_min(M_pa) and the level where the motion stops, max(threshold,
+        RESOLUTION max_i M_ii), both [kg m^2], at time t and active state x."""
         q, _, _ = self.full(t, x[None, :])
-        block = np.array(self.mpa(q[0], self.p)).reshape(len(self.P), len(self.A))
-        return float(measures(block[None])[1][0])
+        mass = np.array(self.mass(q[0], self.p))
+        block = mass[np.ix_(self.P, self.A)]
+        level = max(self.threshold, RESOLUTION * float(np.diag(mass).max()))
+        return float(measures(block[None])[1][0]), level
 
 
 def solve(request: InverseDynamicsRequest) -> InverseDynamicsResult:
     """Active motion and torques for the prescribed passive motion, or the singular stop."""
-    pb = _Problem(request)
-    x0 = np.concatenate([request.active_initial.q, request.active_initial.dq])
-    grid = np.linspace(0.0, request.duration, request.samples)
-    sigma0 = pb.sigma(0.0, x0)
-    if sigma0 < pb.threshold:
+    return integrate(request.robot, request.passive_motion, request.duration,
+                     request.active_initial, request.samples, request.sigma_threshold,
+                     request.rtol, request.atol)
+
+
+def integrate(robot: Robot, motion, duration: float, active_initial: ActiveState,
+              samples: int, sigma_threshold: float, rtol: float = 1e-10,
+              atol: float = 1e-10) -> InverseDynamicsResult:
+    """`solve` for an already checked robot and motion; the motion may be any object with
+    `evaluate(t, duration) -> (q, dq, ddq)` of the passive joints."""
+    pb = _Problem(robot, motion, duration, sigma_threshold)
+    x0 = np.concatenate([active_initial.q, active_initial.dq])
+    grid = np.linspace(0.0, duration, samples)
+    sigma0, level0 = pb.sigma(0.0, x0)
+    if sigma0 < level0:
         q0, _, _ = pb.full(0.0, x0[None, :])
         return _result("singular", pb, np.empty(0), np.empty((0, len(x0))),
                        Singularity(time=0.0, q=q0[0].tolist(), sigma_min=sigma0),
-                       f"sigma_min(M_pa) = {sigma0:.3g} < {pb.threshold:.3g} at the start")
+                       f"sigma_min(M_pa) = {sigma0:.3g} < {level0:.3g} at the start"
+                       + _floor_note(pb, level0))
 
     def event(t: float, x: np.ndarray) -> float:
-        return pb.sigma(t, x) - pb.threshold
+        sigma, level = pb.sigma(t, x)
+        return sigma - level
     event.terminal, event.direction = True, -1.0
-    sol = solve_ivp(pb.rhs, (0.0, request.duration), x0, method="DOP853", dense_output=True,
-                    rtol=request.rtol, atol=request.atol, events=event)
+    sol = solve_ivp(pb.rhs, (0.0, duration), x0, method="DOP853", dense_output=True,
+                    rtol=rtol, atol=atol, events=event)
     if sol.status == 0:
         return _result("completed", pb, grid, sol.sol(grid).T, None, "completed")
 
@@ -201,12 +224,24 @@ def solve(request: InverseDynamicsRequest) -> InverseDynamicsResult:
     times = np.append(grid[grid < t_stop], t_stop)
     states = np.vstack([sol.sol(times[:-1]).T, x_stop]) if len(times) > 1 else x_stop[None, :]
     q_stop, _, _ = pb.full(t_stop, x_stop[None, :])
-    sigma_stop = pb.sigma(t_stop, x_stop)
-    why = ("sigma_min(M_pa) fell to the threshold" if sol.status == 1 else
+    sigma_stop, level = pb.sigma(t_stop, x_stop)
+    floor = level > pb.threshold
+    why = (f"sigma_min(M_pa) fell to the {'resolution floor' if floor else 'threshold'}"
+           if sol.status == 1 else
            f"the integrator stopped ({sol.message}) as the accelerations grew")
     singular = Singularity(time=t_stop, q=q_stop[0].tolist(), sigma_min=sigma_stop)
     return _result("singular", pb, times, states, singular,
-                   f"{why} at t = {t_stop:.6g} s (sigma_min = {sigma_stop:.3g})")
+                   f"{why} at t = {t_stop:.6g} s (sigma_min = {sigma_stop:.3g})"
+                   + _floor_note(pb, level))
+
+
+def _floor_note(pb: _Problem, level: float) -> str:
+    """Why the motion stopped above sigma_threshold, when it did."""
+    if level <= pb.threshold:
+        return ""
+    return (f"; the floor is {RESOLUTION:g} of the largest diagonal entry of M, above "
+            f"sigma_threshold = {pb.threshold:.3g}: closer to the singularity rounding "
+            "swamps the accelerations")
 
 
 def _result(status, pb: _Problem, t: np.ndarray, xa: np.ndarray,

@@ -33,6 +33,7 @@ from bench.stress import (
     waveless_two_link,
 )
 from planner.dynamics import Dynamics
+from planner.inverse import RESOLUTION
 from planner.model import Robot
 
 STRUCTURED = {"Infeasible_Problem_Detected", "Restoration_Failed", "Local_Infeasibility",
@@ -67,7 +68,7 @@ def test_inverse_dynamics_reports_a_singular_start(sigma):
         assert out["stop_sigma"] == pytest.approx(1e-3, rel=1e-6)
 
 
-@pytest.mark.parametrize("sigma", [1e-2, 1e-4, 1e-6, 1e-8])
+@pytest.mark.parametrize("sigma", [1e-2, 1e-4, 1e-6])
 def test_inverse_dynamics_below_the_threshold_stops_at_it_with_finite_torques(sigma):
     out = inverse_case(waveless_two_link(), two_link_at(sigma), threshold=sigma / 10)
     assert out["status"] == "singular" and out["non_finite"] == 0
@@ -76,14 +77,31 @@ def test_inverse_dynamics_below_the_threshold_stops_at_it_with_finite_torques(si
     assert out["max_tau"] * sigma / 10 < 10.0  # torques grow like 1 / sigma_min, no faster
 
 
-@pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="planner.inverse.solve needs 41 s (2-link, 2 cores) to "
-                   "reach a threshold of 1e-11 from sigma_min 1e-10; DOP853 creeps towards the "
-                   "event with ever smaller steps (see docs/stability.md)")
-def test_inverse_dynamics_stops_promptly_even_with_a_tiny_threshold():
-    out = inverse_case(waveless_two_link(), two_link_at(1e-10), threshold=1e-11)
-    assert out["status"] == "singular" and out["non_finite"] == 0
-    assert out["time"] < 10.0
+def _floor(robot: Robot, q: np.ndarray) -> float:
+    return RESOLUTION * float(np.diag(Dynamics(robot).mass_matrix(q)).max())
+
+
+def test_a_threshold_below_the_resolution_floor_stops_at_the_floor():
+    robot, q = waveless_two_link(), two_link_at(1e-8)
+    out = inverse_case(robot, q, threshold=1e-9)
+    assert 1e-9 < _floor(robot, q) < 1e-8  # the floor binds, the start lies above it
+    assert out["status"] == "singular" and out["non_finite"] == 0 and out["stop_time"] > 0
+    assert out["message"].startswith("sigma_min(M_pa) fell to the resolution floor at t = ")
+    assert out["message"].endswith(
+        "; the floor is 1e-08 of the largest diagonal entry of M, above sigma_threshold = "
+        "1e-09: closer to the singularity rounding swamps the accelerations")
+    assert out["stop_sigma"] == pytest.approx(_floor(robot, out["stop_q"]), rel=1e-6)
+
+
+@pytest.mark.parametrize("sigma", [1e-10, 1e-12])
+def test_a_start_below_the_resolution_floor_is_singular_at_once(sigma):
+    robot, q = waveless_two_link(), two_link_at(sigma)
+    out = inverse_case(robot, q, threshold=sigma / 10)
+    assert out["status"] == "singular" and out["samples"] == 0 and out["stop_time"] == 0.0
+    assert out["message"] == (
+        f"sigma_min(M_pa) = {out['stop_sigma']:.3g} < {_floor(robot, q):.3g} at the start; the "
+        f"floor is 1e-08 of the largest diagonal entry of M, above sigma_threshold = "
+        f"{sigma / 10:.3g}: closer to the singularity rounding swamps the accelerations")
 
 
 def test_planner_from_a_singular_start_is_finite_or_a_structured_failure():
