@@ -201,15 +201,19 @@ def _plan_examples() -> list[Example]:
 
     It starts and ends at rest; without the wave M_pa = I2 + m2 l1 l2 cos(q0 - q1)
     changes sign between the two configurations, with it the determinant keeps its sign.
+    With a passive shoulder, g = 0 and the margin, nearby end states lead Ipopt to
+    spurious local optima (docs/planner.md, "Passive joints and the coupling margin");
+    this one converges to a plan whose re-simulation error is about 1e-5 rad, in about
+    400 iterations, hence the raised iteration limit.
     """
     rest = [0.0, 0.0]
     crossing = {
         "robot": PLAN_ARM,
-        "task": {"duration": 3.0, "initial": {"q": [0.0, 0.8], "dq": rest},
-                 "final": {"q": [0.1, 1.8], "dq": rest}, "coupling_margin": 0.01,
+        "task": {"duration": 2.0, "initial": {"q": [0.0, 0.8], "dq": rest},
+                 "final": {"q": [0.0, 1.8], "dq": rest}, "coupling_margin": 0.01,
                  "objective": {"effort": 1.0}},
         "transcription": {"method": "legendre", "intervals": 40, "degree": 3},
-        "solver": {"max_wall_time": 60.0},
+        "solver": {"max_iter": 1000, "max_wall_time": 60.0},
     }
     return [
         Example(name="two-link-plan", title="Two-link arm: rest to rest through a singularity",
