@@ -6,7 +6,10 @@ import numpy as np
 import pytest
 
 from planner.dynamics import Dynamics
+from planner.examples import example
+from planner.model import Robot
 from planner.ocp import plan
+from planner.ocp.guess import hermite_guess, inverse_dynamics_guess
 from planner.ocp.problem import ProblemKey, problem
 from planner.ocp.verify import coupling_along
 from planner.scene import Scene
@@ -229,15 +232,16 @@ def test_plan_goes_through_waveless_singularities_keeping_the_wavy_det_sign():
     # Without the wave M_pa = I2 + m2 l1 l2 cos(q0 - q1) changes sign between these ends.
     # With the wave it has one sign at both ends, and the margin keeps that sign: a path
     # that flipped it between two knots would pass through sigma_min = 0 unseen.
-    sc = scene(UNDERACTUATED, method="legendre", N=20, duration=3.0, coupling_margin=0.01,
-               initial={"q": [0.0, 0.8], "dq": [0.0, 0.0]}, final={"q": [0.1, 1.8], "dq": [0.0, 0.0]})
+    sc = Scene.model_validate(example("two-link-plan").request)
+    margin = sc.task.coupling_margin
     ends = np.array([sc.task.initial.q, sc.task.final.q])
     waveless_det = coupling_along(sc.robot.without_waves(), ends)[1]
     wavy_sigma, wavy_det = coupling_along(sc.robot, ends)
     assert waveless_det[0] * waveless_det[1] < 0 < wavy_det[0] * wavy_det[1]
-    assert wavy_sigma.min() > 0.01
+    assert wavy_sigma.min() > margin
     result = plan(sc)
     assert result.solver.success
+    assert result.verification.resimulation_error < 1e-4  # a real motion, not a knot artefact
     crossings = result.verification.waveless_singular_crossings
     assert crossings
     for crossing in crossings:
@@ -245,6 +249,50 @@ def test_plan_goes_through_waveless_singularities_keeping_the_wavy_det_sign():
         assert crossing.sigma_min < 1e-12
     sigma, det = coupling_along(sc.robot, np.asarray(result.dense.q))
     assert np.all(det > 0)
-    assert sigma.min() > 0.5 * 0.01
+    assert sigma.min() > 0.5 * margin
     knots, _ = coupling_along(sc.robot, np.asarray(result.q))
-    assert knots.min() >= 0.01 - 1e-7
+    assert knots.min() >= margin - 1e-7
+
+
+def _rows(robot: dict, g: dict) -> np.ndarray:
+    """|M ddq + h - B tau| per row and sample of a guess (B: the active columns)."""
+    dyn = Dynamics(Robot.model_validate(robot))
+    out = []
+    for q, dq, ddq, tau in zip(g["q"], g["dq"], g["ddq"], g["tau"]):
+        Q = dyn.inverse(q, dq, ddq)
+        Q[dyn.robot.active] -= tau
+        out.append(np.abs(Q))
+    return np.array(out)
+
+
+def test_inverse_dynamics_guess_satisfies_every_row_where_it_reaches():
+    sc = scene(UNDERACTUATED, duration=2.0, final={"q": [0.3, 1.0], "dq": [0.0, 0.0]},
+               solver={"initial_guess": "inverse-dynamics"})
+    x = np.linspace(0.0, 1.0, 41)
+    by_id = inverse_dynamics_guess(sc, sc.robot, 2.0)(x)
+    by_interpolation = hermite_guess(sc, sc.robot, 2.0)(x)
+    assert np.allclose(by_id["q"][:, 0], by_interpolation["q"][:, 0])  # same passive path
+    assert _rows(UNDERACTUATED, by_id).max() < 1e-6
+    assert _rows(UNDERACTUATED, by_interpolation)[:, 0].max() > 1e-2  # the passive row
+    result = plan(sc)
+    assert result.solver.success and np.allclose(result.q[-1], [0.3, 1.0], atol=1e-12)
+
+
+def test_inverse_dynamics_guess_hands_over_to_interpolation_at_a_singular_stop():
+    # sigma_min(M_pa) is 0.159 at the start and falls along the path: with a margin of
+    # 0.155 the classical inverse dynamics stops early, the interpolation covers the rest.
+    sc = scene(UNDERACTUATED, duration=2.0, final={"q": [0.3, 1.0], "dq": [0.0, 0.0]},
+               coupling_margin=0.155, solver={"initial_guess": "inverse-dynamics"})
+    x = np.linspace(0.0, 1.0, 41)
+    by_id = inverse_dynamics_guess(sc, sc.robot, 2.0)(x)
+    by_interpolation = hermite_guess(sc, sc.robot, 2.0)(x)
+    same = np.all(np.isclose(by_id["q"], by_interpolation["q"]), axis=1)
+    assert not same[1] and same[-1]
+    assert np.all(np.isfinite(by_id["tau"]))
+
+
+def test_inverse_dynamics_guess_needs_passive_joints():
+    with pytest.raises(ValueError, match=r"solver\.initial_guess: 'inverse-dynamics' needs a "
+                                         r"robot with passive joints and at least as many "
+                                         r"active joints"):
+        scene(ARM, solver={"initial_guess": "inverse-dynamics"})

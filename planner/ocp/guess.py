@@ -7,6 +7,7 @@ from typing import Callable
 import numpy as np
 
 from planner.dynamics import functions
+from planner.inverse import ActiveState, integrate
 from planner.model import Robot, Structure, parameters
 from planner.ocp.result import Plan
 from planner.scene import Scene
@@ -43,6 +44,48 @@ def hermite_guess(scene: Scene, robot: Robot, T: float) -> Guess:
             for arr, r in zip((q, dq, ddq), ref):
                 arr[:, robot.passive] = r
         return {"q": q, "dq": dq, "ddq": ddq, "tau": _torques(robot, q, dq, ddq)}
+
+    return guess
+
+
+ID_SAMPLES = 2001  # samples of the inverse-dynamics guess over the horizon
+ID_THRESHOLD = 1e-3  # [kg m^2] its singular stop when the task sets no coupling margin
+
+
+class _PassivePath:
+    """The passive columns of a guess, as the motion the classical inverse dynamics follows."""
+
+    def __init__(self, guess: Guess, passive: list[int]):
+        self.guess, self.passive = guess, passive
+
+    def evaluate(self, t, duration: float):
+        g = self.guess(np.atleast_1d(np.asarray(t, dtype=float)) / duration)
+        return tuple(g[k][:, self.passive] for k in ("q", "dq", "ddq"))
+
+
+def inverse_dynamics_guess(scene: Scene, robot: Robot, T: float) -> Guess:
+    """The classical inverse dynamics along the interpolation guess's passive path (the
+    prescribed motion where the task tracks one), from the task's initial active state:
+    every knot it reaches satisfies all rows of the equations of motion. Where it stops,
+    sigma_min(M_pa) having fallen to the task's coupling margin (1e-3 without one), the
+    interpolation guess takes over for the rest of the horizon."""
+    base = hermite_guess(scene, robot, T)
+    q0, dq0 = np.asarray(scene.task.initial.q), np.asarray(scene.task.initial.dq)
+    result = integrate(robot, _PassivePath(base, robot.passive), T,
+                       ActiveState(q=q0[robot.active].tolist(), dq=dq0[robot.active].tolist()),
+                       ID_SAMPLES, scene.task.coupling_margin or ID_THRESHOLD)
+    reached = np.asarray(result.t) / T
+    arrays = {k: np.asarray(getattr(result, k)) for k in ("q", "dq", "ddq", "tau")}
+
+    def guess(x: np.ndarray) -> dict[str, np.ndarray]:
+        out = base(x)
+        if len(reached) < 2:
+            return out
+        inside = np.asarray(x) <= reached[-1]
+        for k, a in arrays.items():
+            out[k][inside] = np.stack([np.interp(np.asarray(x)[inside], reached, a[:, j])
+                                       for j in range(a.shape[1])], axis=1)
+        return out
 
     return guess
 

@@ -11,7 +11,7 @@ import numpy as np
 
 from planner.dynamics import functions
 from planner.model import Robot, Wave, parameters, wave_slots
-from planner.ocp.guess import Guess, hermite_guess, plan_guess
+from planner.ocp.guess import Guess, hermite_guess, inverse_dynamics_guess, plan_guess
 from planner.ocp.problem import Problem, ProblemKey, problem
 from planner.ocp.result import DenseTrajectory, Plan, Progress, SolverReport, Verification, WaveOut
 from planner.ocp.transcription import Interpolant
@@ -38,7 +38,7 @@ def plan(scene: Scene, progress: Callable[[Progress], bool] | None = None,
     robot = _design_robot(scene, key)
     p_robot = parameters(robot, key.structure)
     T_guess = _duration_guess(scene)
-    guess = plan_guess(warm_start) if warm_start is not None else hermite_guess(scene, robot, T_guess)
+    guess = _guess(scene, robot, T_guess, warm_start)
     lbx, ubx = _bounds(scene, prob, robot)
     x0 = _initial_point(prob, guess, T_guess, robot, scene)
     P = _parameters(scene, prob, p_robot, T_guess)
@@ -59,6 +59,15 @@ def plan(scene: Scene, progress: Callable[[Progress], bool] | None = None,
         message = _message(status, success)
     return _result(scene, prob, robot, x, objective, status, success, message, stats,
                    0.0 if cache_hit else prob.build_time, cache_hit)
+
+
+def _guess(scene: Scene, robot: Robot, T: float, warm_start: Plan | None) -> Guess:
+    """The initial guess: an earlier plan, else the scene's `solver.initial_guess`."""
+    if warm_start is not None:
+        return plan_guess(warm_start)
+    if scene.solver.initial_guess == "inverse-dynamics":
+        return inverse_dynamics_guess(scene, robot, T)
+    return hermite_guess(scene, robot, T)
 
 
 def _message(status: str, success: bool) -> str:
