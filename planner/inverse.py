@@ -261,7 +261,8 @@ def _result(status, pb: _Problem, t: np.ndarray, xa: np.ndarray,
     sigma = measures(blocks(pb.robot, q, pb.s))[1]
     arrays = (q, dq, ddq, tau, sigma)
     if not all(np.all(np.isfinite(a)) for a in arrays):
-        raise FloatingPointError("inverse dynamics produced a non-finite value")
+        raise ValueError("the inverse dynamics of this motion overflow (values too large): "
+                         "scale down passive_motion, its rates over duration, or active_initial")
     return InverseDynamicsResult(status=status, t=t.tolist(), q=q.tolist(), dq=dq.tolist(),
                                  ddq=ddq.tolist(), tau=tau.tolist(), sigma_min=sigma.tolist(),
                                  singularity=singularity, message=message)

@@ -161,6 +161,17 @@ def test_inverse_dynamics_torques_satisfy_the_equations_of_motion(api):
     np.testing.assert_allclose(Q[:, 1], np.array(result["tau"])[:, 0], rtol=1e-6, atol=1e-6)
 
 
+def test_an_overflowing_inverse_dynamics_is_refused_not_a_server_error(api):
+    request = inverse_request(gravity=0.0)
+    request["passive_motion"]["end"] = [1e150]
+    request["duration"] = 1e-6
+    request["active_initial"]["dq"] = [1e150]
+    r = api.post("/v1/inverse-dynamics", json=request)
+    assert errors_of(r) == [(["body"], "the inverse dynamics of this motion overflow (values "
+                                       "too large): scale down passive_motion, its rates over "
+                                       "duration, or active_initial")]
+
+
 def test_inverse_dynamics_reports_where_it_meets_a_singularity(api):
     r = api.post("/v1/inverse-dynamics", json=inverse_request(gravity=9.81))
     result = strict_json(r.text)
