@@ -23,6 +23,7 @@ gets closer to the singularity at the price of larger torques in the last sample
 
 from __future__ import annotations
 
+import time
 from functools import lru_cache
 from typing import Literal
 
@@ -44,6 +45,15 @@ rounding of about 1e-16 max_i M_ii, and the active accelerations divide by sigma
 closer to the singularity the right-hand side is noise at the tolerance's scale and
 DOP853's steps collapse (docs/stability.md, "Near-singular configurations"). The motion
 stops at this floor when it lies above `sigma_threshold`, and says so."""
+
+WALL_TIME = 60.0
+"""[s] Longest the integration may run. A motion far too fast for its duration (rates of
+1e200 rad/s, say) leaves every number finite but makes DOP853 take astronomically many
+steps; past this budget the request is refused as such instead of holding a thread."""
+
+
+class _OverBudget(Exception):
+    """The integration ran past WALL_TIME."""
 
 
 class ActiveState(BaseModel):
@@ -162,6 +172,7 @@ class _Problem:
         self.accel = active_acceleration(self.s)
         self.mass = functions(self.s)["M"]
         self.threshold = threshold
+        self.deadline = time.monotonic() + WALL_TIME
 
     def full(self, t, xa: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """All joints' q, dq and the passive ddq at times t (K,) for active states (K, 2 na)."""
@@ -173,6 +184,8 @@ class _Problem:
         return q, dq, ddqp
 
     def rhs(self, t: float, x: np.ndarray) -> np.ndarray:
+        if time.monotonic() > self.deadline:
+            raise _OverBudget
         q, dq, ddqp = self.full(t, x[None, :])
         ddq_a = np.array(self.accel(q[0], dq[0], ddqp[0], self.p)).ravel()
         return np.concatenate([x[len(self.A):], ddq_a])
@@ -214,8 +227,13 @@ def integrate(robot: Robot, motion, duration: float, active_initial: ActiveState
         sigma, level = pb.sigma(t, x)
         return sigma - level
     event.terminal, event.direction = True, -1.0
-    sol = solve_ivp(pb.rhs, (0.0, duration), x0, method="DOP853", dense_output=True,
-                    rtol=rtol, atol=atol, events=event)
+    try:
+        sol = solve_ivp(pb.rhs, (0.0, duration), x0, method="DOP853", dense_output=True,
+                        rtol=rtol, atol=atol, events=event)
+    except _OverBudget:
+        raise ValueError(f"the inverse dynamics did not finish within {WALL_TIME:g} s: the "
+                         "motion is far too fast for its duration; scale down "
+                         "passive_motion, its rates over duration, or active_initial") from None
     if sol.status == 0:
         return _result("completed", pb, grid, sol.sol(grid).T, None, "completed")
 

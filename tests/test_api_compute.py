@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import json
 import math
+import time
 
 import numpy as np
 import pytest
 from conftest import point_mass_dynamics
 from service_fixtures import TWO_LINK, client
 
+from planner import inverse
 from planner.model import Robot
 
 WAVELESS = {**TWO_LINK, "links": [{**TWO_LINK["links"][0], "inertia": 0.0},
@@ -170,6 +172,20 @@ def test_an_overflowing_inverse_dynamics_is_refused_not_a_server_error(api):
     assert errors_of(r) == [(["body"], "the inverse dynamics of this motion overflow (values "
                                        "too large): scale down passive_motion, its rates over "
                                        "duration, or active_initial")]
+
+
+def test_an_inverse_dynamics_past_its_wall_time_is_refused(api, monkeypatch):
+    # Rates of 1e200 rad/s stay finite but make DOP853 crawl: the budget ends the request.
+    monkeypatch.setattr(inverse, "WALL_TIME", 0.5)
+    request = inverse_request(gravity=0.0)
+    request["active_initial"]["dq"] = [1e200]
+    started = time.monotonic()
+    r = api.post("/v1/inverse-dynamics", json=request)
+    assert time.monotonic() - started < 30.0
+    assert errors_of(r) == [(["body"], "the inverse dynamics did not finish within 0.5 s: the "
+                                       "motion is far too fast for its duration; scale down "
+                                       "passive_motion, its rates over duration, or "
+                                       "active_initial")]
 
 
 def test_inverse_dynamics_reports_where_it_meets_a_singularity(api):
