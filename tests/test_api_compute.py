@@ -169,9 +169,9 @@ def test_an_overflowing_inverse_dynamics_is_refused_not_a_server_error(api):
     request["duration"] = 1e-6
     request["active_initial"]["dq"] = [1e150]
     r = api.post("/v1/inverse-dynamics", json=request)
-    assert errors_of(r) == [(["body"], "the inverse dynamics of this motion overflow (values "
-                                       "too large): scale down passive_motion, its rates over "
-                                       "duration, or active_initial")]
+    assert errors_of(r) == [(["body"], ("the inverse dynamics of this motion overflow (values "
+                                        "too large): scale down passive_motion, its rates over "
+                                        "duration, or active_initial"))]
 
 
 def test_an_inverse_dynamics_past_its_wall_time_is_refused(api, monkeypatch):
@@ -182,10 +182,10 @@ def test_an_inverse_dynamics_past_its_wall_time_is_refused(api, monkeypatch):
     started = time.monotonic()
     r = api.post("/v1/inverse-dynamics", json=request)
     assert time.monotonic() - started < 30.0
-    assert errors_of(r) == [(["body"], "the inverse dynamics did not finish within 0.5 s: the "
-                                       "motion is far too fast for its duration; scale down "
-                                       "passive_motion, its rates over duration, or "
-                                       "active_initial")]
+    assert errors_of(r) == [(["body"], ("the inverse dynamics did not finish within 0.5 s: the "
+                                        "motion is far too fast for its duration; scale down "
+                                        "passive_motion, its rates over duration, or "
+                                        "active_initial"))]
 
 
 def test_inverse_dynamics_reports_where_it_meets_a_singularity(api):

@@ -75,7 +75,6 @@ def test_cancel_stops_a_long_plan(server):
     assert took < 3.0
 
 
-@pytest.mark.slow
 def test_every_example_runs_on_its_endpoint(server):
     with httpx.Client(base_url=server.url, timeout=300) as http:
         listed = http.get("/v1/examples").json()
@@ -103,7 +102,6 @@ def _alive(pgid: int) -> bool:
     return True
 
 
-@pytest.mark.slow
 def test_kill_9_during_a_solve_leaves_the_job_interrupted(tmp_path):
     live = LiveServer(tmp_path / "jobs.sqlite3")
     with live, httpx.Client(base_url=live.url, timeout=60) as http:
