@@ -52,6 +52,10 @@ WALL_TIME = 60.0
 steps; past this budget the request is refused as such instead of holding a thread."""
 
 
+_SCALE_DOWN = "scale down passive_motion, its rates over duration, or active_initial"
+"""What to do about a motion too fast or too large to integrate."""
+
+
 class _OverBudget(Exception):
     """The integration ran past WALL_TIME."""
 
@@ -232,8 +236,7 @@ def integrate(robot: Robot, motion, duration: float, active_initial: ActiveState
                         rtol=rtol, atol=atol, events=event)
     except _OverBudget:
         raise ValueError(f"the inverse dynamics did not finish within {WALL_TIME:g} s: the "
-                         "motion is far too fast for its duration; scale down "
-                         "passive_motion, its rates over duration, or active_initial") from None
+                         f"motion is far too fast for its duration; {_SCALE_DOWN}") from None
     if sol.status == 0:
         return _result("completed", pb, grid, sol.sol(grid).T, None, "completed")
 
@@ -279,8 +282,8 @@ def _result(status, pb: _Problem, t: np.ndarray, xa: np.ndarray,
     sigma = measures(blocks(pb.robot, q, pb.s))[1]
     arrays = (q, dq, ddq, tau, sigma)
     if not all(np.all(np.isfinite(a)) for a in arrays):
-        raise ValueError("the inverse dynamics of this motion overflow (values too large): "
-                         "scale down passive_motion, its rates over duration, or active_initial")
+        raise ValueError(f"the inverse dynamics of this motion overflow (values too large): "
+                         f"{_SCALE_DOWN}")
     return InverseDynamicsResult(status=status, t=t.tolist(), q=q.tolist(), dq=dq.tolist(),
                                  ddq=ddq.tolist(), tau=tau.tolist(), sigma_min=sigma.tolist(),
                                  singularity=singularity, message=message)

@@ -23,9 +23,19 @@ def _torques(robot: Robot, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np
 
 
 def hermite_guess(scene: Scene, robot: Robot, T: float) -> Guess:
-    """Cubic Hermite motion from the initial to the final state (free entries: stay put, come to
-    rest), the prescribed passive motion where the task tracks one, and the torques that the
-    active rows of the dynamics ask for along it."""
+    """`hermite_motion` and the torques that the active rows of the dynamics ask for along it."""
+    motion = hermite_motion(scene, robot, T)
+
+    def guess(x: np.ndarray) -> dict[str, np.ndarray]:
+        out = motion(x)
+        return {**out, "tau": _torques(robot, out["q"], out["dq"], out["ddq"])}
+
+    return guess
+
+
+def hermite_motion(scene: Scene, robot: Robot, T: float) -> Guess:
+    """Cubic Hermite q, dq, ddq from the initial to the final state (free entries: stay put,
+    come to rest), the prescribed passive motion where the task tracks one."""
     task = scene.task
     q0, dq0 = np.asarray(task.initial.q), np.asarray(task.initial.dq)
     qf = np.array([q0[i] if v is None else v for i, v in enumerate(task.final.q)])
@@ -43,7 +53,7 @@ def hermite_guess(scene: Scene, robot: Robot, T: float) -> Guess:
             ref = task.tracking.motion.evaluate(s.ravel() * T, T)
             for arr, r in zip((q, dq, ddq), ref):
                 arr[:, robot.passive] = r
-        return {"q": q, "dq": dq, "ddq": ddq, "tau": _torques(robot, q, dq, ddq)}
+        return {"q": q, "dq": dq, "ddq": ddq}
 
     return guess
 
@@ -53,13 +63,13 @@ ID_THRESHOLD = 1e-3  # [kg m^2] its singular stop when the task sets no coupling
 
 
 class _PassivePath:
-    """The passive columns of a guess, as the motion the classical inverse dynamics follows."""
+    """The passive columns of a motion, as the path the classical inverse dynamics follows."""
 
-    def __init__(self, guess: Guess, passive: list[int]):
-        self.guess, self.passive = guess, passive
+    def __init__(self, motion: Guess, passive: list[int]):
+        self.motion, self.passive = motion, passive
 
     def evaluate(self, t, duration: float):
-        g = self.guess(np.atleast_1d(np.asarray(t, dtype=float)) / duration)
+        g = self.motion(np.atleast_1d(np.asarray(t, dtype=float)) / duration)
         return tuple(g[k][:, self.passive] for k in ("q", "dq", "ddq"))
 
 
@@ -71,7 +81,7 @@ def inverse_dynamics_guess(scene: Scene, robot: Robot, T: float) -> Guess:
     interpolation guess takes over for the rest of the horizon."""
     base = hermite_guess(scene, robot, T)
     q0, dq0 = np.asarray(scene.task.initial.q), np.asarray(scene.task.initial.dq)
-    result = integrate(robot, _PassivePath(base, robot.passive), T,
+    result = integrate(robot, _PassivePath(hermite_motion(scene, robot, T), robot.passive), T,
                        ActiveState(q=q0[robot.active].tolist(), dq=dq0[robot.active].tolist()),
                        ID_SAMPLES, scene.task.coupling_margin or ID_THRESHOLD)
     reached = np.asarray(result.t) / T
