@@ -57,7 +57,7 @@ _SCALE_DOWN = "scale down passive_motion, its rates over duration, or active_ini
 
 
 class _OverBudget(Exception):
-    """The integration ran past WALL_TIME."""
+    """The integration ran past its wall-time budget."""
 
 
 class ActiveState(BaseModel):
@@ -167,7 +167,8 @@ class _Problem:
     """The active-state ODE x_a' = (dq_a, ddq_a) along a prescribed passive motion (any
     object with `evaluate(t, duration) -> (q, dq, ddq)`)."""
 
-    def __init__(self, robot: Robot, motion, duration: float, threshold: float):
+    def __init__(self, robot: Robot, motion, duration: float, threshold: float,
+                 wall_time: float = WALL_TIME):
         self.robot = robot
         self.s = Structure.of(self.robot)
         self.p = parameters(self.robot, self.s)
@@ -176,7 +177,8 @@ class _Problem:
         self.accel = active_acceleration(self.s)
         self.mass = functions(self.s)["M"]
         self.threshold = threshold
-        self.deadline = time.monotonic() + WALL_TIME
+        self.wall_time = wall_time
+        self.deadline = time.monotonic() + wall_time
 
     def full(self, t, xa: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """All joints' q, dq and the passive ddq at times t (K,) for active states (K, 2 na)."""
@@ -213,10 +215,11 @@ def solve(request: InverseDynamicsRequest) -> InverseDynamicsResult:
 
 def integrate(robot: Robot, motion, duration: float, active_initial: ActiveState,
               samples: int, sigma_threshold: float, rtol: float = 1e-10,
-              atol: float = 1e-10) -> InverseDynamicsResult:
+              atol: float = 1e-10, wall_time: float = WALL_TIME) -> InverseDynamicsResult:
     """`solve` for an already checked robot and motion; the motion may be any object with
-    `evaluate(t, duration) -> (q, dq, ddq)` of the passive joints."""
-    pb = _Problem(robot, motion, duration, sigma_threshold)
+    `evaluate(t, duration) -> (q, dq, ddq)` of the passive joints. Past wall_time [s] of
+    integration it raises ValueError, as it does when the results overflow."""
+    pb = _Problem(robot, motion, duration, sigma_threshold, wall_time)
     x0 = np.concatenate([active_initial.q, active_initial.dq])
     grid = np.linspace(0.0, duration, samples)
     sigma0, level0 = pb.sigma(0.0, x0)
@@ -235,7 +238,7 @@ def integrate(robot: Robot, motion, duration: float, active_initial: ActiveState
         sol = solve_ivp(pb.rhs, (0.0, duration), x0, method="DOP853", dense_output=True,
                         rtol=rtol, atol=atol, events=event)
     except _OverBudget:
-        raise ValueError(f"the inverse dynamics did not finish within {WALL_TIME:g} s: the "
+        raise ValueError(f"the inverse dynamics did not finish within {pb.wall_time:g} s: the "
                          f"motion is far too fast for its duration; {_SCALE_DOWN}") from None
     if sol.status == 0:
         return _result("completed", pb, grid, sol.sol(grid).T, None, "completed")

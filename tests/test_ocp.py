@@ -8,7 +8,7 @@ import pytest
 from planner.dynamics import Dynamics
 from planner.examples import example
 from planner.model import Robot
-from planner.ocp import plan
+from planner.ocp import Plan, plan
 from planner.ocp.guess import hermite_guess, inverse_dynamics_guess
 from planner.ocp.problem import ProblemKey, problem
 from planner.ocp.verify import coupling_along
@@ -223,7 +223,7 @@ def test_infeasible_task_is_reported_not_raised():
 def test_warm_start_from_a_plan_saves_iterations():
     cold = plan(scene(N=20))
     warm = plan(scene(N=20), warm_start=cold)
-    assert warm.solver.success
+    assert warm.solver.success and warm.solver.initial_guess == "warm start"
     assert warm.solver.iterations < cold.solver.iterations
     assert warm.objective == pytest.approx(cold.objective, rel=1e-6)
 
@@ -289,6 +289,25 @@ def test_inverse_dynamics_guess_hands_over_to_interpolation_at_a_singular_stop()
     same = np.all(np.isclose(by_id["q"], by_interpolation["q"]), axis=1)
     assert not same[1] and same[-1]
     assert np.all(np.isfinite(by_id["tau"]))
+
+
+def test_an_inverse_dynamics_guess_that_cannot_be_computed_leaves_the_interpolation():
+    # An active rate of 1e200 rad/s makes the inverse dynamics run past its budget, which
+    # the scene's max_wall_time caps: the plan reports it instead of raising.
+    sc = scene(UNDERACTUATED, duration=2.0, initial={"q": [0.0, 0.5], "dq": [0.0, 1e200]},
+               final={"q": [0.3, 1.0], "dq": [0.0, 0.0]},
+               solver={"initial_guess": "inverse-dynamics", "max_iter": 3, "max_wall_time": 1.0})
+    result = plan(sc)
+    assert not result.solver.success
+    assert result.solver.initial_guess == (
+        "interpolation; inverse-dynamics refused: the inverse dynamics did not finish within "
+        "1 s: the motion is far too fast for its duration; scale down passive_motion, its "
+        "rates over duration, or active_initial")
+    fresh = plan(scene(UNDERACTUATED, N=20))
+    assert fresh.solver.initial_guess == "interpolation"
+    stored = fresh.model_dump()
+    del stored["solver"]["initial_guess"]  # a plan stored before the field existed
+    assert Plan.model_validate(stored).solver.initial_guess == "not recorded"
 
 
 def test_inverse_dynamics_guess_needs_passive_joints():

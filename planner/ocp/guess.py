@@ -7,7 +7,7 @@ from typing import Callable
 import numpy as np
 
 from planner.dynamics import functions
-from planner.inverse import ActiveState, integrate
+from planner.inverse import WALL_TIME, ActiveState, integrate
 from planner.model import Robot, Structure, parameters
 from planner.ocp.result import Plan
 from planner.scene import Scene
@@ -78,12 +78,14 @@ def inverse_dynamics_guess(scene: Scene, robot: Robot, T: float) -> Guess:
     prescribed motion where the task tracks one), from the task's initial active state:
     every knot it reaches satisfies all rows of the equations of motion. Where it stops,
     sigma_min(M_pa) having fallen to the task's coupling margin (1e-3 without one), the
-    interpolation guess takes over for the rest of the horizon."""
+    interpolation guess takes over for the rest of the horizon. Raises ValueError when the
+    inverse dynamics overflows or runs past min(60 s, solver.max_wall_time)."""
     base = hermite_guess(scene, robot, T)
     q0, dq0 = np.asarray(scene.task.initial.q), np.asarray(scene.task.initial.dq)
     result = integrate(robot, _PassivePath(hermite_motion(scene, robot, T), robot.passive), T,
                        ActiveState(q=q0[robot.active].tolist(), dq=dq0[robot.active].tolist()),
-                       ID_SAMPLES, scene.task.coupling_margin or ID_THRESHOLD)
+                       ID_SAMPLES, scene.task.coupling_margin or ID_THRESHOLD,
+                       wall_time=min(WALL_TIME, scene.solver.max_wall_time))
     reached = np.asarray(result.t) / T
     arrays = {k: np.asarray(getattr(result, k)) for k in ("q", "dq", "ddq", "tau")}
 

@@ -38,7 +38,7 @@ def plan(scene: Scene, progress: Callable[[Progress], bool] | None = None,
     robot = _design_robot(scene, key)
     p_robot = parameters(robot, key.structure)
     T_guess = _duration_guess(scene)
-    guess = _guess(scene, robot, T_guess, warm_start)
+    guess, guess_used = _guess(scene, robot, T_guess, warm_start)
     lbx, ubx = _bounds(scene, prob, robot)
     x0 = _initial_point(prob, guess, T_guess, robot, scene)
     P = _parameters(scene, prob, p_robot, T_guess)
@@ -58,16 +58,20 @@ def plan(scene: Scene, progress: Callable[[Progress], bool] | None = None,
     if not message:
         message = _message(status, success)
     return _result(scene, prob, robot, x, objective, status, success, message, stats,
-                   0.0 if cache_hit else prob.build_time, cache_hit)
+                   0.0 if cache_hit else prob.build_time, cache_hit, guess_used)
 
 
-def _guess(scene: Scene, robot: Robot, T: float, warm_start: Plan | None) -> Guess:
-    """The initial guess: an earlier plan, else the scene's `solver.initial_guess`."""
+def _guess(scene: Scene, robot: Robot, T: float, warm_start: Plan | None) -> tuple[Guess, str]:
+    """The initial guess (an earlier plan, else the scene's `solver.initial_guess`) and
+    what it was: an inverse dynamics that cannot be computed leaves the interpolation."""
     if warm_start is not None:
-        return plan_guess(warm_start)
+        return plan_guess(warm_start), "warm start"
     if scene.solver.initial_guess == "inverse-dynamics":
-        return inverse_dynamics_guess(scene, robot, T)
-    return hermite_guess(scene, robot, T)
+        try:
+            return inverse_dynamics_guess(scene, robot, T), "inverse-dynamics"
+        except ValueError as exc:
+            return hermite_guess(scene, robot, T), f"interpolation; inverse-dynamics refused: {exc}"
+    return hermite_guess(scene, robot, T), "interpolation"
 
 
 def _message(status: str, success: bool) -> str:
@@ -198,7 +202,7 @@ def _solution_blocks(prob: Problem, x: np.ndarray, P: np.ndarray) -> dict[str, n
 
 def _result(scene: Scene, prob: Problem, robot: Robot, x: np.ndarray, objective: float,
             status: str, success: bool, message: str, stats: dict, build_time: float,
-            cache_hit: bool) -> Plan:
+            cache_hit: bool, guess_used: str) -> Plan:
     lay, key = prob.layout, prob.key
     robot = _solved_robot(scene, prob, robot, x)
     p_robot = parameters(robot, key.structure)
@@ -226,7 +230,8 @@ def _result(scene: Scene, prob: Problem, robot: Robot, x: np.ndarray, objective:
                for j, link in enumerate(robot.links) if link.wave is not None],
         solver=SolverReport(status=status, success=success, message=message,
                             iterations=int(stats.get("iter_count", 0)), build_time=build_time,
-                            solve_time=float(stats["solve_time"]), cache_hit=cache_hit),
+                            solve_time=float(stats["solve_time"]), cache_hit=cache_hit,
+                            initial_guess=guess_used),
         verification=verification or _unverified(),
     )
 

@@ -42,6 +42,12 @@ class SolverReport(_Out):
     build_time: float = Field(description="[s] building the NLP; 0 when reused from the cache")
     solve_time: float = Field(description="[s] Ipopt wall time")
     cache_hit: bool = Field(description="the NLP of this scene structure was already built")
+    initial_guess: str = Field(
+        default="not recorded",
+        description="where Ipopt started: interpolation, inverse-dynamics or warm start; "
+                    "an inverse dynamics that could not be computed says why, and the "
+                    "interpolation was used instead ('not recorded' in plans stored before "
+                    "the field existed)")
 
 
 class Crossing(_Out):
