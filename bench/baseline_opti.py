@@ -30,6 +30,7 @@ import argparse
 import math
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -42,7 +43,7 @@ from planner.dynamics import functions, selection
 from planner.model import Structure, parameters
 from planner.ocp.guess import hermite_guess
 from planner.ocp.planner import DENSE_POINTS
-from planner.ocp.transcription import Collocation
+from planner.ocp.transcription import Collocation, Interpolant
 from planner.ocp.verify import defect, resimulation_error
 from planner.scene import Scene
 
@@ -77,6 +78,7 @@ class Baseline:
     cost: ca.MX
     build_time: float
     solved: bool = False
+    value: Callable | None = None  # the last solve's value function (solution or last iterate)
 
 
 def build(scene: Scene) -> Baseline:
@@ -174,7 +176,7 @@ def solve(scene: Scene, built: Baseline | None = None) -> dict:
     except RuntimeError:  # Ipopt did not succeed: read the last iterate
         stats, value = built.opti.stats(), built.opti.debug.value
     total = time.perf_counter() - started
-    built.solved = True
+    built.solved, built.value = True, value
     solve_time = float(stats.get("t_wall_total", total))
     result = {"build_time": built.build_time + total - solve_time if first else 0.0,
               "solve_time": solve_time, "cpu_time": float(stats.get("t_proc_total", math.nan)),
@@ -186,9 +188,9 @@ def solve(scene: Scene, built: Baseline | None = None) -> dict:
     return result
 
 
-def verification(scene: Scene, built: Baseline, value) -> dict:
-    """Re-simulation error [rad] and defect [N m s] of the solution's interpolant, computed by
-    the planner's verification code (same interpolant, same CVODES tolerances)."""
+def interpolant(scene: Scene, built: Baseline, value) -> Interpolant | None:
+    """The collocation interpolant of a solution (the planner's own class for Legendre
+    collocation), None when the solution has non-finite entries."""
     N, d = scene.transcription.intervals, scene.transcription.degree
     n = scene.robot.n
     X = np.array(value(built.X))
@@ -196,9 +198,18 @@ def verification(scene: Scene, built: Baseline, value) -> dict:
     U = np.hstack([np.array(value(u)).reshape(-1, d) for u in built.U])
     blocks = {"q": X[:n], "dq": X[n:], "q_col": Xc[:n], "dq_col": Xc[n:], "tau": U}
     if not all(np.all(np.isfinite(b)) for b in blocks.values()):
-        return {"resimulation_error": math.nan, "defect": math.nan}
+        return None
     breaks = np.linspace(0.0, float(scene.task.duration), N + 1)
-    interp = Collocation(N, d, "legendre").interpolant(blocks, breaks)
+    return Collocation(N, d, "legendre").interpolant(blocks, breaks)
+
+
+def verification(scene: Scene, built: Baseline, value) -> dict:
+    """Re-simulation error [rad] and defect [N m s] of the solution's interpolant, computed by
+    the planner's verification code (same interpolant, same CVODES tolerances)."""
+    N = scene.transcription.intervals
+    interp = interpolant(scene, built, value)
+    if interp is None:
+        return {"resimulation_error": math.nan, "defect": math.nan}
     error, _ = resimulation_error(scene.robot, interp, max(1, math.ceil(DENSE_POINTS / N)))
     return {"resimulation_error": math.nan if error is None else error,
             "defect": defect(scene.robot, interp)}

@@ -27,7 +27,7 @@ from planner.ocp import plan
 from planner.scene import Scene
 
 SECTION = "Passive joints and the coupling margin"
-FINALS = ((0.0, 1.8), (0.05, 1.8), (0.1, 1.8), (-0.1, 1.8), (0.0, 1.75), (0.3, 2.0), (0.4, 2.1))
+FINALS = ((0.0, 1.75), (0.0, 1.8), (0.05, 1.8), (0.1, 1.8), (-0.1, 1.8), (0.3, 2.0), (0.4, 2.1))
 DURATIONS = (2.0, 2.5, 3.0)
 VERIFIED = 1e-3  # [rad] re-simulation error below which a successful plan counts as verified
 

@@ -1,4 +1,5 @@
-"""Peer comparison with opty (direct collocation in SymPy, solved by Ipopt through cyipopt).
+"""Peer comparison in one run: the planner, the Opti baseline and opty (direct collocation in
+SymPy, solved by Ipopt through cyipopt).
 
 Two parts in one file, run by two interpreters:
 
@@ -21,7 +22,8 @@ build time, median wall time of the solves (3; 1 when the first took over 30 s),
 iterations, status, objective; re-simulation of opty's torques by CVODES
 (`planner.simulate.run`), error against the reference. The planner is measured on the same
 scenes with Legendre 5 and Legendre 3 at N = 40 (fresh process each: cold build, then 3
-solves with the NLP cached). The reference is the planner's plan at Legendre 5, N = 80,
+solves with the NLP cached), and so is the Opti baseline of bench/baseline_opti.py (explicit
+forward dynamics, same collocation and guess; fresh process, built once, 3 solves). The reference is the planner's plan at Legendre 5, N = 80,
 from its default guess.
 
 Torque interpolation consistent with each opty method:
@@ -67,7 +69,7 @@ WORKER_TIMEOUT = 900.0  # [s] one worker process (derivation, compilation, solve
 REFERENCE = {"degree": 5, "N": 80}
 PLANNER_POINTS = ((5, 40), (3, 40))  # (Legendre degree, N)
 CHECK_TOL = 1e-10
-SECTION = "Peer comparison: opty"
+SECTION = "Peer comparison: Opti baseline and opty"
 IPOPT_STATUS = {0: "Solve_Succeeded", 1: "Solved_To_Acceptable_Level",
                 2: "Infeasible_Problem_Detected", 3: "Search_Direction_Becomes_Too_Small",
                 4: "Diverging_Iterates", 5: "User_Requested_Stop", 6: "Feasible_Point_Found",
@@ -82,6 +84,7 @@ if importlib.util.find_spec("casadi") is not None:  # the driver's side (project
     sys.path.insert(0, str(ROOT))
     from scipy.interpolate import CubicSpline
 
+    from bench import baseline_opti
     from bench.common import (
         DOCS,
         RESULTS,
@@ -344,6 +347,26 @@ def planner_point(scene_name: str, degree: int, N: int, reference_path: str,
             "ref_error": dense_error(first, ref)}
 
 
+def baseline_point(scene_name: str, degree: int, N: int, reference_path: str,
+                   repeats: int = 3) -> dict:
+    """The Opti baseline (bench/baseline_opti.py) on a scene in a fresh process: built once,
+    solved `repeats` times from the planner's guess; the error of its first solution's
+    interpolant against the reference (run by `isolated`)."""
+    scene = make_scene(scene_name, "legendre", N, degree)
+    built = baseline_opti.build(scene)
+    first = baseline_opti.solve(scene, built)
+    interp = baseline_opti.interpolant(scene, built, built.value)
+    runs = [first] + [baseline_opti.solve(scene, built) for _ in range(repeats - 1)]
+    ref = Plan.model_validate_json(Path(reference_path).read_text())
+    t = np.asarray(ref.dense.t)
+    ref_error = (math.nan if interp is None
+                 else float(np.abs(interp.q(t) - np.asarray(ref.dense.q)).max()))
+    return {"build": first["build_time"], "solve": median(r["solve_time"] for r in runs),
+            "runs": repeats, "iterations": first["iterations"], "status": first["status"],
+            "objective": first["objective"], "resim_error": first["resimulation_error"],
+            "ref_error": ref_error}
+
+
 def check_state(robot, rng: np.random.Generator) -> dict:
     """A random state and the planner's M and h there (the worker must reproduce them)."""
     n = robot.n
@@ -399,6 +422,14 @@ def scene_rows(name: str, nodes: list[int], methods: list[str], rng, log) -> lis
             row = {"scene": name, "solver": "undertow", "method": f"Legendre {degree}",
                    "N": N, "load": load(), **out}
             log(f"{name}: undertow Legendre {degree} N={N}: {out}")
+            rows.append(row)
+        for degree, N in PLANNER_POINTS:
+            out = isolated("peer_opty", "baseline_point",
+                           {"scene_name": name, "degree": degree, "N": N,
+                            "reference_path": str(ref_path)}, 900.0)
+            row = {"scene": name, "solver": "Opti baseline", "method": f"Legendre {degree}",
+                   "N": N, "load": load(), **out}
+            log(f"{name}: Opti baseline Legendre {degree} N={N}: {out}")
             rows.append(row)
 
     scene = make_scene(name)
@@ -469,7 +500,11 @@ def report(rows, refs, install, versions, note, command, minutes, nodes) -> str:
         f"use ({install}); SymPy {v.get('sympy', '?')}, NumPy {v.get('numpy', '?')} there. "
         "The script's project-venv side defines the scenes, runs the planner and verifies; "
         "for each opty point it starts `.venv-opty/bin/python bench/peer_opty.py --worker` "
-        "and exchanges JSON (nodes, t, q, dq, tau, timings, status).",
+        "and exchanges JSON (nodes, t, q, dq, tau, timings, status). The Opti baseline "
+        "(`bench/baseline_opti.py`: the script a CasADi user would write, explicit forward "
+        "dynamics solve(M, Bτ − h), the planner's Legendre collocation and guess, Ipopt's "
+        "default options) runs at the planner's points, each in a fresh process: built once, "
+        "3 solves; its errors are those of its collocation interpolant.",
         "Same continuous problem for both: the scene's robot, boundary states and duration, "
         "objective ∫|τ|² dt, Ipopt tolerance 1e-8. opty gets the equations of motion "
         "M(q) u̇ + h(q, u) = B τ (with q̇ = u) derived in the worker by SymPy from the "

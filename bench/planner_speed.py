@@ -2,12 +2,15 @@
 
 Scene: the seed's 4-link arm, g = 0, rest to rest in 4 s with coupling margin 0.02
 (bench/common.py `seed_scene`), Legendre collocation of degree 3 at each N given. Both
-start from the planner's initial guess (`hermite_guess`). For each N:
+start from the planner's initial guess (`hermite_guess`) and have the same limits (3000
+iterations, Ipopt's default, and 600 s). For each N:
 
 - planner, cold: the NLP cache cleared, one `plan()` (build + solve);
 - planner, warm: `plan()` again `--repeats` times on the cached NLP (median);
 - planner, explicit form: the same, with forward dynamics instead of accelerations as
   variables (the formulation of the baseline), to separate formulation from machinery;
+- planner, compiled: the default form with `solver.jit` (the NLP compiled to C; the cold
+  row includes the compilation, skipped when the compiled library is already on disk);
 - baseline: built once, solved `--baseline-repeats` times from the same guess (median).
 
 Reported: build time, solve time (Ipopt wall time), iterations, objective, re-simulation
@@ -47,6 +50,8 @@ from planner.ocp import plan
 from planner.ocp.problem import problem
 
 SECTION = "Planner vs a plain Opti script"
+BUDGET = {"max_iter": 3000, "max_wall_time": baseline_opti.WALL_CAP}
+"""The planner's limits here: the baseline's (Ipopt's default iteration limit, its wall cap)."""
 COLUMNS = [("N", "N"), ("who", "solver"), ("build", "build [s]"), ("solve", "solve [s]"),
            ("solve_min", "fastest [s]"), ("cpu", "solve CPU [s]"), ("runs", "runs"),
            ("iterations", "iterations"), ("per_iteration", "CPU per iteration [ms]"),
@@ -59,15 +64,16 @@ PROFILE = [("t_wall_nlp_hess_l", "Hessian of the Lagrangian"),
            ("t_wall_callback_fun", "iteration callback")]
 
 
-def planner_rows(N: int, repeats: int, form: str) -> tuple[dict, dict]:
-    """Cold and warm rows of the planner at N (form: implicit or explicit), and the
-    CasADi statistics of its last solve."""
-    scene = seed_scene(N=N, form=form)
+def planner_rows(N: int, repeats: int, form: str, jit: bool = False) -> tuple[dict, dict]:
+    """Cold and warm rows of the planner at N (form: implicit or explicit; jit: compiled
+    NLP), and the CasADi statistics of its last solve."""
+    scene = seed_scene(N=N, form=form, solver={"jit": jit, **BUDGET})
     problem.cache_clear()
     started = time.perf_counter()
     build_time, solver = build_instrumented(scene)
     cold = plan(scene)
     name = "planner" if form == "implicit" else "planner, explicit form"
+    name += ", compiled" if jit else ""
     rows = {"cold": {**_plan_row(N, f"{name}, cold", cold, time.perf_counter() - started),
                      "build": build_time, "cpu": solver.cpu}}
     warm, cpus = [], []
@@ -131,16 +137,19 @@ def run(grid: list[int], repeats: int, baseline_repeats: int) -> tuple[list[dict
     for N in grid:
         planner, p_stats = planner_rows(N, repeats, "implicit")
         explicit, _ = planner_rows(N, repeats, "explicit")
+        compiled, c_stats = planner_rows(N, repeats, "implicit", jit=True)
         base, b_stats = baseline_row(N, baseline_repeats)
         loads.append(load())
-        for row in (planner["cold"], planner["warm"], explicit["cold"], explicit["warm"], base):
+        for row in (planner["cold"], planner["warm"], explicit["cold"], explicit["warm"],
+                    compiled["cold"], compiled["warm"], base):
             row["ratio"] = base["solve"] / row["solve"] if row["solve"] else math.nan
             row["cpu_ratio"] = base["cpu"] / row["cpu"] if row["cpu"] else math.nan
             row["per_iteration"] = 1e3 * row["cpu"] / max(1, row["iterations"])
             rows.append(row)
         profile += profile_rows(N, "planner, warm", p_stats)
+        profile += profile_rows(N, "planner, compiled, warm", c_stats)
         profile += profile_rows(N, "baseline", b_stats)
-        print(table(rows[-5:], COLUMNS), flush=True)
+        print(table(rows[-7:], COLUMNS), flush=True)
     return rows, profile, loads
 
 

@@ -168,7 +168,7 @@ class _Problem:
     object with `evaluate(t, duration) -> (q, dq, ddq)`)."""
 
     def __init__(self, robot: Robot, motion, duration: float, threshold: float,
-                 wall_time: float = WALL_TIME):
+                 wall_time: float | None = None):
         self.robot = robot
         self.s = Structure.of(self.robot)
         self.p = parameters(self.robot, self.s)
@@ -177,8 +177,8 @@ class _Problem:
         self.accel = active_acceleration(self.s)
         self.mass = functions(self.s)["M"]
         self.threshold = threshold
-        self.wall_time = wall_time
-        self.deadline = time.monotonic() + wall_time
+        self.wall_time = WALL_TIME if wall_time is None else wall_time
+        self.deadline = time.monotonic() + self.wall_time
 
     def full(self, t, xa: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """All joints' q, dq and the passive ddq at times t (K,) for active states (K, 2 na)."""
@@ -215,10 +215,11 @@ def solve(request: InverseDynamicsRequest) -> InverseDynamicsResult:
 
 def integrate(robot: Robot, motion, duration: float, active_initial: ActiveState,
               samples: int, sigma_threshold: float, rtol: float = 1e-10,
-              atol: float = 1e-10, wall_time: float = WALL_TIME) -> InverseDynamicsResult:
+              atol: float = 1e-10, wall_time: float | None = None) -> InverseDynamicsResult:
     """`solve` for an already checked robot and motion; the motion may be any object with
     `evaluate(t, duration) -> (q, dq, ddq)` of the passive joints. Past wall_time [s] of
-    integration it raises ValueError, as it does when the results overflow."""
+    integration (default WALL_TIME) it raises ValueError, as it does when the results
+    overflow."""
     pb = _Problem(robot, motion, duration, sigma_threshold, wall_time)
     x0 = np.concatenate([active_initial.q, active_initial.dq])
     grid = np.linspace(0.0, duration, samples)
