@@ -37,6 +37,7 @@ import argparse
 import csv
 import json
 import math
+import subprocess
 import sys
 import tempfile
 import time
@@ -265,7 +266,10 @@ def report(rows: list[dict], refs: dict, note: str, command: str, took: float) -
         "re-simulation (the plan's torque fed to CVODES at rtol 1e-10), defect (integral of "
         "|M ddq + h - B tau| along the interpolant), and max |q - q_ref| over the dense "
         "output against the reference (Legendre degree 5, N = 160, warm-started from the "
-        "Legendre-3 plans at N = 20, 30, 40, lowest objective). `optimum`: `other` when the "
+        "Legendre-3 plans at N = 20, 30, 40, lowest objective; the highest order on a grid "
+        "whose own re-simulation error, in the table below, is already at the floor that "
+        "Ipopt's tolerance sets, so a finer reference would not move any error above "
+        f"{FLOOR:g} rad). `optimum`: `other` when the "
         "objective is more than 5 % off the reference's, i.e. Ipopt found another local "
         "optimum from the default guess. Grids stop early once the error against the "
         f"reference is below {FLOOR:g} rad or a point fails or exceeds {SOLVE_CAP:g} s."),
@@ -307,6 +311,13 @@ def read_csv(path: Path) -> list[dict]:
         return [{k: value(v) for k, v in row.items()} for row in csv.DictReader(f)]
 
 
+def last_commit(path: Path) -> str:
+    """The last commit that changed a file (short hash), 'unknown' outside a checkout."""
+    done = subprocess.run(["git", "-C", str(path.parent), "log", "-1", "--format=%h", "--",
+                           path.name], capture_output=True, text=True, check=False)
+    return done.stdout.strip() or "unknown"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenes", nargs="+", default=["seed-4", "arm-2", "under-2"])
@@ -343,7 +354,12 @@ def main() -> None:
         return
     if args.merge:
         done = {r["scene"] for r in rows}
-        rows = [r for r in read_csv(RESULTS / "time_vs_error.csv") if r["scene"] not in done] + rows
+        kept = [r for r in read_csv(RESULTS / "time_vs_error.csv") if r["scene"] not in done]
+        rows = kept + rows
+        note += (f". This run measured {', '.join(sorted(done))}; the rows of "
+                 f"{', '.join(dict.fromkeys(r['scene'] for r in kept))} are kept from the "
+                 f"previous run (bench/results/time_vs_error.csv as of commit "
+                 f"{last_commit(RESULTS / 'time_vs_error.csv')})")
         old = {r["scene"]: r for r in read_csv(RESULTS / "time_vs_error_refs.csv")}
         refs = {**{k: v for k, v in old.items() if k not in refs}, **refs}
     command = ".venv/bin/python bench/time_vs_error.py " + " ".join(sys.argv[1:])
