@@ -24,7 +24,17 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.common import DOCS, RESULTS, load, machine_note, make_scene, median, table, write_csv, write_section
+from bench.common import (
+    DOCS,
+    RESULTS,
+    load,
+    machine_note,
+    make_scene,
+    median,
+    table,
+    write_csv,
+    write_section,
+)
 from planner.ocp import plan
 from planner.ocp import problem as problem_module
 from planner.ocp.problem import ProblemKey, problem

@@ -336,7 +336,7 @@ def planner_point(scene_name: str, degree: int, N: int, reference_path: str,
     """The planner on a scene in a fresh process: cold build, then `repeats` solves with the
     NLP cached (run by `isolated`)."""
     scene = make_scene(scene_name, "legendre", N, degree)
-    build_time, solver = build_instrumented(scene)
+    build_time, _ = build_instrumented(scene)
     plans = [plan(scene) for _ in range(repeats)]
     ref = Plan.model_validate_json(Path(reference_path).read_text())
     first = plans[0]

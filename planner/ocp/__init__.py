@@ -3,4 +3,4 @@
 from planner.ocp.planner import plan
 from planner.ocp.result import Plan, Progress
 
-__all__ = ["plan", "Plan", "Progress"]
+__all__ = ["Plan", "Progress", "plan"]

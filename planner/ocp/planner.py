@@ -4,16 +4,21 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Callable
+from collections.abc import Callable
 
-import casadi as ca
 import numpy as np
 
-from planner.dynamics import functions
-from planner.model import Robot, Wave, parameters, wave_slots
+from planner.model import Robot, Wave, parameters
 from planner.ocp.guess import Guess, hermite_guess, inverse_dynamics_guess, plan_guess
 from planner.ocp.problem import Problem, ProblemKey, problem
-from planner.ocp.result import DenseTrajectory, Plan, Progress, SolverReport, Verification, WaveOut
+from planner.ocp.result import (
+    DenseTrajectory,
+    Plan,
+    Progress,
+    SolverReport,
+    Verification,
+    WaveOut,
+)
 from planner.ocp.transcription import Interpolant
 from planner.ocp.verify import coupling_along, verify
 from planner.scene import DurationRange, Scene
@@ -217,7 +222,7 @@ def _result(scene: Scene, prob: Problem, robot: Robot, x: np.ndarray, objective:
     finite = np.all(np.isfinite(x)) and math.isfinite(objective)
     verification = verify(robot, interp, t_dense, per) if finite else None
     if not finite:
-        success, status, message = False, status, message or "the solve produced non-finite values"
+        success, message = False, message or "the solve produced non-finite values"
     return Plan(
         t=breaks.tolist(), q=_finite(q_nodes), dq=_finite(dq_nodes),
         ddq=_finite(interp.dq(breaks, derivative=1)), tau=_finite(interp.tau(breaks)),

@@ -9,10 +9,10 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
-import threading
 import os
 import subprocess
 import tempfile
+import threading
 import time
 from dataclasses import dataclass, field
 from functools import lru_cache
@@ -24,7 +24,13 @@ from planner.dynamics import derive, functions
 from planner.model import Structure, wave_slots
 from planner.ocp.layout import Layout
 from planner.ocp.monitor import IterationMonitor
-from planner.ocp.transcription import Collocation, Discrete, HermiteSimpson, MultipleShooting, Trapezoidal
+from planner.ocp.transcription import (
+    Collocation,
+    Discrete,
+    HermiteSimpson,
+    MultipleShooting,
+    Trapezoidal,
+)
 from planner.scene import DurationRange, Scene
 
 

@@ -7,8 +7,8 @@ verification feeds to an independent simulation. Times are fractions of T in [0,
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import casadi as ca
 import numpy as np
@@ -81,7 +81,7 @@ class Trapezoidal:
     def interpolant(self, sol: dict[str, np.ndarray], breaks: np.ndarray) -> Interpolant:
         h = np.diff(breaks)
         q, dq, ddq, tau = (sol[k].T for k in ("q", "dq", "ddq", "tau"))
-        lin = lambda v: np.stack([v[:-1], v[1:] - v[:-1]], axis=1)  # noqa: E731
+        lin = lambda v: np.stack([v[:-1], v[1:] - v[:-1]], axis=1)
         return Interpolant(PiecewisePolynomial(breaks, integrate(lin(dq), q[:-1], h)),
                            PiecewisePolynomial(breaks, integrate(lin(ddq), dq[:-1], h)),
                            PiecewisePolynomial(breaks, lin(tau)))
@@ -152,7 +152,6 @@ class Collocation:
 
     def build(self, lay: Layout, n: int, na: int, h: ca.MX, dyn: Dyn) -> Discrete:
         N, d = self.N, self.d
-        t = _nodes(N)
         tc = ((np.arange(N)[:, None] + self.tau_pts[None, :]) / N).ravel()
         q, dq, times = _node_states(lay, n, N)
         qc, dqc = lay.add("q_col", n, N * d), lay.add("dq_col", n, N * d)

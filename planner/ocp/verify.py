@@ -68,13 +68,13 @@ def singular_crossings(robot: Robot, interp: Interpolant, t: np.ndarray) -> tupl
         return [], None
     times: list[float] = []
     if det is not None:
-        det_at = lambda x: coupling_along(waveless, interp.q(np.array([x])))[1][0]  # noqa: E731
+        det_at = lambda x: coupling_along(waveless, interp.q(np.array([x])))[1][0]
         for k in np.flatnonzero(np.sign(det[:-1]) * np.sign(det[1:]) < 0):
             times.append(brentq(det_at, t[k], t[k + 1], xtol=1e-12))
         times += [float(t[k]) for k in np.flatnonzero(det == 0.0)]
     else:
         floor = 1e-3 * float(sigma.max())
-        sig_at = lambda x: coupling_along(waveless, interp.q(np.array([x])))[0][0]  # noqa: E731
+        sig_at = lambda x: coupling_along(waveless, interp.q(np.array([x])))[0][0]
         for k in range(1, len(t) - 1):
             if sigma[k] <= sigma[k - 1] and sigma[k] <= sigma[k + 1] and sigma[k] < floor:
                 best = minimize_scalar(sig_at, bounds=(t[k - 1], t[k + 1]), method="bounded")
