@@ -13,6 +13,7 @@ import os
 import re
 import signal
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -128,6 +129,33 @@ class ProgressBar:
         self.tty = stream.isatty()
         self.last_draw, self.stop, self.drawn = -float("inf"), False, False
         self.latest = None
+        self.lock = threading.Lock()  # the heartbeat of `waiting` writes from its own thread
+
+    def _write(self, text: str) -> None:
+        with self.lock:
+            self.stream.write(text + ("\r" if self.tty else "\n"))
+            self.stream.flush()
+
+    @contextlib.contextmanager
+    def waiting(self, what: str) -> Iterator[None]:
+        """Until the first iteration: "<what>  <elapsed> s" at the bar's pace, so that a long
+        NLP build or initial guess shows that work is going on."""
+        done, started = threading.Event(), time.monotonic()
+
+        def beat() -> None:
+            period = max(0.1 if self.tty else PROGRESS_PERIOD, 0.05)
+            while not done.wait(period) and self.latest is None:
+                self._write(f"{what}  {time.monotonic() - started:6.1f} s")
+
+        thread = threading.Thread(target=beat, daemon=True)
+        if self.visible:
+            thread.start()
+        try:
+            yield
+        finally:
+            done.set()
+            if thread.is_alive():
+                thread.join()
 
     def line(self, progress) -> str:
         filled = min(_BAR, round(_BAR * progress.iteration / max(self.max_iter, 1)))
@@ -141,16 +169,15 @@ class ProgressBar:
         period = 0.1 if self.tty else PROGRESS_PERIOD
         if self.visible and now - self.last_draw >= period:
             self.last_draw, self.drawn = now, True
-            end = "\r" if self.tty else "\n"
-            self.stream.write(self.line(progress) + end)
-            self.stream.flush()
+            self._write(self.line(progress))
         return not self.stop
 
     def close(self) -> None:
         """On a terminal: redraw the last iteration and end the line."""
         if self.tty and self.drawn:
-            self.stream.write(self.line(self.latest) + "\n")
-            self.stream.flush()
+            with self.lock:
+                self.stream.write(self.line(self.latest) + "\n")
+                self.stream.flush()
 
 
 @contextlib.contextmanager
@@ -199,7 +226,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     say(args, f"planning {args.scene}: {scene.robot.n} links, {tr.method}, "
               f"{tr.intervals} intervals (building the NLP the first time takes a while)")
     bar = ProgressBar(sys.stderr, scene.solver.max_iter, visible=not args.quiet)
-    with first_interrupt_stops(bar):
+    with first_interrupt_stops(bar), bar.waiting("building the NLP and the initial guess"):
         result = plan(scene, progress=bar)
     bar.close()
     write(args.output, dump(result))

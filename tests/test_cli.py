@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import signal
@@ -20,6 +21,7 @@ from planner import cli
 from planner.examples import example, examples
 from planner.inverse import InverseDynamicsResult
 from planner.ocp import Plan, plan
+from planner.ocp.result import Progress
 from planner.scene import Scene
 from planner.waves import WaveDesignResult
 
@@ -250,3 +252,19 @@ def test_the_first_ctrl_c_stops_the_solve_and_still_writes_the_plan(tmp_path):
     written = Plan.model_validate_json(out.read_text())
     assert written.solver.status == "User_Requested_Stop"
     assert "stopping at the next iteration (Ctrl-C again to abort)" in rest
+
+
+def test_the_progress_bar_beats_until_the_first_iteration(monkeypatch):
+    monkeypatch.setattr(cli, "PROGRESS_PERIOD", 0.05)
+    stream = io.StringIO()
+    bar = cli.ProgressBar(stream, max_iter=10)
+    with bar.waiting("building the NLP"):
+        time.sleep(0.4)
+        bar(Progress(iteration=0, objective=1.0, inf_pr=0.1, inf_du=0.1, elapsed=0.0))
+        time.sleep(0.3)  # no beat once an iteration has arrived
+    lines = stream.getvalue().splitlines()
+    beats = [line for line in lines if line.startswith("building the NLP  ")]
+    assert len(beats) >= 3 and lines[len(beats)].startswith("[")
+    assert lines[len(beats) + 1:] == []
+    elapsed = [float(line.split()[-2]) for line in beats]
+    assert elapsed == sorted(elapsed) and elapsed[0] >= 0.05
