@@ -11,8 +11,8 @@ Same as the planner: objective effort * int |tau|^2 dt by the collocation quadra
 boundary states; the coupling margin sigma_min(M_pa) >= delta at the nodes and the
 collocation points, written as the leading principal minors of G / delta^2 - I >= 0,
 G = M_pa M_pa^T, and for a square M_pa also sign * det(M_pa) / delta^p - 1 >= 0 with the
-sign det M_pa has at the start (the form of planner/ocp/problem.py `_margin_function`
-since 0b6c7e4: the minors bound sigma_min, the kept sign stops a path from jumping
+sign det M_pa has at the start, alone for a 1 x 1 block (the form of planner/ocp/problem.py
+`_margin_function`: the minors bound sigma_min, the kept sign stops a path from jumping
 through det = 0 between knots); the initial
 guess of `planner.ocp.guess.hermite_guess`. Different on purpose: Ipopt with its default
 options (monotone barrier update, tol 1e-8), no `expand`, boundary conditions as equality
@@ -109,7 +109,7 @@ def build(scene: Scene) -> Baseline:
         mpa = f["M"](q, p)[s.passive_idx, s.active_idx]
         gram = ca.mtimes(mpa, mpa.T) if mpa.size1() <= mpa.size2() else ca.mtimes(mpa.T, mpa)
         shifted = gram / margin**2 - ca.MX.eye(gram.size1())
-        for k in range(1, gram.size1() + 1):
+        for k in range(1, gram.size1() + 1 if not (square and na == 1) else 1):
             opti.subject_to(ca.det(shifted[:k, :k]) >= 0)
         if square:
             opti.subject_to(sign * ca.det(mpa) / margin**na - 1 >= 0)
