@@ -109,7 +109,8 @@ def build(scene: Scene) -> Baseline:
         mpa = f["M"](q, p)[s.passive_idx, s.active_idx]
         gram = ca.mtimes(mpa, mpa.T) if mpa.size1() <= mpa.size2() else ca.mtimes(mpa.T, mpa)
         shifted = gram / margin**2 - ca.MX.eye(gram.size1())
-        for k in range(1, gram.size1() + 1 if not (square and na == 1) else 1):
+        orders = [] if square and na == 1 else range(1, gram.size1() + 1)
+        for k in orders:
             opti.subject_to(ca.det(shifted[:k, :k]) >= 0)
         if square:
             opti.subject_to(sign * ca.det(mpa) / margin**na - 1 >= 0)
