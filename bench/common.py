@@ -115,14 +115,17 @@ def machine_note() -> str:
             f"NumPy {np.__version__}; planner/ at commit {planner_commit()}")
 
 
+def last_commit(path: Path) -> str:
+    """The last commit (short hash) that changed a file or folder, 'unknown' outside a checkout."""
+    return subprocess.run(["git", "-C", str(ROOT), "log", "-1", "--format=%h", "--", str(path)],
+                          check=False, capture_output=True, text=True).stdout.strip() or "unknown"
+
+
 def planner_commit() -> str:
     """The last commit that touched planner/ (the code measured), '+ local changes' if any."""
-    git = ["git", "-C", str(ROOT)]
-    head = subprocess.run([*git, "log", "-1", "--format=%h", "--", "planner"], check=False,
-                          capture_output=True, text=True).stdout.strip() or "unknown"
-    dirty = subprocess.run([*git, "status", "--porcelain", "--", "planner"], check=False,
-                           capture_output=True, text=True).stdout.strip()
-    return head + (" + local changes" if dirty else "")
+    dirty = subprocess.run(["git", "-C", str(ROOT), "status", "--porcelain", "--", "planner"],
+                           check=False, capture_output=True, text=True).stdout.strip()
+    return last_commit(ROOT / "planner") + (" + local changes" if dirty else "")
 
 
 def timed(fn: Callable[[], object]) -> tuple[object, float, float]:

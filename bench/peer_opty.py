@@ -415,22 +415,15 @@ def scene_rows(name: str, nodes: list[int], methods: list[str], rng, log) -> lis
     with tempfile.TemporaryDirectory() as tmp:
         ref_path = Path(tmp) / "reference.json"
         ref_path.write_text(ref.model_dump_json())
-        for degree, N in PLANNER_POINTS:
-            out = isolated("peer_opty", "planner_point",
-                           {"scene_name": name, "degree": degree, "N": N,
-                            "reference_path": str(ref_path)}, 600.0)
-            row = {"scene": name, "solver": "undertow", "method": f"Legendre {degree}",
-                   "N": N, "load": load(), **out}
-            log(f"{name}: undertow Legendre {degree} N={N}: {out}")
-            rows.append(row)
-        for degree, N in PLANNER_POINTS:
-            out = isolated("peer_opty", "baseline_point",
-                           {"scene_name": name, "degree": degree, "N": N,
-                            "reference_path": str(ref_path)}, 900.0)
-            row = {"scene": name, "solver": "Opti baseline", "method": f"Legendre {degree}",
-                   "N": N, "load": load(), **out}
-            log(f"{name}: Opti baseline Legendre {degree} N={N}: {out}")
-            rows.append(row)
+        for function, solver, timeout in (("planner_point", "undertow", 600.0),
+                                          ("baseline_point", "Opti baseline", 900.0)):
+            for degree, N in PLANNER_POINTS:
+                out = isolated("peer_opty", function,
+                               {"scene_name": name, "degree": degree, "N": N,
+                                "reference_path": str(ref_path)}, timeout)
+                rows.append({"scene": name, "solver": solver, "method": f"Legendre {degree}",
+                             "N": N, "load": load(), **out})
+                log(f"{name}: {solver} Legendre {degree} N={N}: {out}")
 
     scene = make_scene(name)
     check = check_state(scene.robot, rng)

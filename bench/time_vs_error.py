@@ -37,7 +37,6 @@ import argparse
 import csv
 import json
 import math
-import subprocess
 import sys
 import tempfile
 import time
@@ -51,6 +50,7 @@ from bench.common import (
     build_instrumented,
     dense_error,
     isolated,
+    last_commit,
     load,
     machine_note,
     make_scene,
@@ -309,13 +309,6 @@ def read_csv(path: Path) -> list[dict]:
 
     with open(path, newline="") as f:
         return [{k: value(v) for k, v in row.items()} for row in csv.DictReader(f)]
-
-
-def last_commit(path: Path) -> str:
-    """The last commit that changed a file (short hash), 'unknown' outside a checkout."""
-    done = subprocess.run(["git", "-C", str(path.parent), "log", "-1", "--format=%h", "--",
-                           path.name], capture_output=True, text=True, check=False)
-    return done.stdout.strip() or "unknown"
 
 
 def main() -> None:

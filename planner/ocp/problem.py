@@ -165,11 +165,12 @@ def _margin_function(s: Structure) -> ca.Function:
     mpa = sym.mass[s.passive_idx, s.active_idx]
     gram = ca.mtimes(mpa, mpa.T) if mpa.size1() <= mpa.size2() else ca.mtimes(mpa.T, mpa)
     shifted = gram / margin**2 - ca.SX.eye(gram.size1())
-    minors = [ca.det(shifted[:k, :k]) for k in range(1, gram.size1() + 1)]
-    if mpa.size1() == mpa.size2():
-        kept = sign * ca.det(mpa) / margin ** mpa.size1() - 1
-        minors = [kept] if mpa.size1() == 1 else [*minors, kept]
-    return ca.Function("margin", [sym.q, sym.p, margin, sign], [ca.vertcat(*minors)])
+    square = mpa.size1() == mpa.size2()
+    orders = [] if square and mpa.size1() == 1 else range(1, gram.size1() + 1)
+    rows = [ca.det(shifted[:k, :k]) for k in orders]
+    if square:
+        rows.append(sign * ca.det(mpa) / margin ** mpa.size1() - 1)
+    return ca.Function("margin", [sym.q, sym.p, margin, sign], [ca.vertcat(*rows)])
 
 
 def _robot_parameters(key: ProblemKey, lay: Layout, P: ca.MX, params: dict) -> ca.MX:
