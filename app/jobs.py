@@ -26,6 +26,7 @@ from typing import Any
 
 from app.store import INTERRUPTED, JobStore
 from planner.ocp.result import Plan, Progress
+from planner.ocp.verify import unverified_reason
 from planner.scene import Scene
 
 log = logging.getLogger("undertow.jobs")
@@ -85,9 +86,11 @@ class _Reporter:
 
 
 def _verdict(plan: Plan, cancel_requested: bool) -> tuple[str, str | None]:
-    """Final status and error of a returned plan."""
+    """Final status and error of a returned plan: an optimal plan that fails its
+    re-simulation check has failed too."""
     if plan.solver.success:
-        return "succeeded", None
+        reason = unverified_reason(plan.verification)
+        return ("succeeded", None) if reason is None else ("failed", f"unverified: {reason}")
     if cancel_requested:
         return "cancelled", "cancelled on request"
     message = plan.solver.message

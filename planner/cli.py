@@ -25,8 +25,8 @@ OK, FAILED, BAD_INPUT, IO_ERROR, INTERRUPTED = 0, 1, 2, 3, 130
 EXIT_CODES = f"""exit codes:
   {OK}    success
   {FAILED}    the computation ran but did not succeed: solver failure or infeasible plan,
-       infeasible wave design, singular stop of the inverse dynamics; the result is
-       still written
+       a plan whose torque fails the re-simulation check, infeasible wave design,
+       singular stop of the inverse dynamics; the result is still written
   {BAD_INPUT}    bad input: unreadable JSON, a field that fails validation (each offending
        field is named on stderr), unknown example, wrong option
   {IO_ERROR}    I/O error: an input file cannot be read or an output file cannot be written
@@ -218,6 +218,7 @@ def check_plot_name(path: str | None) -> None:
 
 def cmd_plan(args: argparse.Namespace) -> int:
     from planner.ocp import plan
+    from planner.ocp.verify import unverified_reason
     from planner.scene import Scene
 
     check_plot_name(args.plot)
@@ -240,7 +241,10 @@ def cmd_plan(args: argparse.Namespace) -> int:
               f"{len(v.waveless_singular_crossings)} waveless singular crossing(s)")
     if bar.stop:
         return INTERRUPTED
-    return OK if s.success else FAILED
+    reason = unverified_reason(v)
+    if s.success and reason:
+        say(args, f"not verified: {reason}")
+    return OK if s.success and reason is None else FAILED
 
 
 def cmd_design_wave(args: argparse.Namespace) -> int:

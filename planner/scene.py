@@ -155,6 +155,10 @@ class SolverSettings(BaseModel):
                     "that passive path until it meets sigma_min(M_pa) = coupling margin (1e-3 "
                     "without one), the interpolation after")
     jit: bool = Field(default=False, description="compile the NLP to C (cached on disk)")
+    resimulation_tolerance: float = Field(
+        default=1e-3, gt=0.0,
+        description="[rad] largest re-simulation error of a verified plan: above it the NLP's "
+                    "trajectory is not a motion of the robot (too coarse a grid for it)")
 
 
 class Scene(BaseModel):

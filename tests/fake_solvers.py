@@ -2,7 +2,8 @@
 
 `fake_plan` runs `solver.max_iter` iterations of 20 ms each, reporting progress and
 honouring a stop request like planner.ocp.plan does. `solver.tol` picks the outcome:
-< 0.25 converges, [0.25, 0.5) raises, [0.5, 0.9) fails, >= 0.9 kills the worker process.
+< 0.2 converges, [0.2, 0.25) converges to a plan whose re-simulation departs by 0.5 rad,
+[0.25, 0.5) raises, [0.5, 0.9) fails, >= 0.9 kills the worker process.
 """
 
 from __future__ import annotations
@@ -16,7 +17,8 @@ from planner.scene import Scene
 ITERATION = 0.02  # [s]
 
 
-def _plan(scene: Scene, status: str, success: bool, iterations: int, elapsed: float) -> Plan:
+def _plan(scene: Scene, status: str, success: bool, iterations: int, elapsed: float,
+          error: float = 0.0) -> Plan:
     n, na = scene.robot.n, len(scene.robot.active)
     T = scene.task.duration if isinstance(scene.task.duration, float) else scene.task.duration.max
     zeros, tau = [[0.0] * n] * 2, [[0.0] * na] * 2
@@ -27,8 +29,9 @@ def _plan(scene: Scene, status: str, success: bool, iterations: int, elapsed: fl
         "solver": {"status": status, "success": success, "message": "" if success else status,
                    "iterations": iterations, "build_time": 0.0, "solve_time": elapsed,
                    "cache_hit": False},
-        "verification": {"resimulation_error": 0.0, "resimulation_status": "completed",
-                         "defect": 0.0, "min_sigma": None, "waveless_min_sigma": None,
+        "verification": {"resimulation_error": error, "resimulation_status": "completed",
+                         "verified": error <= scene.solver.resimulation_tolerance,
+                         "tolerance": scene.solver.resimulation_tolerance, "defect": 0.0, "min_sigma": None, "waveless_min_sigma": None,
                          "waveless_singular_crossings": []}})
 
 
@@ -48,4 +51,5 @@ def fake_plan(scene: Scene, progress=None) -> Plan:
     if tol >= 0.5:
         return _plan(scene, "Maximum_Iterations_Exceeded", False, scene.solver.max_iter,
                      time.monotonic() - start)
-    return _plan(scene, "Solve_Succeeded", True, scene.solver.max_iter, time.monotonic() - start)
+    return _plan(scene, "Solve_Succeeded", True, scene.solver.max_iter, time.monotonic() - start,
+                 0.5 if tol >= 0.2 else 0.0)

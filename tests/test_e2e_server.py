@@ -19,7 +19,7 @@ from app.routes.examples import ENDPOINTS
 QUICK = {"robot": TWO_LINK,
          "task": {"duration": 2.0, "initial": {"q": [0.0, 0.0], "dq": [0.0, 0.0]},
                   "final": {"q": [1.0, None], "dq": [0.0, 0.0]}},
-         "transcription": {"intervals": 10}}
+         "transcription": {"intervals": 50}}  # 10 or 20: optimal, yet 0.3 rad off in re-simulation
 # An unreachable tip under a torque limit: Ipopt iterates for seconds before it gives up.
 LONG = {"robot": TWO_LINK,
         "task": {"duration": 2.0, "initial": {"q": [0.0, 0.0], "dq": [0.0, 0.0]},
@@ -54,7 +54,8 @@ def test_plan_then_fetch_it_again_after_a_restart(tmp_path):
         job = r.json()
         assert job["status"] == "succeeded", job["error"]
         plan = job["plan"]
-        assert plan["solver"]["success"] and len(plan["t"]) == 11 and plan["t"][-1] == 2.0
+        assert plan["solver"]["success"] and plan["verification"]["verified"]
+        assert len(plan["t"]) == 51 and plan["t"][-1] == 2.0
         assert plan["q"][0] == [0.0, 0.0] and plan["q"][-1][0] == pytest.approx(1.0, abs=1e-6)
         assert http.get(f"/v1/plans/{job['id']}").json() == job
     with live, httpx.Client(base_url=live.url, timeout=60) as http:

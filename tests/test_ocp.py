@@ -11,7 +11,7 @@ from planner.model import Robot
 from planner.ocp import Plan, plan
 from planner.ocp.guess import hermite_guess, inverse_dynamics_guess
 from planner.ocp.problem import ProblemKey, problem
-from planner.ocp.verify import coupling_along
+from planner.ocp.verify import coupling_along, unverified_reason
 from planner.scene import Scene
 
 ARM = {"links": [
@@ -49,6 +49,19 @@ def slope(method: str, grids: tuple[int, int], degree: int = 3) -> float:
 def test_resimulation_error_falls_at_the_expected_order(method, degree, grids, order):
     observed = slope(method, grids, degree or 3)
     assert observed == pytest.approx(order, abs=0.5)
+
+
+def test_a_plan_is_verified_only_within_its_resimulation_tolerance():
+    coarse = scene(method="trapezoidal", N=10)
+    error = plan(coarse).verification.resimulation_error
+    assert error > 1e-4  # a coarse grid: its torque drifts measurably from the plan
+    for tolerance, verified in ((2 * error, True), (error / 2, False)):
+        v = plan(coarse.model_copy(update={"solver": coarse.solver.model_copy(
+            update={"resimulation_tolerance": tolerance})})).verification
+        assert (v.verified, v.tolerance) == (verified, tolerance)
+        assert unverified_reason(v) == (None if verified else (
+            f"the planned torque departs from the plan by {error:.3g} rad in re-simulation "
+            f"(tolerance {tolerance:g} rad): refine the grid"))
 
 
 def test_every_transcription_reaches_the_same_optimum():

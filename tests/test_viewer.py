@@ -171,6 +171,8 @@ def test_plan_an_example_and_watch_it(page, server, tmp_path):
     # progress and summary agree with the API
     assert page.text_content("#p-iteration").startswith(f"{job['progress']['iteration']} / ")
     assert plan["solver"]["status"] in page.text_content("#summary")
+    assert plan["verification"]["verified"]
+    assert "verifiedyes (tolerance 0.001 rad)" in page.text_content("#summary")
     crossings = plan["verification"]["waveless_singular_crossings"]
     assert page.locator("#crossings li").count() == len(crossings) + 1
 

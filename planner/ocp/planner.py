@@ -220,7 +220,8 @@ def _result(scene: Scene, prob: Problem, robot: Robot, x: np.ndarray, objective:
     t_dense = np.linspace(0.0, T, key.intervals * per + 1)
     q_nodes, dq_nodes = blocks["q"].T, blocks["dq"].T
     finite = np.all(np.isfinite(x)) and math.isfinite(objective)
-    verification = verify(robot, interp, t_dense, per) if finite else None
+    tolerance = scene.solver.resimulation_tolerance
+    verification = verify(robot, interp, t_dense, per, tolerance) if finite else None
     if not finite:
         success, message = False, message or "the solve produced non-finite values"
     return Plan(
@@ -237,7 +238,7 @@ def _result(scene: Scene, prob: Problem, robot: Robot, x: np.ndarray, objective:
                             iterations=int(stats.get("iter_count", 0)), build_time=build_time,
                             solve_time=float(stats["solve_time"]), cache_hit=cache_hit,
                             initial_guess=guess_used),
-        verification=verification or _unverified(),
+        verification=verification or _unverified(tolerance),
     )
 
 
@@ -254,10 +255,10 @@ def _solved_robot(scene: Scene, prob: Problem, robot: Robot, x: np.ndarray) -> R
     return robot.with_waves(waves)
 
 
-def _unverified() -> Verification:
+def _unverified(tolerance: float) -> Verification:
     return Verification(resimulation_error=None, resimulation_status="not run: non-finite solution",
-                        defect=None, min_sigma=None, waveless_min_sigma=None,
-                        waveless_singular_crossings=[])
+                        verified=False, tolerance=tolerance, defect=None, min_sigma=None,
+                        waveless_min_sigma=None, waveless_singular_crossings=[])
 
 
 def _finite(a: np.ndarray) -> list[list[float]]:

@@ -66,6 +66,13 @@ class Verification(_Out):
     resimulation_status: str
     defect: float | None = Field(
         description="integral of |M ddq + h - B tau| [N m s] along the plan's interpolant")
+    verified: bool | None = Field(
+        default=None,
+        description="the re-simulation completed with an error of at most `tolerance`: the "
+                    "planned torque moves the robot along the plan (None in plans stored "
+                    "before the field existed)")
+    tolerance: float | None = Field(
+        default=None, description="[rad] the scene's solver.resimulation_tolerance")
     min_sigma: float | None = Field(description="min sigma_min(M_pa) along the plan")
     waveless_min_sigma: float | None = Field(
         description="min sigma_min(M_pa) along the plan for the robot without waves")

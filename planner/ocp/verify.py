@@ -87,8 +87,10 @@ def singular_crossings(robot: Robot, interp: Interpolant, t: np.ndarray) -> tupl
     return crossings, float(sigma.min())
 
 
-def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, samples: int) -> Verification:
-    """All checks of a plan of `robot` whose interpolant is `interp`."""
+def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, samples: int,
+           tolerance: float) -> Verification:
+    """All checks of a plan of `robot` whose interpolant is `interp`; verified when the
+    re-simulation error is at most `tolerance` [rad]."""
     error, status = resimulation_error(robot, interp, samples)
     sigma, _ = coupling_along(robot, interp.q(t_dense))
     crossings, waveless_min = singular_crossings(robot, interp, t_dense)
@@ -96,8 +98,20 @@ def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, samples: int)
     return Verification(
         resimulation_error=error,
         resimulation_status=status,
+        verified=error is not None and error <= tolerance,
+        tolerance=tolerance,
         defect=defect(robot, interp),
         min_sigma=float(sigma[finite].min()) if finite.any() else None,
         waveless_min_sigma=waveless_min,
         waveless_singular_crossings=crossings,
     )
+
+
+def unverified_reason(v: Verification) -> str | None:
+    """Why a plan failed its re-simulation check; None when it passed (or predates the check)."""
+    if v.verified is not False:
+        return None
+    if v.resimulation_error is None:
+        return f"the re-simulation did not complete ({v.resimulation_status})"
+    return (f"the planned torque departs from the plan by {v.resimulation_error:.3g} rad in "
+            f"re-simulation (tolerance {v.tolerance:g} rad): refine the grid")
