@@ -2,7 +2,7 @@
 
 Starts uvicorn (app.main:app) on 127.0.0.1 with a temporary store, fires N plan requests
 at once from one bounded httpx async loop, then polls every accepted job to its end.
-Checks: every answer is 202 or 429/503 (queue full), none 5xx, every accepted job reaches
+Checks: every answer is 202 or 429 (queue full), none 5xx, every accepted job reaches
 a final state (none lost). Reports submit latency, job latency (submit -> final), and
 throughput, and writes docs/bench-service.md.
 
@@ -33,7 +33,7 @@ SCENE = {"robot": {"links": [
      "wave": {"amplitude": 0.05, "frequency": 3.0, "phase": 0.3}}], "gravity": 9.81},
     "task": {"duration": 2.0, "initial": {"q": [0.0, 0.0], "dq": [0.0, 0.0]},
              "final": {"q": [1.0, None], "dq": [0.0, 0.0]}},
-    "transcription": {"intervals": 20}}
+    "transcription": {"intervals": 50}}  # 20 is optimal but fails its re-simulation check
 FINAL = {"succeeded", "failed", "cancelled"}
 DEADLINE = 600.0  # [s] the whole run stops by itself after this
 
@@ -83,8 +83,7 @@ def report(result: dict, args: argparse.Namespace, command: str) -> tuple[str, b
     submit_latency = [a[1] for a in result["answers"]]
     span = result["t1"] - result["t0"]
     done = sum(s in FINAL for s in finals)
-    ok = (all(s in (202, 429, 503) for s in statuses) and done == len(result["accepted"])
-          and not any(s >= 500 and s != 503 for s in statuses))
+    ok = all(s in (202, 429) for s in statuses) and done == len(result["accepted"])
     p50s, p95s = percentiles(submit_latency)
     p50j, p95j = percentiles(job_latency)
     lines = [
@@ -98,7 +97,8 @@ def report(result: dict, args: argparse.Namespace, command: str) -> tuple[str, b
          f"{args.workers} solver worker processes, queue of {args.max_queued} "
          f"(so at most {args.workers + args.max_queued} unfinished plans)."),
         ("Scene: a two-link arm (one passive, one wavy active joint), legendre collocation, "
-         "20 intervals (the NLP is built once per worker, before or during the run)."),
+         f"{SCENE['transcription']['intervals']} intervals (the NLP is built once per worker, "
+         "before or during the run)."),
         "",
         "| quantity | value |",
         "|---|---|",
@@ -111,7 +111,7 @@ def report(result: dict, args: argparse.Namespace, command: str) -> tuple[str, b
         f"| wall time, first submit to last job end | {span:.2f} s |",
         f"| throughput | {done / span:.2f} plans/s |",
         "",
-        (f"Verdict: {'PASS' if ok else 'FAIL'} (every answer 202 or 429/503, none 5xx, "
+        (f"Verdict: {'PASS' if ok else 'FAIL'} (every answer 202 or 429, none 5xx, "
          "no accepted job lost)."),
         "",
         "Refused requests carry `Retry-After`; a client that honours it gets its plan later.",
