@@ -140,6 +140,11 @@ def median(values: Iterable[float]) -> float:
     return statistics.median(values) if values else math.nan
 
 
+def verified(plan: Plan) -> bool:
+    """Ipopt succeeded and the plan passed its re-simulation check (`verification.verified`)."""
+    return plan.solver.success and bool(plan.verification.verified)
+
+
 def dense_error(plan: Plan, reference: Plan) -> float:
     """max |q_plan - q_ref| [rad] over the plan's dense samples, the reference's dense output
     interpolated by a not-a-knot cubic spline (its own error is below 1e-9 rad here)."""

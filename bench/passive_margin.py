@@ -21,7 +21,15 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.common import DOCS, RESULTS, machine_note, table, write_csv, write_section
+from bench.common import (
+    DOCS,
+    RESULTS,
+    machine_note,
+    table,
+    verified,
+    write_csv,
+    write_section,
+)
 from planner.examples import example
 from planner.ocp import plan
 from planner.scene import Scene, SolverSettings
@@ -38,12 +46,11 @@ def row(final: tuple[float, float], duration: float) -> dict:
     request["task"]["duration"] = duration
     result = plan(Scene.model_validate(request))
     v = result.verification
-    verified = result.solver.success and bool(v.verified)
     return {"final_q": f"({final[0]:g}, {final[1]:g})", "duration": duration,
             "status": result.solver.status, "iterations": result.solver.iterations,
             "solve": result.solver.solve_time, "objective": result.objective,
             "resim_error": v.resimulation_error, "min_sigma": v.min_sigma,
-            "crossings": len(v.waveless_singular_crossings), "verified": verified}
+            "crossings": len(v.waveless_singular_crossings), "verified": verified(result)}
 
 
 def main() -> None:

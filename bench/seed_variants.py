@@ -29,6 +29,7 @@ from bench.common import (
     machine_note,
     seed_scene,
     table,
+    verified,
     write_csv,
     write_section,
 )
@@ -56,7 +57,7 @@ def row(variant: int) -> dict:
             "status": result.solver.status, "iterations": result.solver.iterations,
             "solve": result.solver.solve_time, "objective": result.objective,
             "error": v.resimulation_error,
-            "verified": "yes" if result.solver.success and v.verified else "no", "load": load()}
+            "verified": "yes" if verified(result) else "no", "load": load()}
 
 
 def main() -> None:

@@ -31,7 +31,8 @@ def _plan(scene: Scene, status: str, success: bool, iterations: int, elapsed: fl
                    "cache_hit": False},
         "verification": {"resimulation_error": error, "resimulation_status": "completed",
                          "verified": error <= scene.solver.resimulation_tolerance,
-                         "tolerance": scene.solver.resimulation_tolerance, "defect": 0.0, "min_sigma": None, "waveless_min_sigma": None,
+                         "tolerance": scene.solver.resimulation_tolerance, "defect": 0.0,
+                         "min_sigma": None, "waveless_min_sigma": None,
                          "waveless_singular_crossings": []}})
 
 
