@@ -5,11 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from seed_printed import SEED_ARM
+
 from planner.dynamics import Dynamics
 from planner.examples import example
 from planner.model import Robot
 from planner.ocp import Plan, plan
 from planner.ocp.guess import hermite_guess, inverse_dynamics_guess
+from planner.ocp import problem as problem_module
 from planner.ocp.problem import ProblemKey, problem
 from planner.ocp.verify import coupling_along, unverified_reason
 from planner.scene import Scene
@@ -20,6 +23,13 @@ ARM = {"links": [
      "wave": {"amplitude": 0.05, "frequency": 3, "phase": 0.3}}], "gravity": 9.81}
 UNDERACTUATED = {**ARM, "links": [{**ARM["links"][0], "joint": "passive"}, ARM["links"][1]],
                  "gravity": 0.0}
+
+HANGING_TASK = {"duration": 1.6,
+                "initial": {"q": [0.0, 1.45, 0.0, -0.8], "dq": [0.0] * 4},
+                "final": {"q": [0.0, 1.70, 0.0, -0.8], "dq": [0.0] * 4},
+                "coupling_margin": 0.005, "objective": {"effort": 1.0}}
+"""The seed arm (SEED_ARM, g = 9.81) rest to rest with its passive links 0 and 2 hanging
+(q = 0): active link 1 swings across the horizontal, where the waveless M_pa is singular."""
 
 
 def scene(robot=ARM, method="legendre", N=20, degree=3, **task) -> Scene:
@@ -90,6 +100,14 @@ def test_same_structure_reuses_the_built_nlp():
     assert not first.solver.cache_hit or first.solver.build_time == 0.0
     assert second.solver.success and second.q[-1] == pytest.approx([-0.3, 0.9], abs=1e-9)
     assert second.objective != pytest.approx(first.objective)
+
+
+def test_a_compiled_nlp_is_named_by_the_code_that_built_it(monkeypatch):
+    key = ProblemKey.of(scene(N=10))
+    assert key.digest() == ProblemKey.of(scene(N=10, duration=2.0)).digest()  # numbers: same
+    before = key.digest()
+    monkeypatch.setattr(problem_module, "formulation_hash", lambda: "other code")
+    assert key.digest() != before
 
 
 def test_unused_features_build_no_constraints():
@@ -267,6 +285,24 @@ def test_plan_goes_through_waveless_singularities_keeping_the_wavy_det_sign():
     assert sigma.min() > 0.5 * margin
     knots, _ = coupling_along(sc.robot, np.asarray(result.q))
     assert knots.min() >= margin - 1e-7
+
+
+def test_seed_arm_plan_crosses_a_singularity_and_resimulates_within_1e_6_rad():
+    # With q0 = q2 = 0 the waveless M_01 and M_21 go as cos(q1): det M_pa = 0 where link 1
+    # is horizontal, between the two rest configurations.
+    sc = Scene.model_validate({"robot": SEED_ARM, "task": HANGING_TASK, "transcription": {
+        "method": "legendre", "intervals": 50, "degree": 3}})
+    ends = np.array([sc.task.initial.q, sc.task.final.q])
+    waveless_det = coupling_along(sc.robot.without_waves(), ends)[1]
+    assert waveless_det[0] * waveless_det[1] < 0
+    result = plan(sc)
+    assert result.solver.success and result.verification.verified
+    assert result.verification.resimulation_error < 1e-6
+    [crossing] = result.verification.waveless_singular_crossings
+    assert 1.45 < crossing.q[1] < 1.70
+    assert abs(coupling_along(sc.robot.without_waves(), np.array([crossing.q]))[1][0]) < 1e-12
+    knots, _ = coupling_along(sc.robot, np.asarray(result.q))
+    assert knots.min() >= sc.task.coupling_margin - 1e-7
 
 
 def _rows(robot: dict, g: dict) -> np.ndarray:

@@ -16,6 +16,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 from functools import lru_cache
+from pathlib import Path
 
 import casadi as ca
 import numpy as np
@@ -85,8 +86,23 @@ class ProblemKey:
         )
 
     def digest(self) -> str:
-        """A stable hash of the key: names the compiled NLP in the disk cache."""
-        return hashlib.sha256(repr(self).encode()).hexdigest()[:20]
+        """A stable hash of the key and of the code that builds its NLP: names the compiled
+        NLP in the disk cache, so a library compiled by other code is never loaded."""
+        return hashlib.sha256((repr(self) + formulation_hash()).encode()).hexdigest()[:20]
+
+
+FORMULATION_SOURCES = ("dynamics.py", "model.py", "ocp/transcription.py", "ocp/problem.py")
+"""The modules (under planner/) whose code decides an NLP's symbolic form."""
+
+
+@lru_cache(maxsize=1)
+def formulation_hash() -> str:
+    """SHA-256 of the CasADi version and of `FORMULATION_SOURCES`."""
+    root = Path(__file__).resolve().parents[1]
+    digest = hashlib.sha256(ca.__version__.encode())
+    for name in FORMULATION_SOURCES:
+        digest.update((root / name).read_bytes())
+    return digest.hexdigest()
 
 
 @dataclass
