@@ -1,9 +1,16 @@
 """Shared pieces of the planner benchmarks: reference scenes, timing, machine note, output.
 
 Scenes:
-- `seed_scene`: the seed's 4-link arm (tests/seed_printed.py SEED_ARM) in a horizontal
-  plane (g = 0), rest to rest in 4 s between two configurations whose straight path
-  crosses waveless coupling singularities, coupling margin 0.02, effort objective;
+- "seed-hang" (`hanging_scene`): the seed's 4-link arm (tests/seed_printed.py SEED_ARM,
+  g = 9.81) with its passive links 0 and 2 hanging at rest (q = 0), active link 1 swung
+  in 1.6 s from 1.45 to 1.70 rad across the horizontal, where the waveless M_pa is
+  singular, link 3 at -0.8 rad; coupling margin 0.005, effort objective
+  (tests/test_ocp.py HANGING_TASK);
+- "seed-4" (`seed_scene`): the same arm in a horizontal plane (g = 0), rest to rest in
+  4 s between two configurations whose straight path crosses waveless coupling
+  singularities, coupling margin 0.02, effort objective. Without gravity the passive base
+  keeps the arm's angular momentum at zero, so every net turn of it needs a loop of the
+  other joints: a far harder NLP;
 - "arm-2": tests/test_ocp.py ARM (both joints active, under gravity) with that module's
   1 s task (0, 0.5) -> (0.6, 1.2) rad;
 - "under-2": tests/test_ocp.py UNDERACTUATED (passive shoulder, g = 0), rest to rest in
@@ -35,7 +42,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 sys.path.insert(0, str(ROOT))
 
 from seed_printed import SEED_ARM
-from test_ocp import ARM, UNDERACTUATED
+from test_ocp import ARM, HANGING_TASK, UNDERACTUATED
 
 from planner.ocp import Plan
 from planner.ocp.problem import ProblemKey, problem
@@ -51,15 +58,18 @@ SEED_TASK = {"duration": 4.0,
              "coupling_margin": 0.02, "objective": {"effort": 1.0}}
 TWO_LINK_TASK = {"duration": 1.0, "initial": {"q": [0.0, 0.5], "dq": [0.0, 0.0]},
                  "final": {"q": [0.6, 1.2], "dq": [0.0, 0.0]}}
-ROBOTS = {"seed-4": {**SEED_ARM, "gravity": 0.0}, "arm-2": ARM, "under-2": UNDERACTUATED}
+ROBOTS = {"seed-4": {**SEED_ARM, "gravity": 0.0}, "seed-hang": SEED_ARM, "arm-2": ARM,
+          "under-2": UNDERACTUATED}
 UNDER_TASK = {"duration": 2.0, "initial": {"q": [0.0, 0.5], "dq": [0.0, 0.0]},
               "final": {"q": [0.3, 1.0], "dq": [0.0, 0.0]}}
-TASKS = {"seed-4": SEED_TASK, "arm-2": TWO_LINK_TASK, "under-2": UNDER_TASK}
+TASKS = {"seed-4": SEED_TASK, "seed-hang": HANGING_TASK, "arm-2": TWO_LINK_TASK,
+         "under-2": UNDER_TASK}
 
 
 def make_scene(name: str, method: str = "legendre", N: int = 50, degree: int = 3,
                solver: dict | None = None, **transcription) -> Scene:
-    """The named reference scene ("seed-4", "arm-2", "under-2") with a transcription."""
+    """The named reference scene ("seed-hang", "seed-4", "arm-2", "under-2") with a
+    transcription."""
     return Scene.model_validate({
         "robot": ROBOTS[name], "task": TASKS[name],
         "transcription": {"method": method, "intervals": N, "degree": degree, **transcription},
@@ -67,8 +77,13 @@ def make_scene(name: str, method: str = "legendre", N: int = 50, degree: int = 3
 
 
 def seed_scene(N: int = 100, degree: int = 3, **kw) -> Scene:
-    """The seed's 4-link reference scene (Legendre collocation by default)."""
+    """The seed's 4-link arm in a horizontal plane (Legendre collocation by default)."""
     return make_scene("seed-4", N=N, degree=degree, **kw)
+
+
+def hanging_scene(N: int = 100, degree: int = 3, **kw) -> Scene:
+    """The seed's 4-link arm hanging in gravity (Legendre collocation by default)."""
+    return make_scene("seed-hang", N=N, degree=degree, **kw)
 
 
 class CpuTimed:

@@ -1,7 +1,9 @@
 """The planner against a plain CasADi Opti script (bench/baseline_opti.py), in one run.
 
-Scene: the seed's 4-link arm, g = 0, rest to rest in 4 s with coupling margin 0.02
-(bench/common.py `seed_scene`), Legendre collocation of degree 3 at each N given. Both
+Scene (`--scene`): "seed-hang", the seed's 4-link arm hanging in gravity, rest to rest in
+1.6 s across the waveless singularity with coupling margin 0.005 (the default), or
+"seed-4", the same arm in a horizontal plane, rest to rest in 4 s with coupling margin 0.02
+(bench/common.py); Legendre collocation of degree 3 at each N given. Both
 start from the planner's initial guess (`hermite_guess`) and have the same limits (3000
 iterations, Ipopt's default, and 600 s). For each N:
 
@@ -16,10 +18,12 @@ iterations, Ipopt's default, and 600 s). For each N:
 Reported: build time, solve time (Ipopt wall time), iterations, objective, re-simulation
 error and defect (the planner's verification applied to both), and the solve-time ratio
 baseline / planner; then where the planner's solve time goes (CasADi's per-function
-statistics, the rest being Ipopt's own linear algebra). Writes docs/benchmarks.md section
-"Planner vs a plain Opti script" and bench/results/planner_speed.csv.
+statistics, the rest being Ipopt's own linear algebra). Writes the scene's section of
+docs/benchmarks.md ("Planner vs a plain Opti script" for seed-4, "...: seed arm hanging"
+for seed-hang) and bench/results/planner_speed.csv (planner_speed_hanging.csv).
 
-    .venv/bin/python bench/planner_speed.py [--N 100 50] [--repeats 5] [--baseline-repeats 3]
+    .venv/bin/python bench/planner_speed.py [--scene seed-hang] [--N 100 50] [--repeats 5]
+        [--baseline-repeats 3]
 """
 
 from __future__ import annotations
@@ -39,8 +43,8 @@ from bench.common import (
     build_instrumented,
     load,
     machine_note,
+    make_scene,
     median,
-    seed_scene,
     table,
     timed,
     write_csv,
@@ -49,7 +53,9 @@ from bench.common import (
 from planner.ocp import plan
 from planner.ocp.problem import problem
 
-SECTION = "Planner vs a plain Opti script"
+OUTPUTS = {"seed-hang": ("Planner vs a plain Opti script: seed arm hanging", "planner_speed_hanging.csv"),
+           "seed-4": ("Planner vs a plain Opti script", "planner_speed.csv")}
+"""Per scene: its section of docs/benchmarks.md and its CSV in bench/results."""
 BUDGET = {"max_iter": 3000, "max_wall_time": baseline_opti.WALL_CAP}
 """The planner's limits here: the baseline's (Ipopt's default iteration limit, its wall cap)."""
 COLUMNS = [("N", "N"), ("who", "solver"), ("build", "build [s]"), ("solve", "solve [s]"),
@@ -64,10 +70,10 @@ PROFILE = [("t_wall_nlp_hess_l", "Hessian of the Lagrangian"),
            ("t_wall_callback_fun", "iteration callback")]
 
 
-def planner_rows(N: int, repeats: int, form: str, jit: bool = False) -> tuple[dict, dict]:
-    """Cold and warm rows of the planner at N (form: implicit or explicit; jit: compiled
-    NLP), and the CasADi statistics of its last solve."""
-    scene = seed_scene(N=N, form=form, solver={"jit": jit, **BUDGET})
+def planner_rows(name: str, N: int, repeats: int, form: str, jit: bool = False) -> tuple[dict, dict]:
+    """Cold and warm rows of the planner on scene `name` at N (form: implicit or explicit;
+    jit: compiled NLP), and the CasADi statistics of its last solve."""
+    scene = make_scene(name, N=N, form=form, solver={"jit": jit, **BUDGET})
     problem.cache_clear()
     started = time.perf_counter()
     build_time, solver = build_instrumented(scene)
@@ -99,9 +105,10 @@ def _plan_row(N: int, who: str, p, wall: float) -> dict:
             "crossings": len(v.waveless_singular_crossings), "min_sigma": v.min_sigma}
 
 
-def baseline_row(N: int, repeats: int) -> tuple[dict, dict]:
-    """The baseline built once and solved `repeats` times; its last statistics."""
-    scene = seed_scene(N=N)
+def baseline_row(name: str, N: int, repeats: int) -> tuple[dict, dict]:
+    """The baseline on scene `name`, built once and solved `repeats` times; its last
+    statistics."""
+    scene = make_scene(name, N=N)
     built = baseline_opti.build(scene)
     runs = [baseline_opti.solve(scene, built) for _ in range(repeats)]
     solves = [r["solve_time"] for r in runs]
@@ -132,13 +139,14 @@ def profile_rows(N: int, who: str, stats: dict) -> list[dict]:
     return rows
 
 
-def run(grid: list[int], repeats: int, baseline_repeats: int) -> tuple[list[dict], list[dict], list[str]]:
+def run(name: str, grid: list[int], repeats: int,
+        baseline_repeats: int) -> tuple[list[dict], list[dict], list[str]]:
     rows, profile, loads = [], [], [load()]
     for N in grid:
-        planner, p_stats = planner_rows(N, repeats, "implicit")
-        explicit, _ = planner_rows(N, repeats, "explicit")
-        compiled, c_stats = planner_rows(N, repeats, "implicit", jit=True)
-        base, b_stats = baseline_row(N, baseline_repeats)
+        planner, p_stats = planner_rows(name, N, repeats, "implicit")
+        explicit, _ = planner_rows(name, N, repeats, "explicit")
+        compiled, c_stats = planner_rows(name, N, repeats, "implicit", jit=True)
+        base, b_stats = baseline_row(name, N, baseline_repeats)
         loads.append(load())
         for row in (planner["cold"], planner["warm"], explicit["cold"], explicit["warm"],
                     compiled["cold"], compiled["warm"], base):
@@ -175,20 +183,22 @@ def report(rows: list[dict], profile: list[dict], loads: list[str], note: str,
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scene", choices=sorted(OUTPUTS), default="seed-hang")
     parser.add_argument("--N", type=int, nargs="+", default=[100, 50])
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--baseline-repeats", type=int, default=3)
     parser.add_argument("--no-write", action="store_true", help="print only")
     args = parser.parse_args()
     note, started = machine_note(), time.perf_counter()
-    rows, profile, loads = run(args.N, args.repeats, args.baseline_repeats)
+    rows, profile, loads = run(args.scene, args.N, args.repeats, args.baseline_repeats)
     command = "bench/planner_speed.py " + " ".join(sys.argv[1:])
     text = report(rows, profile, loads, note, f".venv/bin/python {command.strip()}",
                   time.perf_counter() - started)
     print(text)
     if not args.no_write:
-        write_csv(RESULTS / "planner_speed.csv", rows)
-        write_section(DOCS / "benchmarks.md", SECTION, text)
+        section, csv_name = OUTPUTS[args.scene]
+        write_csv(RESULTS / csv_name, rows)
+        write_section(DOCS / "benchmarks.md", section, text)
 
 
 if __name__ == "__main__":
