@@ -128,12 +128,16 @@ class Problem:
         return {name: np.array(value) for name, value in out.items()}
 
 
-IPOPT_OPTIONS = {"linear_solver": "mumps", "mumps_pivot_order": 0, "mu_strategy": "adaptive"}
+IPOPT_OPTIONS = {"linear_solver": "mumps", "mumps_pivot_order": 0, "mumps_scaling": 0,
+                 "mu_strategy": "adaptive"}
 """Ipopt settings every NLP is built with (docs/benchmarks.md, "Ipopt settings"). MUMPS orders
 the KKT matrix by approximate minimum degree (0): on the banded collocation matrices Ipopt's
-own work per iteration is 13 to 37 % below that with its automatic choice. The adaptive
-barrier update stays: the monotone one saved iterations on some scenes but ended in a worse
-optimum on the seed arm at N = 50."""
+own work per iteration is lower than with its automatic choice on five of the six reference
+scenes. MUMPS scales nothing (0): Ipopt's own work per iteration as low or lower on every
+reference scene, the same optimum on all but the horizontal seed arm at N = 50 (another
+verified one there). The adaptive barrier update stays, with its
+quality-function oracle: the monotone update and the probing oracle saved iterations on
+some scenes but ended in worse optima or the iteration limit on the horizontal seed arm."""
 
 
 def _param_layout(key: ProblemKey, n_knots: int) -> tuple[dict[str, slice], int]:
