@@ -4,8 +4,8 @@ Scenes:
 - "seed-hang" (`hanging_scene`): the seed's 4-link arm (tests/seed_printed.py SEED_ARM,
   g = 9.81) with its passive links 0 and 2 hanging at rest (q = 0), active link 1 swung
   in 1.6 s from 1.45 to 1.70 rad across the horizontal, where the waveless M_pa is
-  singular, link 3 at -0.8 rad; coupling margin 0.005, effort objective
-  (tests/test_ocp.py HANGING_TASK);
+  singular, link 3 at -0.8 rad; coupling margin 0.005, effort objective (the built-in
+  example `seed-arm-plan`, whose transcription the benches set themselves);
 - "seed-4" (`seed_scene`): the same arm in a horizontal plane (g = 0), rest to rest in
   4 s between two configurations whose straight path crosses waveless coupling
   singularities, coupling margin 0.02, effort objective. Without gravity the passive base
@@ -42,8 +42,9 @@ sys.path.insert(0, str(ROOT / "tests"))
 sys.path.insert(0, str(ROOT))
 
 from seed_printed import SEED_ARM
-from test_ocp import ARM, HANGING_TASK, UNDERACTUATED
+from test_ocp import ARM, UNDERACTUATED
 
+from planner.examples import example
 from planner.ocp import Plan
 from planner.ocp.problem import ProblemKey, problem
 from planner.scene import Scene
@@ -58,11 +59,12 @@ SEED_TASK = {"duration": 4.0,
              "coupling_margin": 0.02, "objective": {"effort": 1.0}}
 TWO_LINK_TASK = {"duration": 1.0, "initial": {"q": [0.0, 0.5], "dq": [0.0, 0.0]},
                  "final": {"q": [0.6, 1.2], "dq": [0.0, 0.0]}}
-ROBOTS = {"seed-4": {**SEED_ARM, "gravity": 0.0}, "seed-hang": SEED_ARM, "arm-2": ARM,
+HANGING = example("seed-arm-plan").request
+ROBOTS = {"seed-4": {**SEED_ARM, "gravity": 0.0}, "seed-hang": HANGING["robot"], "arm-2": ARM,
           "under-2": UNDERACTUATED}
 UNDER_TASK = {"duration": 2.0, "initial": {"q": [0.0, 0.5], "dq": [0.0, 0.0]},
               "final": {"q": [0.3, 1.0], "dq": [0.0, 0.0]}}
-TASKS = {"seed-4": SEED_TASK, "seed-hang": HANGING_TASK, "arm-2": TWO_LINK_TASK,
+TASKS = {"seed-4": SEED_TASK, "seed-hang": HANGING["task"], "arm-2": TWO_LINK_TASK,
          "under-2": UNDER_TASK}
 
 

@@ -7,6 +7,10 @@ coupling block M_pa is exactly singular (the active angle solves det M_pa = 0):
 - `seed_arm`: the seed paper's 4-link arm, passive joints 0 and 2, active 1 and 3,
   horizontal plane (g = 0).
 
+Two plans (kind "plan") cross a waveless singularity: the two-link arm in a horizontal
+plane, and the seed's arm in a vertical one (`VERTICAL_SEED_ARM`) with its passive links
+hanging at rest.
+
 For each: the waveless inverse dynamics (it stops at once), the wave design along the
 motion, and the inverse dynamics with the designed waves (it completes). The designed
 waves below are the output of `planner.waves.design` on the wave-design example, rounded
@@ -189,6 +193,22 @@ def _coupling_examples() -> list[Example]:
     ]
 
 
+VERTICAL_SEED_ARM = {
+    "links": [
+        {"length": 0.5, "mass": 1.0, "inertia": 0.01, "joint": "passive"},
+        {"length": 0.4, "mass": 0.8, "inertia": 0.008, "joint": "active",
+         "wave": {"amplitude": 0.05, "frequency": 3.0, "phase": 0.3}},
+        {"length": 0.4, "mass": 0.6, "inertia": 0.006, "joint": "passive"},
+        {"length": 0.3, "mass": 0.4, "inertia": 0.004, "joint": "active",
+         "wave": {"amplitude": 0.04, "frequency": 4.0, "phase": 0.1}},
+    ],
+    "gravity": 9.81,
+    "rotational_inertia": "cumulative",
+}
+"""The seed's 4-link arm in a vertical plane, waves on its active joints 1 and 3: the arm of
+the seed-arm plan, of the tests of the seed's printed equations and of the benches (the
+seed's excerpt gives no numbers)."""
+
 PLAN_ARM = {"links": [
     {"length": 0.5, "mass": 1.0, "inertia": 0.01, "joint": "passive"},
     {"length": 0.4, "mass": 0.8, "inertia": 0.008, "joint": "active",
@@ -199,7 +219,10 @@ PLAN_ARM = {"links": [
 def _plan_examples() -> list[Example]:
     """Optimal-control plans (kind "plan", for POST /v1/plans); see planner.ocp.
 
-    It starts and ends at rest; without the wave M_pa = I2 + m2 l1 l2 cos(q0 - q1)
+    The seed arm's: with q0 = q2 = 0 the waveless M_01 and M_21 go as cos(q1), so det M_pa
+    changes sign where link 1 is horizontal; gravity holds the passive links near rest and
+    Ipopt converges in about ten iterations (docs/benchmarks.md, "seed-hang").
+    The two-link arm's starts and ends at rest; without the wave M_pa = I2 + m2 l1 l2 cos(q0 - q1)
     changes sign between the two configurations, with it the determinant keeps its sign.
     With a passive shoulder, g = 0 and the margin, nearby end states lead Ipopt to
     spurious local optima (docs/planner.md, "Passive joints and the coupling margin");
@@ -214,7 +237,21 @@ def _plan_examples() -> list[Example]:
         "transcription": {"method": "legendre", "intervals": 40, "degree": 3},
         "solver": {"max_iter": 1000, "max_wall_time": 60.0},
     }
+    hanging = {
+        "robot": VERTICAL_SEED_ARM,
+        "task": {"duration": 1.6, "initial": {"q": [0.0, 1.45, 0.0, -0.8], "dq": [0.0] * 4},
+                 "final": {"q": [0.0, 1.70, 0.0, -0.8], "dq": [0.0] * 4},
+                 "coupling_margin": 0.005, "objective": {"effort": 1.0}},
+        "transcription": {"method": "legendre", "intervals": 50, "degree": 3},
+        "solver": {"max_iter": 1000, "max_wall_time": 60.0},
+    }
     return [
+        Example(name="seed-arm-plan", title="Seed arm: rest to rest through a singularity",
+                description="The seed's 4-link arm in a vertical plane, its passive links 0 "
+                            "and 2 hanging at rest: active link 1 swings across the "
+                            "horizontal, where the waveless coupling is singular, keeping "
+                            "sigma_min(M_pa) >= 0.005; the passive links come back to rest.",
+                kind="plan", request=hanging),
         Example(name="two-link-plan", title="Two-link arm: rest to rest through a singularity",
                 description="Feed-forward torques that move a passive shoulder and a wavy elbow "
                             "through configurations where the waveless coupling is singular, "

@@ -19,18 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-SEED_ARM = {
-    "links": [
-        {"length": 0.5, "mass": 1.0, "inertia": 0.01, "joint": "passive"},
-        {"length": 0.4, "mass": 0.8, "inertia": 0.008, "joint": "active",
-         "wave": {"amplitude": 0.05, "frequency": 3.0, "phase": 0.3}},
-        {"length": 0.4, "mass": 0.6, "inertia": 0.006, "joint": "passive"},
-        {"length": 0.3, "mass": 0.4, "inertia": 0.004, "joint": "active",
-         "wave": {"amplitude": 0.04, "frequency": 4.0, "phase": 0.1}},
-    ],
-    "gravity": 9.81,
-    "rotational_inertia": "cumulative",
-}
+from planner.examples import VERTICAL_SEED_ARM
+
+SEED_ARM = VERTICAL_SEED_ARM
 """The numbers used for the seed's 4-link arm in tests and benches (the excerpt gives none),
 as a `planner.model.Robot` document: 0-based, passive joints 0 and 2, waves on 1 and 3."""
 

@@ -5,8 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from seed_printed import SEED_ARM
-
 from planner.dynamics import Dynamics
 from planner.examples import example
 from planner.model import Robot
@@ -23,14 +21,6 @@ ARM = {"links": [
      "wave": {"amplitude": 0.05, "frequency": 3, "phase": 0.3}}], "gravity": 9.81}
 UNDERACTUATED = {**ARM, "links": [{**ARM["links"][0], "joint": "passive"}, ARM["links"][1]],
                  "gravity": 0.0}
-
-HANGING_TASK = {"duration": 1.6,
-                "initial": {"q": [0.0, 1.45, 0.0, -0.8], "dq": [0.0] * 4},
-                "final": {"q": [0.0, 1.70, 0.0, -0.8], "dq": [0.0] * 4},
-                "coupling_margin": 0.005, "objective": {"effort": 1.0}}
-"""The seed arm (SEED_ARM, g = 9.81) rest to rest with its passive links 0 and 2 hanging
-(q = 0): active link 1 swings across the horizontal, where the waveless M_pa is singular."""
-
 
 def scene(robot=ARM, method="legendre", N=20, degree=3, **task) -> Scene:
     base = {"duration": 1.0, "initial": {"q": [0.0, 0.5], "dq": [0.0, 0.0]},
@@ -290,8 +280,9 @@ def test_plan_goes_through_waveless_singularities_keeping_the_wavy_det_sign():
 def test_seed_arm_plan_crosses_a_singularity_and_resimulates_within_1e_6_rad():
     # With q0 = q2 = 0 the waveless M_01 and M_21 go as cos(q1): det M_pa = 0 where link 1
     # is horizontal, between the two rest configurations.
-    sc = Scene.model_validate({"robot": SEED_ARM, "task": HANGING_TASK, "transcription": {
-        "method": "legendre", "intervals": 50, "degree": 3}})
+    sc = Scene.model_validate(example("seed-arm-plan").request)
+    assert (sc.transcription.method, sc.transcription.degree, sc.transcription.intervals) == (
+        "legendre", 3, 50)
     ends = np.array([sc.task.initial.q, sc.task.final.q])
     waveless_det = coupling_along(sc.robot.without_waves(), ends)[1]
     assert waveless_det[0] * waveless_det[1] < 0
