@@ -16,7 +16,7 @@ Writes the scene's section of docs/benchmarks.md ("Seed arm: end states around t
 "Seed arm hanging: end states around the task's") and bench/results/seed_variants.csv
 (seed_variants_hanging.csv).
 
-    .venv/bin/python bench/seed_variants.py [--scene seed-4]
+    .venv/bin/python bench/seed_variants.py [--scene {seed-hang,seed-4}]
 """
 
 from __future__ import annotations
