@@ -53,7 +53,8 @@ from bench.common import (
 from planner.ocp import plan
 from planner.ocp.problem import problem
 
-OUTPUTS = {"seed-hang": ("Planner vs a plain Opti script: seed arm hanging", "planner_speed_hanging.csv"),
+OUTPUTS = {"seed-hang": ("Planner vs a plain Opti script: seed arm hanging",
+                         "planner_speed_hanging.csv"),
            "seed-4": ("Planner vs a plain Opti script", "planner_speed.csv")}
 """Per scene: its section of docs/benchmarks.md and its CSV in bench/results."""
 BUDGET = {"max_iter": 3000, "max_wall_time": baseline_opti.WALL_CAP}
@@ -70,7 +71,8 @@ PROFILE = [("t_wall_nlp_hess_l", "Hessian of the Lagrangian"),
            ("t_wall_callback_fun", "iteration callback")]
 
 
-def planner_rows(name: str, N: int, repeats: int, form: str, jit: bool = False) -> tuple[dict, dict]:
+def planner_rows(name: str, N: int, repeats: int, form: str,
+                 jit: bool = False) -> tuple[dict, dict]:
     """Cold and warm rows of the planner on scene `name` at N (form: implicit or explicit;
     jit: compiled NLP), and the CasADi statistics of its last solve."""
     scene = make_scene(name, N=N, form=form, solver={"jit": jit, **BUDGET})

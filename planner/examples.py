@@ -222,8 +222,9 @@ def _plan_examples() -> list[Example]:
     The seed arm's: with q0 = q2 = 0 the waveless M_01 and M_21 go as cos(q1), so det M_pa
     changes sign where link 1 is horizontal; gravity holds the passive links near rest and
     Ipopt converges in about ten iterations (docs/benchmarks.md, "seed-hang").
-    The two-link arm's starts and ends at rest; without the wave M_pa = I2 + m2 l1 l2 cos(q0 - q1)
-    changes sign between the two configurations, with it the determinant keeps its sign.
+    The two-link arm's starts and ends at rest; without the wave
+    M_pa = I2 + m2 l1 l2 cos(q0 - q1) changes sign between the two configurations, with it
+    the determinant keeps its sign.
     With a passive shoulder, g = 0 and the margin, nearby end states lead Ipopt to
     spurious local optima (docs/planner.md, "Passive joints and the coupling margin");
     this one converges to a verified plan in under a hundred iterations.

@@ -87,7 +87,8 @@ def test_cancel_stops_a_running_solve_at_its_next_iteration(runner):
 
 
 def test_the_queue_refuses_jobs_beyond_capacity(runner):
-    wait_until(lambda: runner.inflight == 0)  # earlier tests' jobs leave the queue after their end is stored
+    # earlier tests' jobs leave the queue only after their end is stored
+    wait_until(lambda: runner.inflight == 0)
     ids = [f"cap{k}" for k in range(runner.capacity)]
     for job_id in ids:
         runner.submit(scene(iterations=25), job_id)
