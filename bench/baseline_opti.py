@@ -43,7 +43,8 @@ from planner.dynamics import functions, selection
 from planner.model import Structure, parameters
 from planner.ocp.guess import hermite_guess
 from planner.ocp.planner import DENSE_POINTS
-from planner.ocp.transcription import Collocation, Interpolant
+from planner.ocp.methods import Collocation
+from planner.ocp.transcription import Interpolant
 from planner.ocp.verify import defect, resimulation_error
 from planner.scene import Scene
 
@@ -201,7 +202,7 @@ def interpolant(scene: Scene, built: Baseline, value) -> Interpolant | None:
     if not all(np.all(np.isfinite(b)) for b in blocks.values()):
         return None
     breaks = np.linspace(0.0, float(scene.task.duration), N + 1)
-    return Collocation(N, d, "legendre").interpolant(blocks, breaks)
+    return Collocation(N, d, "legendre").interpolant(blocks, breaks, None)
 
 
 def verification(scene: Scene, built: Baseline, value) -> dict:

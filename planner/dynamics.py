@@ -249,6 +249,13 @@ class Dynamics:
                              "numerically singular or the values are too large")
         return ddq
 
+    def forward_many(self, q: np.ndarray, dq: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        """Accelerations [rad/s^2] at K states: q, dq (K, n), tau (K, n_active) -> (K, n);
+        entries are NaN where M(q) is numerically singular."""
+        K = len(q)
+        return np.array(self.f["fd"].map(K)(np.asarray(q, float).T, np.asarray(dq, float).T,
+                                            np.asarray(tau, float).T, self.p)).T.reshape(K, -1)
+
     def inverse(self, q, dq, ddq) -> np.ndarray:
         """Generalized forces M ddq + h [N m]."""
         return np.array(self.f["id"](self._joints("q", q), self._joints("dq", dq),

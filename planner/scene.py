@@ -119,6 +119,20 @@ class Task(BaseModel):
 Method = Literal["trapezoidal", "hermite-simpson", "legendre", "radau", "multiple-shooting"]
 
 
+class Refinement(BaseModel):
+    """Error-controlled mesh refinement: while an interval of the plan, re-integrated from
+    the plan's own state with its torque, departs from it by more than
+    solver.resimulation_tolerance, the intervals where the error is are cut and the NLP
+    solved again, starting at the previous plan."""
+
+    model_config = _STRICT
+
+    enabled: bool = True
+    max_passes: int = Field(default=6, ge=0, le=20, description="refined solves after the first")
+    max_intervals: int = Field(default=400, ge=1, le=5000,
+                               description="intervals a refined mesh may have at most")
+
+
 class Transcription(BaseModel):
     """How the continuous problem becomes an NLP.
 
@@ -138,6 +152,23 @@ class Transcription(BaseModel):
     steps: int = Field(default=4, ge=1, le=100, description="RK4 steps per shooting interval")
     form: Literal["implicit", "explicit"] = Field(
         default="implicit", description="implicit: ddq are variables with M ddq + h = B tau")
+    breaks: list[float] | None = Field(
+        default=None, description="the first mesh's breakpoints as fractions of the duration, "
+                                  "intervals + 1 strictly increasing values from 0 to 1 "
+                                  "(default: equal intervals)")
+    refinement: Refinement = Refinement()
+
+    @model_validator(mode="after")
+    def _mesh(self) -> Transcription:
+        b = self.breaks
+        if b is None:
+            return self
+        if len(b) != self.intervals + 1:
+            raise ValueError(f"breaks: needs intervals + 1 = {self.intervals + 1} values "
+                             f"(got {len(b)})")
+        if b[0] != 0.0 or b[-1] != 1.0 or any(y <= x for x, y in zip(b, b[1:])):
+            raise ValueError("breaks: must increase strictly from 0 to 1")
+        return self
 
 
 class SolverSettings(BaseModel):
@@ -157,8 +188,10 @@ class SolverSettings(BaseModel):
     jit: bool = Field(default=False, description="compile the NLP to C (cached on disk)")
     resimulation_tolerance: float = Field(
         default=1e-3, gt=0.0,
-        description="[rad] largest re-simulation error of a verified plan: above it the NLP's "
-                    "trajectory is not a motion of the robot (too coarse a grid for it)")
+        description="[rad] largest error of a verified plan when each interval is "
+                    "re-integrated from the plan's own state with the delivered torque: above "
+                    "it the NLP's trajectory is not a motion of the robot (too coarse a mesh "
+                    "for it), and the mesh refinement goes on")
 
 
 class Scene(BaseModel):

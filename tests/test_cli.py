@@ -118,14 +118,17 @@ def test_quiet_plan_prints_nothing_and_a_solver_failure_exits_1_with_the_plan(ca
 
 
 def test_an_optimal_plan_that_fails_its_resimulation_check_exits_1_and_says_why(capsys, tmp_path):
-    strict = {**CROSSING_SCENE, "solver": {"resimulation_tolerance": 1e-12}}
+    strict = {**CROSSING_SCENE, "solver": {"resimulation_tolerance": 1e-12},
+              "transcription": {**CROSSING_SCENE["transcription"],
+                                "refinement": {"max_passes": 1}}}
     out = tmp_path / "plan.json"
     code, _, err = run(capsys, "plan", write_json(tmp_path / "s.json", strict), "-o", str(out))
     written = Plan.model_validate_json(out.read_text())
     v = written.verification
     assert code == cli.FAILED and written.solver.success and v.verified is False
-    assert (f"not verified: the planned torque departs from the plan by "
-            f"{v.resimulation_error:.3g} rad in re-simulation (tolerance 1e-12 rad)") in err
+    assert len(written.mesh_passes) == 2
+    assert (f"not verified: re-integrated interval by interval, the delivered torque departs "
+            f"from the plan by {v.local_error:.3g} rad (tolerance 1e-12 rad)") in err
 
 
 def test_plan_to_stdout(capsys, tmp_path):

@@ -64,8 +64,10 @@ def test_a_job_succeeds_with_its_plan_progress_and_metrics_hook(runner):
 @pytest.mark.parametrize("tol, error", [
     (0.6, "Maximum_Iterations_Exceeded: Maximum_Iterations_Exceeded"),
     (0.3, "solver error: RuntimeError: the fake solver broke"),
-    (0.2, ("unverified: the planned torque departs from the plan by 0.5 rad in re-simulation "
-           "(tolerance 0.001 rad): refine the grid"))])
+    (0.2, ("unverified: re-integrated interval by interval, the delivered torque departs from "
+           "the plan by 0.5 rad (tolerance 0.001 rad): the mesh refinement ran out of budget; "
+           "raise transcription.refinement's max_intervals or max_passes, or solver.max_iter "
+           "and max_wall_time"))])
 def test_solver_failures_fail_the_job_with_the_reason(runner, tol, error):
     job_id = f"fail-{tol}"
     runner.submit(scene(tol=tol), job_id)

@@ -9,7 +9,9 @@ import numpy as np
 from planner.dynamics import functions
 from planner.inverse import WALL_TIME, ActiveState, integrate
 from planner.model import Robot, Structure, parameters
+from planner.ocp.interpolant import PiecewisePolynomial, hermite
 from planner.ocp.result import Plan
+from planner.ocp.transcription import Interpolant
 from planner.scene import Scene
 
 Guess = Callable[[np.ndarray], dict[str, np.ndarray]]
@@ -40,17 +42,14 @@ def hermite_motion(scene: Scene, robot: Robot, T: float) -> Guess:
     q0, dq0 = np.asarray(task.initial.q), np.asarray(task.initial.dq)
     qf = np.array([q0[i] if v is None else v for i, v in enumerate(task.final.q)])
     dqf = np.array([0.0 if v is None else v for v in task.final.dq])
+    cubic = PiecewisePolynomial(np.array([0.0, T]), hermite(np.stack([q0, qf]),
+                                                            np.stack([dq0, dqf]), np.array([T])))
 
     def guess(x: np.ndarray) -> dict[str, np.ndarray]:
-        s = np.asarray(x)[:, None]
-        h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
-        d00, d10, d01, d11 = 6 * s**2 - 6 * s, 3 * s**2 - 4 * s + 1, -6 * s**2 + 6 * s, 3 * s**2 - 2 * s
-        e00, e10, e01, e11 = 12 * s - 6, 6 * s - 4, -12 * s + 6, 6 * s - 2
-        q = h00 * q0 + h10 * T * dq0 + h01 * qf + h11 * T * dqf
-        dq = (d00 * q0 + d10 * T * dq0 + d01 * qf + d11 * T * dqf) / T
-        ddq = (e00 * q0 + e10 * T * dq0 + e01 * qf + e11 * T * dqf) / T**2
+        t = np.asarray(x, float) * T
+        q, dq, ddq = (cubic(t, derivative=order) for order in range(3))
         if task.tracking is not None:
-            ref = task.tracking.motion.evaluate(s.ravel() * T, T)
+            ref = task.tracking.motion.evaluate(t, T)
             for arr, r in zip((q, dq, ddq), ref):
                 arr[:, robot.passive] = r
         return {"q": q, "dq": dq, "ddq": ddq}
@@ -102,13 +101,29 @@ def inverse_dynamics_guess(scene: Scene, robot: Robot, T: float) -> Guess:
     return guess
 
 
-def plan_guess(plan: Plan) -> Guess:
-    """An earlier plan's nodes, linearly interpolated in the time fraction."""
-    frac = np.asarray(plan.t) / plan.duration
-    arrays = {k: np.asarray(getattr(plan, k)) for k in ("q", "dq", "ddq", "tau")}
+def interpolant_guess(interp: Interpolant, T: float) -> Guess:
+    """A solved plan's own interpolant, for a solve of the same task on another mesh."""
 
     def guess(x: np.ndarray) -> dict[str, np.ndarray]:
-        return {k: np.stack([np.interp(x, frac, a[:, j]) for j in range(a.shape[1])], axis=1)
-                for k, a in arrays.items()}
+        t = np.asarray(x, float) * T
+        return {"q": interp.q(t), "dq": interp.dq(t), "ddq": interp.dq(t, derivative=1),
+                "tau": interp.tau(t)}
 
     return guess
+
+
+def plan_guess(plan: Plan) -> Guess:
+    """An earlier plan: cubic Hermite angles and rates through its nodes, its delivered
+    torque (the node torques, linearly interpolated, in plans stored without it)."""
+    t = np.asarray(plan.t)
+    q, dq, ddq = (np.asarray(getattr(plan, k)) for k in ("q", "dq", "ddq"))
+    h = np.diff(t)
+    if plan.torque is not None:
+        tau = PiecewisePolynomial(np.asarray(plan.torque.breaks),
+                                  np.asarray(plan.torque.coefficients))
+    else:
+        nodes = np.asarray(plan.tau)
+        tau = PiecewisePolynomial(t, np.stack([nodes[:-1], nodes[1:] - nodes[:-1]], axis=1))
+    interp = Interpolant(PiecewisePolynomial(t, hermite(q, dq, h)),
+                         PiecewisePolynomial(t, hermite(dq, ddq, h)), tau)
+    return interpolant_guess(interp, plan.duration)

@@ -8,6 +8,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+HERMITE = np.array([[1, 0, 0, 0], [0, 1, 0, 0], [-3, -2, 3, -1], [2, 1, -2, 1]], dtype=float)
+"""Monomial coefficients (rows: powers of s) of the cubic Hermite basis on [0, 1] for the
+data (v0, h v0', v1, h v1') (columns)."""
+
 
 def monomial(points: np.ndarray, values: np.ndarray) -> np.ndarray:
     """Coefficients (ascending powers of s) of the polynomial through values at points.
@@ -25,6 +29,14 @@ def integrate(coeffs: np.ndarray, start: np.ndarray, h: np.ndarray) -> np.ndarra
     out[:, 0] = start
     out[:, 1:] = coeffs * (h[:, None, None] / np.arange(1, m + 1)[None, :, None])
     return out
+
+
+def hermite(v: np.ndarray, dv: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """Cubic Hermite coefficients (K, 4, dim) through values v (K + 1, dim) and their time
+    derivatives dv (K + 1, dim) at breakpoints spaced h (K,) [s]."""
+    h = np.asarray(h, float)[:, None]
+    data = np.stack([v[:-1], dv[:-1] * h, v[1:], dv[1:] * h], axis=1)
+    return np.einsum("mj,kjd->kmd", HERMITE, data)
 
 
 @dataclass(frozen=True)
@@ -47,18 +59,9 @@ class PiecewisePolynomial:
         m = c.shape[1]
         powers = np.arange(m)
         factor = np.ones(m)
-        for _ in range(derivative):
-            factor = factor * np.maximum(powers - _, 0)
+        for order in range(derivative):
+            factor = factor * np.maximum(powers - order, 0)
         exps = np.maximum(powers - derivative, 0)
         basis = factor[None, :] * s[:, None] ** exps[None, :]
         h = (self.breaks[k + 1] - self.breaks[k])[:, None]
         return np.einsum("tm,tmd->td", basis, c) / h**derivative
-
-    def derivative_poly(self) -> PiecewisePolynomial:
-        """The d/dt derivative as a piecewise polynomial of one degree less."""
-        m = self.coeffs.shape[1]
-        h = np.diff(self.breaks)[:, None, None]
-        if m == 1:
-            return PiecewisePolynomial(self.breaks, np.zeros_like(self.coeffs))
-        c = self.coeffs[:, 1:] * np.arange(1, m)[None, :, None] / h
-        return PiecewisePolynomial(self.breaks, c)

@@ -1,53 +1,125 @@
-"""Decision variables of an NLP, laid out as named matrix blocks with bounds and guesses."""
+"""Decision variables of an NLP, laid out stage by stage.
+
+The variables of interval k (a stage, the same parts for every k) come first, interval
+after interval, then those of the final node (the terminal), then the global variables
+(a free duration, co-designed waves):
+
+    x = [w_0, w_1, ..., w_{N-1}, w_N (terminal), globals]
+
+A part is a named matrix of `rows` x len(positions) variables holding one quantity (q, dq,
+ddq or tau) at fixed fractions of the interval. A named block gathers the part of that name
+across all stages (and the terminal), in time order: e.g. "q" is the node angles, n x (N + 1).
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from functools import cached_property
 
 import casadi as ca
 import numpy as np
 
+from planner.ocp.mesh import Mesh
 
-@dataclass
-class Block:
-    """A rows x cols matrix of variables stored column-major at [start, start + size)."""
+
+@dataclass(frozen=True)
+class Part:
+    """rows x len(positions) variables of quantity `kind` at those fractions of an interval
+    (stored column-major)."""
 
     name: str
+    kind: str
     rows: int
-    cols: int
-    start: int
-    symbol: ca.MX
+    positions: tuple[float, ...]
 
     @property
     def size(self) -> int:
-        return self.rows * self.cols
+        return self.rows * len(self.positions)
 
 
-@dataclass
+def _offsets(parts: tuple[Part, ...]) -> dict[str, int]:
+    out, k = {}, 0
+    for part in parts:
+        out[part.name] = k
+        k += part.size
+    return out
+
+
+@dataclass(frozen=True)
 class Layout:
-    """Builds the variable vector block by block; numbers (bounds, guesses) are set later."""
+    """The variables of N stages, a terminal and globals (name, size)."""
 
-    blocks: dict[str, Block] = field(default_factory=dict)
-    size: int = 0
+    stage: tuple[Part, ...]
+    terminal: tuple[Part, ...]
+    globals: tuple[tuple[str, int], ...]
+    intervals: int
 
-    def add(self, name: str, rows: int, cols: int = 1) -> ca.MX:
-        """A new rows x cols block of variables."""
-        symbol = ca.MX.sym(name, rows, cols)
-        self.blocks[name] = Block(name, rows, cols, self.size, symbol)
-        self.size += rows * cols
-        return symbol
+    @property
+    def stage_size(self) -> int:
+        return sum(p.size for p in self.stage)
 
-    def vector(self) -> ca.MX:
-        """All variables as one column."""
-        return ca.vertcat(*(ca.vec(b.symbol) for b in self.blocks.values()))
+    @property
+    def terminal_size(self) -> int:
+        return sum(p.size for p in self.terminal)
+
+    @property
+    def globals_size(self) -> int:
+        return sum(size for _, size in self.globals)
+
+    @property
+    def size(self) -> int:
+        return self.intervals * self.stage_size + self.terminal_size + self.globals_size
+
+    @cached_property
+    def blocks(self) -> dict[str, tuple[str, np.ndarray]]:
+        """Per block name: its quantity and the indices into x of its entries, rows x columns
+        in time order."""
+        N, nw = self.intervals, self.stage_size
+        out: dict[str, tuple[str, list[np.ndarray]]] = {}
+        for part, start in zip(self.stage, _offsets(self.stage).values()):
+            local = start + np.arange(part.size).reshape(len(part.positions), part.rows).T
+            cols = [local + k * nw for k in range(N)]
+            out[part.name] = (part.kind, cols)
+        base = N * nw
+        for part, start in zip(self.terminal, _offsets(self.terminal).values()):
+            local = base + start + np.arange(part.size).reshape(len(part.positions), part.rows).T
+            out.setdefault(part.name, (part.kind, []))[1].append(local)
+        base += self.terminal_size
+        for name, size in self.globals:
+            out[name] = ("global", [base + np.arange(size)[:, None]])
+            base += size
+        return {name: (kind, np.hstack(cols)) for name, (kind, cols) in out.items()}
+
+    def __contains__(self, name: str) -> bool:
+        return name in self.blocks
+
+    def view(self, x: np.ndarray, name: str) -> np.ndarray:
+        """The block `name` of a numeric vector (a copy, rows x columns)."""
+        return np.asarray(x)[self.blocks[name][1]]
+
+    def put(self, x: np.ndarray, name: str, values) -> None:
+        """Write values (broadcast to rows x columns) into block `name` of x."""
+        idx = self.blocks[name][1]
+        x[idx] = np.broadcast_to(values, idx.shape)
+
+    def times(self, name: str, mesh: Mesh) -> np.ndarray:
+        """The time fractions of the columns of block `name` on a mesh."""
+        cols: list[np.ndarray] = []
+        for part in self.stage:
+            if part.name == name:
+                cols.append(mesh.points(np.asarray(part.positions)))
+        for part in self.terminal:
+            if part.name == name:
+                cols.append(np.ones(len(part.positions)))
+        return np.concatenate(cols)
 
     def zeros(self) -> np.ndarray:
         return np.zeros(self.size)
 
-    def view(self, vector: np.ndarray, name: str) -> np.ndarray:
-        """The block `name` of a numeric vector, as a rows x cols (writable) view."""
-        b = self.blocks[name]
-        return vector[b.start:b.start + b.size].reshape(b.cols, b.rows).T
 
-    def __contains__(self, name: str) -> bool:
-        return name in self.blocks
+def split(parts: tuple[Part, ...], w: ca.SX) -> dict[str, ca.SX]:
+    """The named parts of one stage's (or the terminal's) variable vector, rows x columns."""
+    out = {}
+    for part, start in zip(parts, _offsets(parts).values()):
+        out[part.name] = ca.reshape(w[start:start + part.size], part.rows, len(part.positions))
+    return out

@@ -1,4 +1,5 @@
-"""Ipopt's iteration callback: reports progress and stops the solve on request or on limits."""
+"""Ipopt's iteration callback: reports progress, keeps the last iterate, stops on request
+or on the plan's limits."""
 
 from __future__ import annotations
 
@@ -14,26 +15,34 @@ Handler = Callable[[Progress], bool]
 
 
 class IterationMonitor(ca.Callback):
-    """Called by Ipopt once per iteration with the current iterate.
+    """Called by Ipopt once per iteration (iteration 0 is the starting point).
 
-    Stops the solve (Ipopt's User_Requested_Stop) when the handler returns False, when
-    the iteration limit is reached or when the wall-time limit [s] has passed; `reason`
-    then says which.
+    Iterations are counted across the solves of one plan: a solve starts at `first`, the
+    plan's iterations so far. The monitor stops the solve (Ipopt's User_Requested_Stop)
+    when the handler returns False, when the plan's iteration budget `max_iter` is spent
+    or when the deadline (time.perf_counter() seconds) has passed; `reason` says which.
     """
 
     def __init__(self, nx: int, ng: int, np_: int):
         ca.Callback.__init__(self)
         self.sizes = {"x": nx, "lam_x": nx, "g": ng, "lam_g": ng, "p": np_, "lam_p": np_, "f": 1}
-        self.reset(None, 0, np.inf, np.zeros(ng), np.zeros(ng))
+        self.reset(None, 0, 0, np.inf, np.zeros(ng), np.zeros(ng), None, 0, time.perf_counter())
         self.construct("iteration_monitor", {})
 
-    def reset(self, handler: Handler | None, max_iter: int, max_wall_time: float,
-              lbg: np.ndarray, ubg: np.ndarray) -> None:
-        """Prepare for a new solve."""
-        self.handler, self.max_iter, self.max_wall_time = handler, max_iter, max_wall_time
-        self.lbg, self.ubg = lbg, ubg
-        self.iteration, self.started, self.reason = -1, time.perf_counter(), ""
-        self.last: Progress | None = None
+    def reset(self, handler: Handler | None, first: int, max_iter: int, deadline: float,
+              lbg: np.ndarray, ubg: np.ndarray, solver: ca.Function | None, mesh_pass: int,
+              started: float) -> None:
+        """Prepare for a solve by `solver` (whose statistics give the dual infeasibility)."""
+        self.handler, self.first, self.max_iter, self.deadline = handler, first, max_iter, deadline
+        self.lbg, self.ubg, self.solver, self.mesh_pass = lbg, ubg, solver, mesh_pass
+        self.started, self.calls, self.reason = started, 0, ""
+        self.last_x: np.ndarray | None = None
+        self.last_f = np.nan
+
+    @property
+    def iteration(self) -> int:
+        """The plan's iteration count at the latest call."""
+        return self.first + self.calls - 1
 
     def get_n_in(self) -> int:
         return ca.nlpsol_n_out()
@@ -50,19 +59,29 @@ class IterationMonitor(ca.Callback):
     def get_sparsity_in(self, i: int) -> ca.Sparsity:
         return ca.Sparsity.dense(self.sizes[ca.nlpsol_out(i)], 1)
 
+    def _dual_infeasibility(self) -> float | None:
+        if self.solver is None:
+            return None
+        values = self.solver.stats().get("iterations", {}).get("inf_du", [])
+        return float(values[-1]) if values else None
+
     def eval(self, args):
-        self.iteration += 1
-        g = np.asarray(args[ca.nlpsol_out().index("g")]).ravel()
-        violation = np.maximum(self.lbg - g, 0.0) + np.maximum(g - self.ubg, 0.0)
-        elapsed = time.perf_counter() - self.started
-        self.last = Progress(iteration=self.iteration,
-                             objective=float(args[ca.nlpsol_out().index("f")]),
-                             inf_pr=float(violation.max(initial=0.0)), inf_du=None,
-                             elapsed=elapsed)
-        if self.handler is not None and self.handler(self.last) is False:
-            self.reason = "cancelled"
-        elif self.iteration >= self.max_iter:
+        self.calls += 1
+        names = ca.nlpsol_out()
+        self.last_x = np.array(args[names.index("x")]).ravel()
+        self.last_f = float(args[names.index("f")])
+        if self.handler is not None:
+            g = np.asarray(args[names.index("g")]).ravel()
+            violation = np.maximum(self.lbg - g, 0.0) + np.maximum(g - self.ubg, 0.0)
+            progress = Progress(iteration=self.iteration, objective=self.last_f,
+                                inf_pr=float(violation.max(initial=0.0)),
+                                inf_du=self._dual_infeasibility(),
+                                elapsed=time.perf_counter() - self.started,
+                                mesh_pass=self.mesh_pass)
+            if self.handler(progress) is False:
+                self.reason = "cancelled"
+        if not self.reason and self.iteration >= self.max_iter:
             self.reason = "max_iter"
-        elif elapsed > self.max_wall_time:
+        elif not self.reason and time.perf_counter() > self.deadline:
             self.reason = "max_wall_time"
         return [1 if self.reason else 0]

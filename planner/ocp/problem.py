@@ -1,37 +1,36 @@
 """The NLP of a scene structure: variables, constraints, objective and parameters.
 
-Only what the scene asks for is built (tracking cost, tip target, coupling margin, wave
-co-design, each objective term). Every number (robot, duration, references, bounds,
-weights) enters as a parameter or a bound, so one NLP serves every scene of its structure.
+Only what the scene asks for is built (each term of `planner.ocp.terms` it switches on).
+Every number (robot, duration, mesh widths and quadrature weights, references, bounds,
+weights) enters as a parameter or a bound, so one NLP serves every scene of its structure
+and every mesh with its number of intervals. The NLP is written stage by stage
+(`planner.ocp.transcription`) and assembled with per-stage derivatives
+(`planner.ocp.assembly`), so building one for another number of intervals is cheap.
 """
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import os
 import subprocess
 import tempfile
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from pathlib import Path
 
 import casadi as ca
 import numpy as np
 
-from planner.dynamics import derive, functions
+from planner.dynamics import functions
 from planner.model import Structure, wave_slots
-from planner.ocp.layout import Layout
+from planner.ocp import methods
+from planner.ocp.assembly import Derivatives, Kernels, assemble, derivatives
+from planner.ocp.layout import Layout, Part, split
 from planner.ocp.monitor import IterationMonitor
-from planner.ocp.transcription import (
-    Collocation,
-    Discrete,
-    HermiteSimpson,
-    MultipleShooting,
-    Trapezoidal,
-)
+from planner.ocp.terms import TERMS, Boundaries, Stage, Term
+from planner.ocp.transcription import Model, Transcription
 from planner.scene import DurationRange, Scene
 
 
@@ -58,7 +57,8 @@ class ProblemKey:
     jit: bool
 
     @classmethod
-    def of(cls, scene: Scene) -> ProblemKey:
+    def of(cls, scene: Scene, intervals: int | None = None) -> ProblemKey:
+        """The key of a scene's NLP on `intervals` intervals (default: the scene's)."""
         task, tr = scene.task, scene.transcription
         robot = scene.robot
         wavy = None
@@ -68,7 +68,7 @@ class ProblemKey:
         return cls(
             structure=Structure.of(robot, wavy),
             method=tr.method,
-            intervals=tr.intervals,
+            intervals=tr.intervals if intervals is None else intervals,
             degree=tr.degree if tr.method in ("legendre", "radau") else 0,
             integrator=tr.integrator if shooting else "",
             steps=tr.steps if shooting and tr.integrator == "rk4" else 0,
@@ -85,14 +85,27 @@ class ProblemKey:
             jit=scene.solver.jit,
         )
 
+    def transcription(self) -> Transcription:
+        """The transcription method of this key."""
+        return methods.create(self.method, self.intervals, self.degree, self.integrator,
+                              self.steps, self.form == "implicit")
+
+    def terms(self) -> list[Term]:
+        """The objective and constraint terms this key asks for."""
+        return [term for term in TERMS if term.wanted(self)]
+
     def digest(self) -> str:
-        """A stable hash of the key and of the code that builds its NLP: names the compiled
-        NLP in the disk cache, so a library compiled by other code is never loaded."""
-        return hashlib.sha256((repr(self) + formulation_hash()).encode()).hexdigest()[:20]
+        """A stable hash of the key (but its number of intervals) and of the code that builds
+        its NLP: names compiled stages in the disk cache, so code compiled from other
+        sources is never loaded."""
+        text = repr(replace(self, intervals=0)) + formulation_hash()
+        return hashlib.sha256(text.encode()).hexdigest()[:20]
 
 
-FORMULATION_SOURCES = ("dynamics.py", "model.py", "ocp/transcription.py", "ocp/problem.py")
-"""The modules (under planner/) whose code decides an NLP's symbolic form."""
+FORMULATION_SOURCES = ("dynamics.py", "model.py", "rk4.py", "ocp/transcription.py",
+                       "ocp/methods", "ocp/terms.py", "ocp/assembly.py", "ocp/layout.py",
+                       "ocp/problem.py")
+"""The modules and packages (under planner/) whose code decides an NLP's symbolic form."""
 
 
 @lru_cache(maxsize=1)
@@ -101,31 +114,10 @@ def formulation_hash() -> str:
     root = Path(__file__).resolve().parents[1]
     digest = hashlib.sha256(ca.__version__.encode())
     for name in FORMULATION_SOURCES:
-        digest.update((root / name).read_bytes())
+        path = root / name
+        for source in sorted(path.glob("*.py")) if path.is_dir() else [path]:
+            digest.update(source.read_bytes())
     return digest.hexdigest()
-
-
-@dataclass
-class Problem:
-    """A built NLP with the maps between its vectors and the scene's quantities."""
-
-    key: ProblemKey
-    layout: Layout
-    transcription: object
-    discrete: Discrete
-    params: dict[str, slice]
-    n_params: int
-    lbg: np.ndarray
-    ubg: np.ndarray
-    solver: ca.Function
-    monitor: IterationMonitor
-    build_time: float
-    accel: ca.Function = field(repr=False)
-
-    def accelerations(self, x: np.ndarray, P: np.ndarray) -> dict[str, np.ndarray]:
-        """Accelerations [rad/s^2] at the dynamics knots of a solution, by block name."""
-        out = self.accel(x=x, P=P)
-        return {name: np.array(value) for name, value in out.items()}
 
 
 IPOPT_OPTIONS = {"linear_solver": "mumps", "mumps_pivot_order": 0, "mumps_scaling": 0,
@@ -139,195 +131,319 @@ verified one there). The adaptive barrier update stays, with its
 quality-function oracle: the monotone update and the probing oracle saved iterations on
 some scenes but ended in worse optima or the iteration limit on the horizontal seed arm."""
 
+WARM_OPTIONS = {"warm_start_init_point": "yes", "mu_init": 1e-6,
+                "warm_start_bound_push": 1e-9, "warm_start_bound_frac": 1e-9,
+                "warm_start_slack_bound_push": 1e-9, "warm_start_slack_bound_frac": 1e-9,
+                "warm_start_mult_bound_push": 1e-9}
+"""Ipopt settings of a solve that starts from an earlier solution's primal and dual values:
+a small barrier parameter and no push away from the bounds, so that the solve stays at the
+optimum it starts near."""
 
-def _param_layout(key: ProblemKey, n_knots: int) -> tuple[dict[str, slice], int]:
-    s = key.structure
-    sizes = {"robot": s.n_params, "weights": 4}
+
+@dataclass(frozen=True)
+class Parameters:
+    """Where the NLP's numbers go: `common` entries by name, then per stage `local` entries
+    by name (one column per stage, the terminal's last)."""
+
+    common: dict[str, slice]
+    local: dict[str, slice]
+
+    @property
+    def n_common(self) -> int:
+        return max((s.stop for s in self.common.values()), default=0)
+
+    @property
+    def n_local(self) -> int:
+        return max((s.stop for s in self.local.values()), default=0)
+
+
+@dataclass
+class Problem:
+    """A built NLP with the maps between its vectors and the scene's quantities."""
+
+    key: ProblemKey
+    layout: Layout
+    transcription: Transcription
+    params: Parameters
+    lbg: np.ndarray
+    ubg: np.ndarray
+    solver: ca.Function
+    monitor: IterationMonitor
+    build_time: float
+    structured: bool
+    oracle: dict = field(repr=False)
+    options: dict = field(repr=False)
+    _warm: ca.Function | None = field(repr=False, default=None)
+
+    @property
+    def n_params(self) -> int:
+        return self.params.n_common + self.params.n_local * (self.key.intervals + 1)
+
+    def warm_solver(self) -> ca.Function:
+        """The same NLP with Ipopt set to start from given primal and dual values
+        (`WARM_OPTIONS`); it reuses the derivatives of `solver`, so building it is cheap."""
+        if self._warm is None:
+            derivatives = {"hess_lag": self.solver.get_function("nlp_hess_l"),
+                           "jac_g": self.solver.get_function("nlp_jac_g"),
+                           "grad_f": self.solver.get_function("nlp_grad_f")}
+            opts = {**self.options, **derivatives,
+                    "ipopt": {**self.options["ipopt"], **WARM_OPTIONS}}
+            self._warm = ca.nlpsol("plan_warm", "ipopt", self.oracle, opts)
+        return self._warm
+
+
+def _parameters(key: ProblemKey, tr: Transcription, terms: list[Term]) -> Parameters:
+    common = {"robot": key.structure.n_params}
     if not key.free_time:
-        sizes["T"] = 1
-    if key.weighted_tracking:
-        sizes["ref"] = len(s.passive_idx) * n_knots
-    if key.tip:
-        sizes["tip"] = 2
-    if key.margin:
-        sizes["margin"] = 2  # the margin and the sign of det M_pa at the start
+        common["T"] = 1
+    local = {"width": 1, "weights": len(tr.knot_positions), "boundary": 1}
+    for term in terms:
+        common[term.name] = term.common_size(key)
+        if term.local_size(key, tr):
+            local[term.name] = term.local_size(key, tr)
+    return Parameters(_slices(common), _slices(local))
+
+
+def _slices(sizes: dict[str, int]) -> dict[str, slice]:
     out, k = {}, 0
     for name, size in sizes.items():
         out[name] = slice(k, k + size)
         k += size
-    return out, k
+    return out
 
 
-def _transcription(key: ProblemKey, ode: ca.Function, p: ca.MX):
-    N = key.intervals
-    if key.method == "trapezoidal":
-        return Trapezoidal(N)
-    if key.method == "hermite-simpson":
-        return HermiteSimpson(N)
-    if key.method in ("legendre", "radau"):
-        return Collocation(N, key.degree, key.method)
-    return MultipleShooting(N, key.integrator, key.steps, ode, p)
+def _globals(key: ProblemKey) -> tuple[tuple[str, int], ...]:
+    out = (("T", 1),) if key.free_time else ()
+    return out + ((("wave", 2 * len(key.structure.active_idx)),) if key.codesign else ())
 
 
-def _margin_function(s: Structure) -> ca.Function:
-    """Leading principal minors of G / margin^2 - I, G the smaller Gram matrix of M_pa.
-
-    All minors > 0 <=> G - margin^2 I is positive definite <=> sigma_min(M_pa) > margin.
-    A square block also keeps the sign its determinant has at the start:
-    sign * det(M_pa) / margin^p - 1 >= 0, necessary for the margin (|det| >= margin^p) and
-    what stops a path from jumping through det = 0 between two knots. A 1 x 1 block needs
-    that row alone (sign * M_pa / margin >= 1 is the margin): its minor M_pa^2 / margin^2 - 1
-    would be active at the same points with a parallel gradient, which breaks the linear
-    independence of the active constraints' gradients that Ipopt's steps rely on.
-    """
-    sym = derive(s)
-    margin, sign = ca.SX.sym("margin"), ca.SX.sym("sign")
-    mpa = sym.mass[s.passive_idx, s.active_idx]
-    gram = ca.mtimes(mpa, mpa.T) if mpa.size1() <= mpa.size2() else ca.mtimes(mpa.T, mpa)
-    shifted = gram / margin**2 - ca.SX.eye(gram.size1())
-    square = mpa.size1() == mpa.size2()
-    orders = [] if square and mpa.size1() == 1 else range(1, gram.size1() + 1)
-    rows = [ca.det(shifted[:k, :k]) for k in orders]
-    if square:
-        rows.append(sign * ca.det(mpa) / margin ** mpa.size1() - 1)
-    return ca.Function("margin", [sym.q, sym.p, margin, sign], [ca.vertcat(*rows)])
+def _offsets(named: tuple[tuple[str, int], ...]) -> dict[str, slice]:
+    return _slices(dict(named))
 
 
-def _robot_parameters(key: ProblemKey, lay: Layout, P: ca.MX, params: dict) -> ca.MX:
-    """The dynamics' parameter vector: the scene's numbers, with co-designed waves as variables."""
-    entries = ca.vertsplit(P[params["robot"]])
-    if key.codesign:
-        s = key.structure
-        waves = lay.add("wave", 2, len(s.active_idx))  # rows: amplitude, phase
-        slots = wave_slots(s)
-        for col, joint in enumerate(s.active_idx):
-            entries[slots[joint]] = waves[0, col]
-            entries[slots[joint] + 2] = waves[1, col]
-    return ca.vertcat(*entries)
+class _Symbols:
+    """The symbolic inputs of a stage function and what terms read from them."""
+
+    def __init__(self, key: ProblemKey, tr: Transcription, layout: Layout, params: Parameters,
+                 width: int, terminal: bool):
+        sym, s = tr.symbolic, key.structure
+        self.w = sym.sym("w", width)
+        self.nxt = sym.sym("nxt", 0 if terminal else sum(
+            p.size for p in layout.stage if p.name in tr.link))
+        self.glob = sym.sym("glob", layout.globals_size)
+        self.common = sym.sym("common", params.n_common)
+        self.local = sym.sym("local", params.n_local)
+        globs = _offsets(layout.globals)
+        self.T = self.glob[globs["T"]] if key.free_time else self.common[params.common["T"]]
+        entries = ca.vertsplit(self.common[params.common["robot"]])
+        if key.codesign:
+            waves = self.glob[globs["wave"]]
+            for col, joint in enumerate(s.active_idx):
+                entries[wave_slots(s)[joint]] = waves[2 * col]
+                entries[wave_slots(s)[joint] + 2] = waves[2 * col + 1]
+        self.p = ca.vertcat(*entries)
+        self.params = params
+
+    def inputs(self, terminal: bool) -> list:
+        return [self.w, self.glob, self.common, self.local] if terminal else \
+            [self.w, self.nxt, self.glob, self.common, self.local]
+
+    def common_of(self, name: str):
+        return self.common[self.params.common[name]]
+
+    def local_of(self, name: str):
+        return self.local[self.params.local[name]]
+
+
+def _stage_function(key: ProblemKey, tr: Transcription, layout: Layout, params: Parameters,
+                    terms: list[Term], terminal: bool) -> tuple[ca.Function, list[tuple[float, float, int]]]:
+    """A stage's (or the terminal's) rows and cost, and the bounds of its row groups."""
+    s = key.structure
+    parts = layout.terminal if terminal else layout.stage
+    sym = _Symbols(key, tr, layout, params, sum(p.size for p in parts), terminal)
+    f = functions(s)
+    model = Model(s.n, len(s.active_idx), key.form == "implicit", f["fd"], f["ode"], sym.p)
+    w = split(parts, sym.w)
+    width = sym.local_of("width")
+    h = sym.T * width
+    if terminal:
+        piece = tr.terminal(w, model)
+    else:
+        link = tuple(p for p in layout.stage if p.name in tr.link)
+        piece = tr.stage(w, split(link, sym.nxt), h, model)
+    m = piece.knot_q.size2()
+    weights = sym.T * sym.local_of("weights")[:m].T if m else tr.symbolic(1, 0)
+    rows: list[tuple] = [(piece.defects, 0.0, 0.0)] if piece.defects.numel() else []
+    if model.implicit and m:
+        residual = f["residual"].map(m)(piece.knot_q, piece.knot_dq, piece.knot_ddq,
+                                        piece.knot_tau, sym.p)
+        rows.append((ca.vec(residual), 0.0, 0.0))
+    context = Stage(s, piece, weights, h, sym.T, sym.p, sym.common_of, sym.local_of, terminal)
+    cost = tr.symbolic(0)
+    for term in terms:
+        piece_cost, term_rows = term.cost(context), term.rows(context)
+        if piece_cost is not None:
+            cost += piece_cost
+        if term_rows is not None:
+            rows.append(term_rows)
+    g = ca.vertcat(*(r for r, _, _ in rows)) if rows else tr.symbolic(0, 1)
+    bounds = [(lo, hi, r.numel()) for r, lo, hi in rows]
+    name = "terminal" if terminal else "stage"
+    return ca.Function(name, sym.inputs(terminal), [g, cost]), bounds
+
+
+def torques(layout: Layout) -> tuple[list[np.ndarray], list[float], list[np.ndarray], list[float]]:
+    """The torque columns of a stage and of the terminal in time order, with their positions
+    (local indices into the stage's / the terminal's variables)."""
+    def columns(parts: tuple[Part, ...]) -> tuple[list[np.ndarray], list[float]]:
+        found, start = [], 0
+        for part in parts:
+            if part.kind == "tau":
+                for j, at in enumerate(part.positions):
+                    found.append((at, start + j * part.rows + np.arange(part.rows)))
+            start += part.size
+        found.sort(key=lambda item: item[0])
+        return [idx for _, idx in found], [at for at, _ in found]
+
+    stage, stage_at = columns(layout.stage)
+    terminal, terminal_at = columns(layout.terminal)
+    return stage, stage_at, terminal, terminal_at
+
+
+def _boundary(key: ProblemKey, layout: Layout, params: Parameters, terms: list[Term]):
+    """The cost of terms that couple neighbouring stages, as a function of (X, common, local)."""
+    coupling = [t for t in terms if type(t).boundary_cost is not Term.boundary_cost]
+    stage, _, terminal, _ = torques(layout)
+    if not coupling or not stage:
+        return None
+    N, nw = layout.intervals, layout.stage_size
+    before = [k * nw + stage[-1] for k in range(N)]
+    after = [(k + 1) * nw + stage[0] for k in range(N - 1)]
+    if terminal:
+        after.append(N * nw + terminal[0])
+    else:
+        before.pop()
+    if not before:
+        return None
+
+    def cost(X: ca.MX, common: ca.MX, local: ca.MX) -> ca.MX:
+        T = X[layout.size - layout.globals_size] if key.free_time else common[params.common["T"]]
+        b = Boundaries(ca.reshape(X[np.concatenate(before).tolist()], -1, len(before)),
+                       ca.reshape(X[np.concatenate(after).tolist()], -1, len(after)),
+                       T * local[params.local["boundary"], :len(before)],
+                       lambda name: common[params.common[name]])
+        return sum(term.boundary_cost(b) for term in coupling)
+
+    return cost
+
+
+@dataclass(frozen=True)
+class Stages:
+    """What a key's NLP is made of, whatever its number of intervals: the stage and terminal
+    functions with their derivative kernels, the variable parts, the parameters, and the
+    bounds of the rows of a stage and of the terminal."""
+
+    transcription: Transcription
+    kernels: Kernels
+    derivatives: Derivatives | None
+    parts: tuple[tuple[Part, ...], tuple[Part, ...]]
+    params: Parameters
+    bounds: tuple[list[tuple[float, float, int]], list[tuple[float, float, int]]]
+
+
+@lru_cache(maxsize=32)
+def stages(key: ProblemKey) -> Stages:
+    """The stages of a key (its `intervals` ignored; cached), compiled to C when it asks."""
+    s = key.structure
+    tr, terms = key.transcription(), key.terms()
+    parts = tr.parts(s.n, len(s.active_idx))
+    layout = Layout(*parts, _globals(key), 1)
+    params = _parameters(key, tr, terms)
+    stage, stage_bounds = _stage_function(key, tr, layout, params, terms, False)
+    terminal, terminal_bounds = _stage_function(key, tr, layout, params, terms, True)
+    kernels = Kernels(stage, terminal, sum(p.size for p in layout.stage if p.name in tr.link))
+    built = Stages(tr, kernels, derivatives(kernels), parts, params,
+                   (stage_bounds, terminal_bounds))
+    return compiled(built, key) if key.jit and built.derivatives is not None else built
+
+
+def _stage_key(key: ProblemKey) -> ProblemKey:
+    """The key without its number of intervals: what the stages depend on."""
+    return replace(key, intervals=0)
 
 
 def build(key: ProblemKey) -> Problem:
-    """Build the NLP of a structure and its Ipopt solver."""
+    """Build the NLP of a key and its Ipopt solver."""
     start = time.perf_counter()
-    s = key.structure
-    f = functions(s)
-    n, na = s.n, len(s.active_idx)
-    lay = Layout()
-    if key.free_time:
-        T = lay.add("T", 1)
-    params, n_params = _param_layout(key, _knot_count(key))
-    P = ca.MX.sym("P", n_params)
-    p = _robot_parameters(key, lay, P, params)
-    if not key.free_time:
-        T = P[params["T"]]
-    h = T / key.intervals
-
-    constraints: list[tuple[ca.MX, float, float]] = []
-    accelerations: dict[str, ca.MX] = {}
-
-    def dyn(name: str, q: ca.MX, dq: ca.MX, tau: ca.MX) -> ca.MX:
-        K = q.size2()
-        if key.form == "explicit":
-            ddq = f["fd"].map(K)(q, dq, tau, p)
-        else:
-            ddq = lay.add(name, n, K)
-            constraints.append((f["residual"].map(K)(q, dq, ddq, tau, p), 0.0, 0.0))
-        accelerations[name] = ddq
-        return ddq
-
-    transcription = _transcription(key, f["ode"], p)
-    disc = transcription.build(lay, n, na, h, dyn)
-    if not accelerations:  # shooting: accelerations at the nodes, torque held from the left
-        tau_nodes = ca.horzcat(disc.knot_tau, disc.knot_tau[:, -1])
-        accelerations["ddq"] = f["fd"].map(key.intervals + 1)(disc.q, disc.dq, tau_nodes, p)
-    constraints += [(d, 0.0, 0.0) for d in disc.defects]
-
-    weights = P[params["weights"]]
-    cost = 0
-    K = disc.knot_times.size
-    w = ca.DM(disc.weights).T
-    if key.effort:
-        cost += weights[0] * T * ca.mtimes(w, ca.sum1(disc.knot_tau**2).T)
-    if key.time:
-        cost += weights[1] * T
-    if key.smoothness and disc.step_times.size:
-        dt = ca.DM(disc.step_times).T * T
-        cost += weights[2] * ca.sum2(ca.sum1(disc.tau_steps**2) / dt)
-    if key.weighted_tracking:
-        ref = ca.reshape(P[params["ref"]], len(s.passive_idx), K)
-        err = disc.knot_q[s.passive_idx, :] - ref
-        cost += weights[3] * T * ca.mtimes(w, ca.sum1(err**2).T)
-    if key.tip:
-        tip = f["tips"](disc.q[:, -1], p)[:, -1]
-        constraints.append((tip - P[params["tip"]], 0.0, 0.0))
-    if key.margin:
-        margin, sign = P[params["margin"]][0], P[params["margin"]][1]
-        minors = _margin_function(s).map(disc.path_q.size2())(disc.path_q, p, margin, sign)
-        constraints.append((minors, 0.0, np.inf))
-
-    g = ca.vertcat(*(ca.vec(c) for c, _, _ in constraints))
-    lbg = np.concatenate([np.full(c.numel(), lo) for c, lo, _ in constraints])
-    ubg = np.concatenate([np.full(c.numel(), hi) for c, _, hi in constraints])
-    monitor = IterationMonitor(lay.size, g.numel(), n_params)
+    parts = stages(_stage_key(key))
+    tr = key.transcription()
+    layout = Layout(*parts.parts, _globals(key), key.intervals)
+    terms = key.terms()
+    assembly = assemble(parts.kernels, parts.derivatives, layout, parts.params.n_common,
+                        parts.params.n_local, _boundary(key, layout, parts.params, terms))
+    lbg, ubg = _row_bounds(parts.bounds[0], key.intervals, parts.bounds[1])
+    n_params = parts.params.n_common + parts.params.n_local * (key.intervals + 1)
+    monitor = IterationMonitor(layout.size, lbg.size, n_params)
     opts = {
         "print_time": False,
         "iteration_callback": monitor,
         "ipopt": {"print_level": 0, "sb": "yes", "tol": key.tol, "max_iter": 100000,
                   **IPOPT_OPTIONS},
+        **assembly.derivatives,
     }
-    if key.integrator == "cvodes":
+    if tr.symbolic is ca.MX:
         opts["ipopt"]["hessian_approximation"] = "limited-memory"
-    nlp = {"x": lay.vector(), "p": P, "f": cost, "g": g}
-    if key.jit and key.integrator != "cvodes":
-        solver = ca.nlpsol("plan", "ipopt", compiled_nlp(key, nlp, opts), opts)
-    else:
-        expand = key.method != "multiple-shooting"
-        solver = ca.nlpsol("plan", "ipopt", nlp, {**opts, "expand": expand})
-    accel = ca.Function("accelerations", [lay.vector(), P], list(accelerations.values()),
-                        ["x", "P"], list(accelerations))
-    return Problem(key, lay, transcription, disc, params, n_params, lbg, ubg, solver, monitor,
-                   time.perf_counter() - start, accel)
+    elif not assembly.structured:
+        opts["expand"] = True
+    solver = ca.nlpsol("plan", "ipopt", assembly.nlp, opts)
+    return Problem(key, layout, tr, parts.params, lbg, ubg, solver, monitor,
+                   time.perf_counter() - start, assembly.structured, assembly.nlp, opts)
 
 
-_CODEGEN = threading.Lock()  # code generation writes into the working directory
+def cache_dir() -> Path:
+    """Where compiled stages are kept: $UNDERTOW_CACHE_DIR, else ~/.cache/undertow."""
+    default = Path.home() / ".cache" / "undertow"
+    return Path(os.environ.get("UNDERTOW_CACHE_DIR", default))
 
 
-def cache_dir() -> str:
-    """Where compiled NLPs are kept: $UNDERTOW_CACHE_DIR, else ~/.cache/undertow."""
-    default = os.path.join(os.path.expanduser("~"), ".cache", "undertow")
-    return os.environ.get("UNDERTOW_CACHE_DIR", default)
+_CODEGEN = threading.Lock()  # one compilation at a time per process
 
 
-def compiled_nlp(key: ProblemKey, nlp: dict, opts: dict) -> str:
-    """Path of the NLP's functions compiled to a shared library, built on first use.
-
-    The graph is generated unexpanded, so each per-knot function (and its derivatives)
-    becomes one loop in C: a few MB of code that gcc compiles in seconds, where the
-    expanded graph would be tens of MB. The file is named by the key's hash and written
-    atomically, so processes sharing the cache never see a partial library.
-    """
+def compiled(built: Stages, key: ProblemKey) -> Stages:
+    """The stages with their derivative kernels (what an iteration spends its time in)
+    compiled to one shared library (C, gcc -O1), built on first use and kept on disk, named
+    by the key's digest: every number of intervals of the key, every process and every
+    later run share it. The library is written atomically, so processes sharing the cache
+    never load a partial one. The stage functions themselves stay symbolic: nlpsol
+    differentiates them for what it computes once per solve."""
+    functions = built.derivatives.functions()
     folder = cache_dir()
-    os.makedirs(folder, exist_ok=True)
-    library = os.path.join(folder, f"nlp_{key.digest()}.so")
-    if os.path.exists(library):
-        return library
-    generator = ca.nlpsol("plan", "ipopt", nlp, {**opts, "expand": False})
-    with _CODEGEN, tempfile.TemporaryDirectory(dir=folder) as work, contextlib.chdir(work):
-        source = generator.generate_dependencies("nlp.c", {"with_header": False})
-        subprocess.run(["gcc", "-O1", "-fPIC", "-shared", source, "-o", "nlp.so"],
-                       check=True, capture_output=True)
-        os.replace("nlp.so", library)
-    return library
+    library = folder / f"stages_{key.digest()}.so"
+    if not library.exists():
+        folder.mkdir(parents=True, exist_ok=True)
+        with _CODEGEN, tempfile.TemporaryDirectory(dir=folder) as work:
+            generator = ca.CodeGenerator("stages.c", {"with_header": False})
+            for function in functions:
+                generator.add(function)
+            generator.generate(work + os.sep)
+            subprocess.run(["gcc", "-O1", "-fPIC", "-shared", "stages.c", "-o", "stages.so"],
+                           cwd=work, check=True, capture_output=True)
+            os.replace(Path(work) / "stages.so", library)
+    loaded = {f.name(): ca.external(f.name(), str(library)) for f in functions}
+    return replace(built, derivatives=built.derivatives.replaced(loaded))
 
 
-def _knot_count(key: ProblemKey) -> int:
-    """Number of dynamics knots of a transcription (fixes the size of the reference block)."""
-    N = key.intervals
-    return {"trapezoidal": N + 1, "hermite-simpson": 2 * N + 1, "legendre": N * key.degree,
-            "radau": N * key.degree}.get(key.method, N)
+def _row_bounds(stage: list[tuple[float, float, int]], N: int,
+                terminal: list[tuple[float, float, int]]) -> tuple[np.ndarray, np.ndarray]:
+    def expand(groups: list[tuple[float, float, int]], side: int) -> np.ndarray:
+        return np.concatenate([np.full(size, g[side]) for *g, size in groups] or [np.zeros(0)])
+
+    return (np.concatenate([np.tile(expand(stage, 0), N), expand(terminal, 0)]),
+            np.concatenate([np.tile(expand(stage, 1), N), expand(terminal, 1)]))
 
 
 @lru_cache(maxsize=32)
 def problem(key: ProblemKey) -> Problem:
     """The NLP of a structure, built once and reused (cache keyed by `ProblemKey`)."""
     return build(key)
+

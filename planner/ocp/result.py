@@ -1,23 +1,27 @@
-"""What a plan returns: trajectories, solver report and independent verification (SI units)."""
+"""What a plan returns: trajectories, the delivered torque, solver report, mesh history and
+independent verification (SI units)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 
 @dataclass(frozen=True)
 class Progress:
-    """One Ipopt iteration: its number (counting restoration-phase iterations, which
-    `SolverReport.iterations` leaves out), objective, primal infeasibility, dual
-    infeasibility (None: the interface does not report it), wall time since the start [s]."""
+    """One Ipopt iteration: the plan's iteration count so far (Ipopt's own count, summed
+    over the plan's solves), objective, primal and dual infeasibility (None: not reported),
+    wall time since the plan started [s], and the mesh pass the solve belongs to (0: the
+    first mesh)."""
 
     iteration: int
     objective: float
     inf_pr: float
     inf_du: float | None
     elapsed: float
+    mesh_pass: int = 0
 
 
 class _Out(BaseModel):
@@ -32,22 +36,70 @@ class DenseTrajectory(_Out):
     tau: list[list[float]]
 
 
+class TorquePolynomial(_Out):
+    """The delivered feed-forward torque, exactly as the verification simulated it.
+
+    On interval k, t in [breaks[k], breaks[k + 1]], with s = (t - breaks[k]) /
+    (breaks[k + 1] - breaks[k]) in [0, 1]:
+        tau_j(t) = sum_m coefficients[k][m][j] * s**m   [N m]
+    (ascending powers of s, one column j per active joint in joint order). The torque may
+    jump at a breakpoint; at t = breaks[k] the interval starting there applies.
+    """
+
+    breaks: list[float] = Field(description="interval boundaries [s], K + 1 values")
+    coefficients: list[list[list[float]]] = Field(
+        description="K x (degree + 1) x n_active: coefficients of ascending powers of s")
+
+    def evaluate(self, t) -> np.ndarray:
+        """tau (len(t), n_active) [N m] at times t [s]."""
+        breaks, coeffs = np.asarray(self.breaks), np.asarray(self.coefficients)
+        k = np.clip(np.searchsorted(breaks, np.asarray(t, float), side="right") - 1, 0,
+                    len(breaks) - 2)
+        s = (np.asarray(t, float) - breaks[k]) / (breaks[k + 1] - breaks[k])
+        powers = s[:, None] ** np.arange(coeffs.shape[1])[None, :]
+        return np.einsum("tm,tmj->tj", powers, coeffs[k])
+
+
 class SolverReport(_Out):
     """Ipopt's verdict and the cost of getting it."""
 
-    status: str = Field(description="Ipopt's return status, e.g. Solve_Succeeded")
+    status: str = Field(description="Ipopt's return status of the last solve, e.g. "
+                                    "Solve_Succeeded")
     success: bool
     message: str
-    iterations: int
-    build_time: float = Field(description="[s] building the NLP; 0 when reused from the cache")
-    solve_time: float = Field(description="[s] Ipopt wall time")
-    cache_hit: bool = Field(description="the NLP of this scene structure was already built")
+    iterations: int = Field(description="Ipopt iterations, summed over the plan's solves")
+    build_time: float = Field(description="[s] building NLPs; 0 when all came from the cache")
+    solve_time: float = Field(description="[s] Ipopt wall time, summed over the plan's solves")
+    total_time: float | None = Field(
+        default=None, description="[s] the whole plan: building, solves, error estimates, "
+                                  "verification (None in plans stored before the field existed)")
+    cache_hit: bool = Field(description="the NLP of the first mesh was already built")
     initial_guess: str = Field(
         default="not recorded",
         description="where Ipopt started: interpolation, inverse-dynamics or warm start; "
                     "an inverse dynamics that could not be computed says why, and the "
                     "interpolation was used instead ('not recorded' in plans stored before "
                     "the field existed)")
+    strategy: str = Field(
+        default="not recorded",
+        description="what produced the plan: 'direct' (one solve), 'refined' (mesh "
+                    "refinement after the first solve), or a retry named after what it "
+                    "changed ('not recorded' in plans stored before the field existed)")
+
+
+class MeshPass(_Out):
+    """One solve of the plan on one mesh."""
+
+    intervals: int
+    iterations: int = Field(description="Ipopt iterations of this solve")
+    status: str = Field(description="Ipopt's return status")
+    objective: float | None = Field(description="the objective of this solve's plan")
+    max_local_error: float | None = Field(
+        description="[rad] largest interval error of this solve's plan (see "
+                    "Verification.local_error); None where it could not be computed")
+    resimulation_error: float | None = Field(
+        description="[rad] whole-horizon open-loop replay error of this solve's plan")
+    time: float = Field(description="[s] wall time of the solve and its error estimate")
 
 
 class Crossing(_Out):
@@ -58,21 +110,69 @@ class Crossing(_Out):
     sigma_min: float = Field(description="sigma_min of the waveless M_pa there")
 
 
+class Feedback(_Out):
+    """A time-varying LQR tracking feedback along the plan, applied at the breakpoints:
+    on interval k the torque is tau(t) - K_k (x(t_k) - x_plan(t_k)), x = (q, dq)."""
+
+    gains: list[list[list[float]]] = Field(
+        description="K_k for every interval k: n_active x 2n [N m/rad, N m s/rad]")
+    state_weights: list[float] = Field(description="diagonal of Q, per (q, dq) entry")
+    torque_weights: list[float] = Field(description="diagonal of R, per active joint")
+
+
 class Verification(_Out):
     """Checks computed independently of the NLP."""
 
-    resimulation_error: float | None = Field(
-        description="max |q_sim - q_plan| [rad] with the planned torque fed to CVODES (rtol 1e-10)")
-    resimulation_status: str
-    defect: float | None = Field(
-        description="integral of |M ddq + h - B tau| [N m s] along the plan's interpolant")
+    local_error: float | None = Field(
+        default=None,
+        description="[rad] accuracy: every interval re-integrated by CVODES (rtol 1e-10) "
+                    "from the plan's own state at its start with the delivered torque; the "
+                    "largest departure from the plan, max(|q_sim - q_plan|, h |dq_sim - "
+                    "dq_plan|) over the interval (h its length). None in plans stored "
+                    "before the field existed")
+    interval_errors: list[float | None] = Field(
+        default_factory=list,
+        description="[rad] that error on every interval (None where CVODES failed)")
+    local_status: str = Field(
+        default="not recorded",
+        description='"completed", or on which intervals CVODES failed')
     verified: bool | None = Field(
         default=None,
-        description="the re-simulation completed with an error of at most `tolerance`: the "
-                    "planned torque moves the robot along the plan (None in plans stored "
+        description="local_error is at most `tolerance`: the delivered torque moves the "
+                    "robot along the plan, interval by interval (None in plans stored "
                     "before the field existed)")
     tolerance: float | None = Field(
         default=None, description="[rad] the scene's solver.resimulation_tolerance")
+    resimulation_error: float | None = Field(
+        description="[rad] open-loop behaviour: max |q_sim - q_plan| with the delivered "
+                    "torque fed to CVODES (rtol 1e-10) from the plan's initial state over "
+                    "the whole horizon")
+    resimulation_status: str
+    growth_factor: float | None = Field(
+        default=None,
+        description="open-loop sensitivity: the largest ||Phi(t, s)||_2 over breakpoints "
+                    "s <= t, Phi the state transition matrix of the dynamics linearised "
+                    "along the plan; an error of e at time s grows up to about this factor "
+                    "times e")
+    closed_loop_error: float | None = Field(
+        default=None,
+        description="[rad] replay error with the plan's feedback from the planned initial "
+                    "state")
+    perturbed_closed_loop_error: float | None = Field(
+        default=None,
+        description="[rad] the same from the initial state perturbed by `perturbation` "
+                    "(every angle and rate)")
+    perturbed_open_loop_error: float | None = Field(
+        default=None, description="[rad] the open-loop replay from that perturbed state")
+    perturbation: float | None = Field(
+        default=None, description="[rad, rad/s] the perturbation of every initial angle "
+                                  "and rate")
+    defect: float | None = Field(
+        description="integral of |M ddq + h - B tau| [N m s] along the plan's interpolant")
+    torque_excess: float | None = Field(
+        default=None,
+        description="[N m] how far the delivered torque exceeds task.torque_limit anywhere "
+                    "(0 within it; None without a limit)")
     min_sigma: float | None = Field(description="min sigma_min(M_pa) along the plan")
     waveless_min_sigma: float | None = Field(
         description="min sigma_min(M_pa) along the plan for the robot without waves")
@@ -89,16 +189,23 @@ class WaveOut(_Out):
 
 
 class Plan(_Out):
-    """A plan: nodes (time-major), dense samples, objective, solver report, verification."""
+    """A plan: nodes (time-major), dense samples, the delivered torque, objective, solver
+    report, mesh history, feedback and verification."""
 
-    t: list[float]
+    t: list[float] = Field(description="the mesh's breakpoints [s]")
     q: list[list[float]]
     dq: list[list[float]]
     ddq: list[list[float]]
     tau: list[list[float]] = Field(description="active joints' torques at each node [N m]")
     dense: DenseTrajectory
+    torque: TorquePolynomial | None = Field(
+        default=None, description="the delivered torque (None in plans stored before the "
+                                  "field existed)")
     duration: float
-    objective: float
+    objective: float | None = Field(
+        description="the objective at the returned iterate (None where it is not finite)")
     waves: list[WaveOut]
     solver: SolverReport
+    mesh_passes: list[MeshPass] = Field(default_factory=list)
+    feedback: Feedback | None = None
     verification: Verification

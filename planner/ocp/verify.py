@@ -1,7 +1,10 @@
 """Checks of a plan computed independently of its NLP.
 
-- re-simulation: the planned torque, interpolated exactly as the transcription assumes,
-  fed to CVODES (rtol = atol = 1e-10) from the planned initial state;
+- accuracy: every interval re-integrated from the plan's own state (planner.ocp.accuracy);
+- open-loop re-simulation: the delivered torque (the transcription's own torque
+  polynomial) fed to CVODES (rtol = atol = 1e-10) from the planned initial state over the
+  whole horizon;
+- the delivered torque against the task's torque limit, on the dense samples;
 - the dynamics defect of the interpolant, integral of |M ddq + h - B tau|_2 dt by
   5-point Gauss-Legendre quadrature per interval;
 - sigma_min(M_pa) along the plan, with and without waves, and the configurations that are
@@ -87,20 +90,34 @@ def singular_crossings(robot: Robot, interp: Interpolant, t: np.ndarray) -> tupl
     return crossings, float(sigma.min())
 
 
-def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, samples: int,
-           tolerance: float) -> Verification:
-    """All checks of a plan of `robot` whose interpolant is `interp`; verified when the
-    re-simulation error is at most `tolerance` [rad]."""
-    error, status = resimulation_error(robot, interp, samples)
+def torque_excess(tau: np.ndarray, limit: list[float] | float | None) -> float | None:
+    """How far torques (K, n_active) [N m] exceed |tau| <= limit (0 within it; None: no limit)."""
+    if limit is None:
+        return None
+    bound = np.broadcast_to(np.asarray(limit, float), (tau.shape[1],))
+    return float(np.maximum(np.abs(tau) - bound[None, :], 0.0).max(initial=0.0))
+
+
+def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.ndarray,
+           errors_status: str, tolerance: float,
+           torque_limit: list[float] | float | None) -> Verification:
+    """All checks of a plan of `robot` whose interpolant is `interp` and whose interval
+    errors [rad] are `errors`; verified when every one is at most `tolerance` [rad]."""
+    error, status = resimulation_error(robot, interp, max(1, round(len(t_dense) / len(errors))))
     sigma, _ = coupling_along(robot, interp.q(t_dense))
     crossings, waveless_min = singular_crossings(robot, interp, t_dense)
     finite = np.isfinite(sigma)
+    local = float(errors.max())
     return Verification(
+        local_error=local if np.isfinite(local) else None,
+        interval_errors=[float(e) if np.isfinite(e) else None for e in errors],
+        local_status=errors_status,
+        verified=errors_status == "completed" and local <= tolerance,
+        tolerance=tolerance,
         resimulation_error=error,
         resimulation_status=status,
-        verified=error is not None and error <= tolerance,
-        tolerance=tolerance,
         defect=defect(robot, interp),
+        torque_excess=torque_excess(interp.tau(t_dense), torque_limit),
         min_sigma=float(sigma[finite].min()) if finite.any() else None,
         waveless_min_sigma=waveless_min,
         waveless_singular_crossings=crossings,
@@ -108,10 +125,12 @@ def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, samples: int,
 
 
 def unverified_reason(v: Verification) -> str | None:
-    """Why a plan failed its re-simulation check; None when it passed (or predates the check)."""
+    """Why a plan failed its accuracy check; None when it passed (or predates the check)."""
     if v.verified is not False:
         return None
-    if v.resimulation_error is None:
-        return f"the re-simulation did not complete ({v.resimulation_status})"
-    return (f"the planned torque departs from the plan by {v.resimulation_error:.3g} rad in "
-            f"re-simulation (tolerance {v.tolerance:g} rad): refine the grid")
+    if v.local_error is None:
+        return f"the plan's intervals could not all be re-integrated ({v.local_status})"
+    return (f"re-integrated interval by interval, the delivered torque departs from the plan "
+            f"by {v.local_error:.3g} rad (tolerance {v.tolerance:g} rad): the mesh refinement "
+            f"ran out of budget; raise transcription.refinement's max_intervals or max_passes, "
+            f"or solver.max_iter and max_wall_time")

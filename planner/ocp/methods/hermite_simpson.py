@@ -1,0 +1,94 @@
+"""Separated Hermite-Simpson: states cubic, accelerations and torques quadratic per interval."""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from planner.ocp.interpolant import PiecewisePolynomial, integrate, monomial
+from planner.ocp.layout import Part
+from planner.ocp.mesh import Mesh
+from planner.ocp.methods.trapezoidal import node_weights
+from planner.ocp.transcription import (
+    Accelerations,
+    Interpolant,
+    Model,
+    StagePiece,
+    knot_accelerations,
+)
+
+_POINTS = np.array([0.0, 0.5, 1.0])
+
+
+class HermiteSimpson:
+    """Dynamics at the nodes and the interval midpoints; Simpson quadrature, Hermite midpoints."""
+
+    name = "hermite-simpson"
+    order = 4
+    knot_positions = (0.0, 0.5)
+    terminal_knots = 1
+    symbolic = ca.SX
+    knot_blocks = ("q", "q_mid")
+
+    def __init__(self, intervals: int, implicit: bool = True):
+        self.intervals, self.implicit = intervals, implicit
+        self.link = ("q", "dq", "ddq" if implicit else "tau")
+
+    def node_count(self) -> int:
+        return 2 * self.intervals + 1
+
+    def knot_count(self) -> int:
+        return 2 * self.intervals + 1
+
+    def parts(self, n: int, na: int) -> tuple[tuple[Part, ...], tuple[Part, ...]]:
+        def knot(suffix: str, at: float) -> tuple[Part, ...]:
+            q, dq = (Part(f"{k}{suffix}", k, n, (at,)) for k in ("q", "dq"))
+            accel, tau = Part(f"ddq{suffix}", "ddq", n, (at,)), Part(f"tau{suffix}", "tau", na, (at,))
+            return (q, dq, accel, tau) if self.implicit else (q, dq, tau)
+
+        node = knot("", 0.0)
+        return (*node, *knot("_mid", 0.5)), node
+
+    @staticmethod
+    def _knot(w: dict[str, ca.SX], model: Model, suffix: str = "") -> tuple[ca.SX, ...]:
+        """A knot's angles, rates, accelerations and torques (the next stage's linked
+        parts hold its torques only in the explicit form)."""
+        q, dq, tau = w[f"q{suffix}"], w[f"dq{suffix}"], w.get(f"tau{suffix}")
+        return q, dq, model.accelerations(w, f"ddq{suffix}", q, dq, tau), tau
+
+    def stage(self, w: dict[str, ca.SX], nxt: dict[str, ca.SX], h: ca.SX,
+              model: Model) -> StagePiece:
+        q0, dq0, a0, tau0 = self._knot(w, model)
+        qm, dqm, am, taum = self._knot(w, model, "_mid")
+        q1, dq1, a1, _ = self._knot(nxt, model)
+        defects = ca.vertcat(qm - (q0 + q1) / 2 - h / 8 * (dq0 - dq1),
+                             dqm - (dq0 + dq1) / 2 - h / 8 * (a0 - a1),
+                             q1 - q0 - h / 6 * (dq0 + 4 * dqm + dq1),
+                             dq1 - dq0 - h / 6 * (a0 + 4 * am + a1))
+        knots = ca.horzcat(q0, qm)
+        taus = ca.horzcat(tau0, taum)
+        return StagePiece(defects, knots, ca.horzcat(dq0, dqm), ca.horzcat(a0, am), taus,
+                          knots, taus, (0.0, 0.5))
+
+    def terminal(self, w: dict[str, ca.SX], model: Model) -> StagePiece:
+        q, dq, a, tau = self._knot(w, model)
+        return StagePiece(ca.SX(0, 1), q, dq, a, tau, q, tau, (0.0,))
+
+    def weights(self, mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
+        return node_weights(mesh, 1 / 6, 4 / 6)
+
+    def interpolant(self, sol: dict[str, np.ndarray], breaks: np.ndarray,
+                    fd: Accelerations) -> Interpolant:
+        h = np.diff(breaks)
+
+        def quadratic(node: np.ndarray, mid: np.ndarray) -> np.ndarray:
+            return monomial(_POINTS, np.stack([node[:-1], mid, node[1:]], axis=1))
+
+        ddq = knot_accelerations(sol, "ddq", "q", "dq", "tau", fd).T
+        ddqm = knot_accelerations(sol, "ddq_mid", "q_mid", "dq_mid", "tau_mid", fd).T
+        q, dq, tau = (sol[k].T for k in ("q", "dq", "tau"))
+        dqm, taum = sol["dq_mid"].T, sol["tau_mid"].T
+        return Interpolant(
+            PiecewisePolynomial(breaks, integrate(quadratic(dq, dqm), q[:-1], h)),
+            PiecewisePolynomial(breaks, integrate(quadratic(ddq, ddqm), dq[:-1], h)),
+            PiecewisePolynomial(breaks, quadratic(tau, taum)))

@@ -1,0 +1,84 @@
+"""Multiple shooting: torques held per interval, the explicit dynamics integrated across it."""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from planner.ocp.interpolant import PiecewisePolynomial, hermite
+from planner.ocp.layout import Part
+from planner.ocp.mesh import Mesh
+from planner.ocp.transcription import (
+    Accelerations,
+    Interpolant,
+    Model,
+    StagePiece,
+    nodes,
+)
+from planner.rk4 import rk4_step
+
+CVODES_TOL = 1e-10  # CVODES' relative and absolute tolerance across a shooting interval
+
+
+class MultipleShooting:
+    """Torques constant per interval; the end state by fixed-step RK4 or CVODES; the
+    interpolant between nodes is the cubic Hermite through the node states and rates
+    (accelerations at a node with the torque of the interval it starts, the last one
+    held)."""
+
+    name = "multiple-shooting"
+    order = 4
+    knot_positions = (0.0,)
+    terminal_knots = 0
+    link = ("q", "dq")
+    knot_blocks = ("q",)
+
+    def __init__(self, intervals: int, integrator: str, steps: int):
+        self.intervals, self.integrator, self.steps = intervals, integrator, steps
+        self.implicit = False
+        self.symbolic = ca.MX if integrator == "cvodes" else ca.SX
+
+    def node_count(self) -> int:
+        return self.intervals * self.steps
+
+    def knot_count(self) -> int:
+        return self.intervals
+
+    def parts(self, n: int, na: int) -> tuple[tuple[Part, ...], tuple[Part, ...]]:
+        return (*nodes(n), Part("tau", "tau", na, (0.5,))), nodes(n)
+
+    def stage(self, w: dict, nxt: dict, h, model: Model) -> StagePiece:
+        q, dq, tau = w["q"], w["dq"], w["tau"]
+        end = self._end(ca.vertcat(q, dq), tau, h, model)
+        ddq = model.fd(q, dq, tau, model.p)
+        return StagePiece(ca.vertcat(nxt["q"], nxt["dq"]) - end, q, dq, ddq, tau, q, tau, (0.5,))
+
+    def _end(self, x, tau, h, model: Model):
+        """The state one interval of width h later under the constant torque."""
+        if self.integrator == "cvodes":
+            xs, us, ps, hs = (ca.SX.sym(k, size) for k, size in
+                              (("x", x.numel()), ("u", model.na), ("p", model.p.numel()), ("h", 1)))
+            dae = {"x": xs, "p": ca.vertcat(us, ps, hs), "ode": hs * model.ode(xs, us, ps)}
+            sim = ca.integrator("shoot", "cvodes", dae, 0.0, 1.0,
+                                {"abstol": CVODES_TOL, "reltol": CVODES_TOL})
+            return sim(x0=x, p=ca.vertcat(tau, model.p, h))["xf"]
+        dt = h / self.steps
+        for _ in range(self.steps):
+            x = rk4_step(lambda state, _c: model.ode(state, tau, model.p), x, dt)
+        return x
+
+    def terminal(self, w: dict, model: Model) -> StagePiece:
+        empty, none = self.symbolic(model.n, 0), self.symbolic(model.na, 0)
+        return StagePiece(self.symbolic(0, 1), empty, empty, empty, none, w["q"], none, ())
+
+    def weights(self, mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
+        return mesh.widths[:, None], np.zeros(0)
+
+    def interpolant(self, sol: dict[str, np.ndarray], breaks: np.ndarray,
+                    fd: Accelerations) -> Interpolant:
+        h = np.diff(breaks)
+        q, dq, tau = sol["q"].T, sol["dq"].T, sol["tau"].T
+        ddq = fd(q, dq, np.vstack([tau, tau[-1:]]))
+        return Interpolant(PiecewisePolynomial(breaks, hermite(q, dq, h)),
+                           PiecewisePolynomial(breaks, hermite(dq, ddq, h)),
+                           PiecewisePolynomial(breaks, tau[:, None, :]))

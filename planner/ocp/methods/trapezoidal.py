@@ -1,0 +1,91 @@
+"""Trapezoidal collocation: states quadratic, accelerations and torques linear per interval."""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from planner.ocp.interpolant import PiecewisePolynomial, integrate
+from planner.ocp.layout import Part
+from planner.ocp.mesh import Mesh
+from planner.ocp.transcription import (
+    Accelerations,
+    Interpolant,
+    Model,
+    StagePiece,
+    knot_accelerations,
+    nodes,
+)
+
+
+def linear(v: np.ndarray) -> np.ndarray:
+    """Coefficients (N, 2, dim) of the lines through consecutive rows of v (N + 1, dim)."""
+    return np.stack([v[:-1], v[1:] - v[:-1]], axis=1)
+
+
+def node_weights(mesh: Mesh, end: float, mid: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Quadrature weights (fractions of T) of rules with weight `end` x width at both ends of
+    every interval (summed where intervals meet) and `mid` x width at its midpoint: per
+    stage [node, (midpoint)], and at the final node."""
+    widths = mesh.widths
+    before = np.concatenate([[0.0], widths[:-1]])
+    node = end * (before + widths)
+    stage = np.stack([node, mid * widths], axis=1) if mid else node[:, None]
+    return stage, np.array([end * widths[-1]])
+
+
+class Trapezoidal:
+    """Dynamics at the N + 1 nodes, trapezoidal quadrature of rates and accelerations."""
+
+    name = "trapezoidal"
+    order = 3
+    knot_positions = (0.0,)
+    terminal_knots = 1
+    symbolic = ca.SX
+    knot_blocks = ("q",)
+
+    def __init__(self, intervals: int, implicit: bool = True):
+        self.intervals, self.implicit = intervals, implicit
+        self.link = ("q", "dq", "ddq" if implicit else "tau")
+
+    def node_count(self) -> int:
+        return self.intervals + 1
+
+    def knot_count(self) -> int:
+        return self.intervals + 1
+
+    def parts(self, n: int, na: int) -> tuple[tuple[Part, ...], tuple[Part, ...]]:
+        accel = Part("ddq", "ddq", n, (0.0,))
+        tau = Part("tau", "tau", na, (0.0,))
+        stage = (*nodes(n), accel, tau) if self.implicit else (*nodes(n), tau)
+        return stage, stage
+
+    @staticmethod
+    def _knot(w: dict[str, ca.SX], model: Model) -> tuple[ca.SX, ca.SX, ca.SX, ca.SX | None]:
+        """A knot's angles, rates, accelerations and torques (the next stage's linked
+        parts hold its torques only in the explicit form)."""
+        q, dq, tau = w["q"], w["dq"], w.get("tau")
+        return q, dq, model.accelerations(w, "ddq", q, dq, tau), tau
+
+    def stage(self, w: dict[str, ca.SX], nxt: dict[str, ca.SX], h: ca.SX,
+              model: Model) -> StagePiece:
+        q0, dq0, a0, tau = self._knot(w, model)
+        q1, dq1, a1, _ = self._knot(nxt, model)
+        defects = ca.vertcat(q1 - q0 - h / 2 * (dq0 + dq1), dq1 - dq0 - h / 2 * (a0 + a1))
+        return StagePiece(defects, q0, dq0, a0, tau, q0, tau, (0.0,))
+
+    def terminal(self, w: dict[str, ca.SX], model: Model) -> StagePiece:
+        q, dq, a, tau = self._knot(w, model)
+        return StagePiece(ca.SX(0, 1), q, dq, a, tau, q, tau, (0.0,))
+
+    def weights(self, mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
+        return node_weights(mesh, 0.5)
+
+    def interpolant(self, sol: dict[str, np.ndarray], breaks: np.ndarray,
+                    fd: Accelerations) -> Interpolant:
+        h = np.diff(breaks)
+        ddq = knot_accelerations(sol, "ddq", "q", "dq", "tau", fd)
+        q, dq, ddq, tau = sol["q"].T, sol["dq"].T, ddq.T, sol["tau"].T
+        return Interpolant(PiecewisePolynomial(breaks, integrate(linear(dq), q[:-1], h)),
+                           PiecewisePolynomial(breaks, integrate(linear(ddq), dq[:-1], h)),
+                           PiecewisePolynomial(breaks, linear(tau)))

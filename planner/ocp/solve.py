@@ -1,0 +1,97 @@
+"""One Ipopt solve of an NLP instance, within the plan's iteration and wall-time budget."""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from planner.ocp.instance import Instance
+from planner.ocp.monitor import Handler
+
+_STOP_STATUS = {"cancelled": "User_Requested_Stop", "max_iter": "Maximum_Iterations_Exceeded",
+                "max_wall_time": "Maximum_WallTime_Exceeded"}
+_MESSAGES = {"User_Requested_Stop": "the solve was cancelled",
+             "Maximum_Iterations_Exceeded": "the iteration limit was reached",
+             "Maximum_WallTime_Exceeded": "the wall-time limit was reached",
+             "Infeasible_Problem_Detected": "the task is infeasible (constraints cannot all hold)"}
+
+
+@dataclass
+class Budget:
+    """What a plan may still spend: Ipopt iterations up to `max_iter` in all (`used` so
+    far) and wall time up to `deadline` (time.perf_counter() seconds)."""
+
+    started: float
+    deadline: float
+    max_iter: int
+    used: int = 0
+
+    @classmethod
+    def of(cls, max_iter: int, max_wall_time: float) -> Budget:
+        now = time.perf_counter()
+        return cls(now, now + max_wall_time, max_iter)
+
+    @property
+    def spent(self) -> bool:
+        return self.used >= self.max_iter or time.perf_counter() >= self.deadline
+
+
+@dataclass(frozen=True)
+class Solution:
+    """The returned iterate of one solve (the last one Ipopt reached when it failed) and
+    Ipopt's verdict; lam_x, lam_g its multipliers (None when Ipopt gave none)."""
+
+    x: np.ndarray
+    lam_x: np.ndarray | None
+    lam_g: np.ndarray | None
+    objective: float
+    status: str
+    success: bool
+    message: str
+    iterations: int
+    time: float
+
+
+def message(status: str, success: bool) -> str:
+    """A sentence for Ipopt's return status."""
+    if success:
+        return "optimal solution found"
+    return _MESSAGES.get(status, f"the solver stopped: {status}")
+
+
+def solve(inst: Instance, x0: np.ndarray, budget: Budget, handler: Handler | None,
+          mesh_pass: int, multipliers: tuple[np.ndarray, np.ndarray] | None = None) -> Solution:
+    """Solve from x0 (with multipliers (lam_x, lam_g): the warm-start solver); counts the
+    iterations into `budget`. Never raises for a solver failure."""
+    prob = inst.problem
+    solver = prob.solver if multipliers is None else prob.warm_solver()
+    monitor = prob.monitor
+    monitor.reset(handler, budget.used, budget.max_iter, budget.deadline, prob.lbg, prob.ubg,
+                  solver if handler is not None else None, mesh_pass, budget.started)
+    args = {"x0": x0, "lbx": inst.lbx, "ubx": inst.ubx, "lbg": prob.lbg, "ubg": prob.ubg,
+            "p": inst.P}
+    if multipliers is not None:
+        args["lam_x0"], args["lam_g0"] = multipliers
+    started = time.perf_counter()
+    try:
+        out = solver(**args)
+    except RuntimeError as exc:  # an evaluation error: the last iterate Ipopt reached
+        out, error = None, str(exc).strip().splitlines()[-1]
+    elapsed = time.perf_counter() - started
+    iterations = max(monitor.calls - 1, 0)
+    budget.used += iterations
+    if out is None:
+        x = monitor.last_x if monitor.last_x is not None else np.asarray(x0, float)
+        return Solution(x, None, None, monitor.last_f, "Error", False, error, iterations,
+                        elapsed)
+    stats = solver.stats()
+    status = _STOP_STATUS.get(monitor.reason, stats.get("return_status", "Error"))
+    success = bool(stats.get("success", False)) and not monitor.reason
+    objective = float(out["f"])
+    return Solution(np.array(out["x"]).ravel(), np.array(out["lam_x"]).ravel(),
+                    np.array(out["lam_g"]).ravel(),
+                    objective if math.isfinite(objective) else math.nan, status, success,
+                    message(status, success), iterations, elapsed)

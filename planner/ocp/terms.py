@@ -1,0 +1,270 @@
+"""Objective and constraint terms of the NLP, each a named piece that a scene switches on.
+
+A term says whether a problem key wants it and how many parameters it reads, common to
+the whole NLP or per stage ("local"); what it adds to one stage or to the final node (a
+cost, or constraint rows with their bounds), and across stage boundaries (a cost coupling
+neighbouring stages); and the numbers of its parameters for a scene on a mesh. Only
+wanted terms are built, so a scene pays for nothing it does not ask for.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from planner.dynamics import derive, functions
+from planner.model import Robot, Structure
+from planner.ocp.mesh import Mesh
+from planner.ocp.transcription import StagePiece, Transcription
+from planner.ocp.verify import coupling_along
+from planner.scene import Scene
+
+
+@dataclass(frozen=True)
+class Stage:
+    """What a term builds on in one stage (or at the final node, `terminal`): the stage's
+    symbolic piece, its knots' quadrature weights [s] (1 x m), its width h [s], the
+    duration T [s], the robot's parameters p, and the term's common and local parameters."""
+
+    structure: Structure
+    piece: StagePiece
+    weights: ca.SX
+    h: ca.SX
+    T: ca.SX
+    p: ca.SX
+    common: Callable[[str], ca.SX]
+    local: Callable[[str], ca.SX]
+    terminal: bool
+
+
+@dataclass(frozen=True)
+class Boundaries:
+    """The torques on both sides of every stage boundary in time order (na x B each) and
+    the time between them [s] (1 x B), for terms that couple neighbouring stages."""
+
+    before: ca.MX
+    after: ca.MX
+    durations: ca.MX
+    common: Callable[[str], ca.MX]
+
+
+@dataclass(frozen=True)
+class Numeric:
+    """What terms need to set their parameters: the scene, the robot whose numbers the NLP
+    starts from, the duration T [s], the mesh and its transcription."""
+
+    scene: Scene
+    robot: Robot
+    T: float
+    mesh: Mesh
+    transcription: Transcription
+
+    def knot_times(self) -> np.ndarray:
+        """(N + 1, m) time fractions of every stage's knots (the terminal's: 1, padded)."""
+        tr = self.transcription
+        stages = self.mesh.points(np.asarray(tr.knot_positions)).reshape(self.mesh.intervals, -1)
+        return np.vstack([stages, np.ones((1, stages.shape[1]))])
+
+
+Rows = tuple[ca.SX, float, float]
+"""Constraint rows with their lower and upper bound."""
+
+
+class Term:
+    """A piece of the NLP; subclasses override what they add."""
+
+    name = ""
+
+    def wanted(self, key) -> bool:
+        """Whether a problem key asks for the term."""
+        raise NotImplementedError
+
+    def common_size(self, key) -> int:
+        """Parameters common to the whole NLP (default: one weight)."""
+        return 1
+
+    def local_size(self, key, tr: Transcription) -> int:
+        """Parameters of every stage."""
+        return 0
+
+    def cost(self, stage: Stage) -> ca.SX | None:
+        return None
+
+    def rows(self, stage: Stage) -> Rows | None:
+        return None
+
+    def boundary_cost(self, b: Boundaries) -> ca.MX | None:
+        return None
+
+    def common_values(self, num: Numeric) -> np.ndarray:
+        raise NotImplementedError
+
+    def local_values(self, num: Numeric) -> np.ndarray:
+        """(N + 1, local_size): per stage, the terminal's last."""
+        return np.zeros((num.mesh.intervals + 1, 0))
+
+
+def _integral(stage: Stage, integrand: ca.SX) -> ca.SX:
+    """Quadrature of a per-knot quantity (1 x m) over the stage [unit s]."""
+    return ca.mtimes(stage.weights, integrand.T)
+
+
+class Effort(Term):
+    """effort * int |tau|^2 dt [N^2 m^2 s]."""
+
+    name = "effort"
+
+    def wanted(self, key) -> bool:
+        return key.effort
+
+    def cost(self, stage: Stage) -> ca.SX:
+        return stage.common(self.name) * _integral(stage, ca.sum1(stage.piece.knot_tau**2))
+
+    def common_values(self, num: Numeric) -> np.ndarray:
+        return np.array([num.scene.task.objective.effort])
+
+
+class Time(Term):
+    """time * T [s]."""
+
+    name = "time"
+
+    def wanted(self, key) -> bool:
+        return key.time
+
+    def cost(self, stage: Stage) -> ca.SX | None:
+        return stage.common(self.name) * stage.T if stage.terminal else None
+
+    def common_values(self, num: Numeric) -> np.ndarray:
+        return np.array([num.scene.task.objective.time])
+
+
+class Smoothness(Term):
+    """smoothness * int |dtau/dt|^2 dt, by differences of consecutive torques divided by the
+    time between them, inside stages and across their boundaries."""
+
+    name = "smoothness"
+
+    def wanted(self, key) -> bool:
+        return key.smoothness
+
+    def cost(self, stage: Stage) -> ca.SX | None:
+        taus, at = stage.piece.taus, stage.piece.tau_positions
+        if len(at) < 2:
+            return None
+        steps = taus[:, 1:] - taus[:, :-1]
+        durations = ca.DM(np.diff(at)).T * stage.h
+        return stage.common(self.name) * ca.sum2(ca.sum1(steps**2) / durations)
+
+    def boundary_cost(self, b: Boundaries) -> ca.MX:
+        steps = b.after - b.before
+        return b.common(self.name) * ca.sum2(ca.sum1(steps**2) / b.durations)
+
+    def common_values(self, num: Numeric) -> np.ndarray:
+        return np.array([num.scene.task.objective.smoothness])
+
+
+class Tracking(Term):
+    """weight * int |q_p - q_ref|^2 dt: least-squares tracking of a prescribed passive
+    motion. Common: the weight; local: the reference at the stage's knots (n_passive x m)."""
+
+    name = "tracking"
+
+    def wanted(self, key) -> bool:
+        return key.weighted_tracking
+
+    def local_size(self, key, tr: Transcription) -> int:
+        return len(key.structure.passive_idx) * len(tr.knot_positions)
+
+    def cost(self, stage: Stage) -> ca.SX:
+        passive = stage.structure.passive_idx
+        knots = stage.piece.knot_q
+        m = knots.size2()
+        ref = ca.reshape(stage.local(self.name)[:len(passive) * m], len(passive), m)
+        return stage.common(self.name) * _integral(stage, ca.sum1((knots[passive, :] - ref)**2))
+
+    def common_values(self, num: Numeric) -> np.ndarray:
+        return np.array([num.scene.task.tracking.weight])
+
+    def local_values(self, num: Numeric) -> np.ndarray:
+        T, motion = num.T, num.scene.task.tracking.motion
+        times = num.knot_times()
+        ref = motion.evaluate(times.ravel() * T, T)[0]  # (stages * m, n_passive)
+        return ref.reshape(times.shape[0], -1)  # per stage: knot-major, passive within
+
+
+class TipTarget(Term):
+    """The last link's tip at the target position [m] at the final time."""
+
+    name = "tip"
+
+    def wanted(self, key) -> bool:
+        return key.tip
+
+    def common_size(self, key) -> int:
+        return 2
+
+    def rows(self, stage: Stage) -> Rows | None:
+        if not stage.terminal:
+            return None
+        tip = functions(stage.structure)["tips"](stage.piece.path_q[:, -1], stage.p)[:, -1]
+        return tip - stage.common(self.name), 0.0, 0.0
+
+    def common_values(self, num: Numeric) -> np.ndarray:
+        target = num.scene.task.tip_target
+        return np.array([target.x, target.y])
+
+
+class CouplingMargin(Term):
+    """sigma_min(M_pa) >= margin at every knot and node (see `margin_function`).
+    Common: the margin and the sign of det M_pa at the start."""
+
+    name = "margin"
+
+    def wanted(self, key) -> bool:
+        return key.margin
+
+    def common_size(self, key) -> int:
+        return 2
+
+    def rows(self, stage: Stage) -> Rows:
+        par, path = stage.common(self.name), stage.piece.path_q
+        minors = margin_function(stage.structure).map(path.size2())(path, stage.p, par[0], par[1])
+        return ca.vec(minors), 0.0, np.inf
+
+    def common_values(self, num: Numeric) -> np.ndarray:
+        det = coupling_along(num.robot, np.array([num.scene.task.initial.q]))[1]
+        return np.array([num.scene.task.coupling_margin,
+                         1.0 if det is None or det[0] >= 0 else -1.0])
+
+
+def margin_function(s: Structure) -> ca.Function:
+    """Leading principal minors of G / margin^2 - I, G the smaller Gram matrix of M_pa.
+
+    All minors > 0 <=> G - margin^2 I is positive definite <=> sigma_min(M_pa) > margin.
+    A square block also keeps the sign its determinant has at the start:
+    sign * det(M_pa) / margin^p - 1 >= 0, necessary for the margin (|det| >= margin^p) and
+    what stops a path from jumping through det = 0 between two knots. A 1 x 1 block needs
+    that row alone (sign * M_pa / margin >= 1 is the margin): its minor M_pa^2 / margin^2 - 1
+    would be active at the same points with a parallel gradient, which breaks the linear
+    independence of the active constraints' gradients that Ipopt's steps rely on.
+    """
+    sym = derive(s)
+    margin, sign = ca.SX.sym("margin"), ca.SX.sym("sign")
+    mpa = sym.mass[s.passive_idx, s.active_idx]
+    gram = ca.mtimes(mpa, mpa.T) if mpa.size1() <= mpa.size2() else ca.mtimes(mpa.T, mpa)
+    shifted = gram / margin**2 - ca.SX.eye(gram.size1())
+    square = mpa.size1() == mpa.size2()
+    orders = [] if square and mpa.size1() == 1 else range(1, gram.size1() + 1)
+    rows = [ca.det(shifted[:k, :k]) for k in orders]
+    if square:
+        rows.append(sign * ca.det(mpa) / margin ** mpa.size1() - 1)
+    return ca.Function("margin", [sym.q, sym.p, margin, sign], [ca.vertcat(*rows)])
+
+
+TERMS: tuple[Term, ...] = (Effort(), Time(), Smoothness(), Tracking(), TipTarget(),
+                           CouplingMargin())
+"""Every term, in the order their costs and rows enter the NLP."""
