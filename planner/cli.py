@@ -34,7 +34,6 @@ EXIT_CODES = f"""exit codes:
 
 PROGRESS_PERIOD = 1.0
 """[s] between two progress lines when stderr is not a terminal."""
-_BAR = 24
 _PREFIXES = ("Value error, ", "Assertion failed, ")
 _FIELD = re.compile(r"^(?P<path>[A-Za-z_]\w*(?:\.\w+)*): (?P<msg>.+)$", re.DOTALL)
 
@@ -121,11 +120,11 @@ def dump(model: BaseModel) -> str:
 
 
 class ProgressBar:
-    """Ipopt's iterations on a stream: a bar redrawn in place on a terminal, otherwise a
+    """Ipopt's iterations on a stream: a line redrawn in place on a terminal, otherwise a
     line every PROGRESS_PERIOD seconds. Returns False (stop the solve) once `stop` is set."""
 
-    def __init__(self, stream: TextIO, max_iter: int, visible: bool = True):
-        self.stream, self.max_iter, self.visible = stream, max_iter, visible
+    def __init__(self, stream: TextIO, visible: bool = True):
+        self.stream, self.visible = stream, visible
         self.tty = stream.isatty()
         self.last_draw, self.stop, self.drawn = -float("inf"), False, False
         self.latest = None
@@ -158,10 +157,10 @@ class ProgressBar:
                 thread.join()
 
     def line(self, progress) -> str:
-        filled = min(_BAR, round(_BAR * progress.iteration / max(self.max_iter, 1)))
-        return (f"[{'#' * filled}{'.' * (_BAR - filled)}] iteration {progress.iteration:>4}"
-                f"/{self.max_iter}  objective {progress.objective:.6e}  "
-                f"inf_pr {progress.inf_pr:.2e}  {progress.elapsed:6.1f} s")
+        inf_du = "n/a" if progress.inf_du is None else f"{progress.inf_du:.2e}"
+        return (f"[mesh pass {progress.mesh_pass}] iteration {progress.iteration:>5}  "
+                f"objective {progress.objective:.6e}  inf_pr {progress.inf_pr:.2e}  "
+                f"inf_du {inf_du}  {progress.elapsed:6.1f} s")
 
     def __call__(self, progress) -> bool:
         self.latest = progress
@@ -226,7 +225,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     tr = scene.transcription
     say(args, f"planning {args.scene}: {scene.robot.n} links, {tr.method}, "
               f"{tr.intervals} intervals (building the NLP the first time takes a while)")
-    bar = ProgressBar(sys.stderr, scene.solver.max_iter, visible=not args.quiet)
+    bar = ProgressBar(sys.stderr, visible=not args.quiet)
     with first_interrupt_stops(bar), bar.waiting("building the NLP and the initial guess"):
         result = plan(scene, progress=bar)
     bar.close()
@@ -235,9 +234,12 @@ def cmd_plan(args: argparse.Namespace) -> int:
         from planner.plots import format_of, plan_plot
         write(args.plot, plan_plot(result, scene.robot, format_of(args.plot)))
     s, v = result.solver, result.verification
+    local = "n/a" if v.local_error is None else f"{v.local_error:.2g} rad"
     resim = "n/a" if v.resimulation_error is None else f"{v.resimulation_error:.2g} rad"
-    say(args, f"{s.status}: {s.message}; {s.iterations} iterations, solve {s.solve_time:.2f} s, "
-              f"build {s.build_time:.2f} s; re-simulation error {resim}; "
+    say(args, f"{s.status}: {s.message}; {s.iterations} iterations in "
+              f"{len(result.mesh_passes)} solve(s) ({s.strategy}), solve {s.solve_time:.2f} s, "
+              f"build {s.build_time:.2f} s; {len(result.t) - 1} intervals, error {local} per "
+              f"interval, open-loop replay {resim}; "
               f"{len(v.waveless_singular_crossings)} waveless singular crossing(s)")
     if bar.stop:
         return INTERRUPTED

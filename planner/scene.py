@@ -176,16 +176,26 @@ class SolverSettings(BaseModel):
 
     model_config = _STRICT
 
-    max_iter: int = Field(default=500, ge=1, le=100000)
+    max_iter: int = Field(default=500, ge=1, le=100000,
+                          description="Ipopt iterations of one solve (a plan may run several: "
+                                      "mesh passes, retries)")
     tol: float = Field(default=1e-8, gt=0.0)
-    max_wall_time: float = Field(default=60.0, gt=0.0, description="[s]")
+    max_wall_time: float = Field(default=60.0, gt=0.0,
+                                 description="[s] the whole plan: every solve, mesh pass and "
+                                             "retry")
     initial_guess: Literal["interpolation", "inverse-dynamics"] = Field(
         default="interpolation",
         description="interpolation: cubic from the initial to the final state, torques from "
                     "the active rows; inverse-dynamics: the classical inverse dynamics along "
                     "that passive path until it meets sigma_min(M_pa) = coupling margin (1e-3 "
                     "without one), the interpolation after")
-    jit: bool = Field(default=False, description="compile the NLP to C (cached on disk)")
+    jit: bool = Field(default=False, description="compile the NLP's derivative kernels to C "
+                                                 "(once per structure, cached on disk)")
+    retries: int = Field(default=4, ge=0, le=4,
+                         description="further attempts after one that gives no accurate plan: "
+                                     "a restart from its last iterate, the inverse dynamics "
+                                     "as initial guess, a first mesh of twice and of half "
+                                     "the intervals (docs/planner.md, \"Retries\")")
     resimulation_tolerance: float = Field(
         default=1e-3, gt=0.0,
         description="[rad] largest error of a verified plan when each interval is "

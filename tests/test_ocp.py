@@ -236,9 +236,16 @@ def test_progress_is_reported_and_cancellation_stops_the_solve():
 
 
 def test_iteration_limit_is_a_structured_failure():
-    result = plan(scene(UNDERACTUATED, N=20, duration=2.0, solver={"max_iter": 2}))
+    seen = []
+    result = plan(scene(UNDERACTUATED, N=20, duration=2.0, solver={"max_iter": 2, "retries": 0}),
+                  progress=lambda p: seen.append(p) or True)
     assert result.solver.status == "Maximum_Iterations_Exceeded"
-    assert not result.solver.success and result.solver.iterations <= 3
+    assert result.solver.message == "the iteration limit was reached"
+    assert not result.solver.success and result.solver.iterations == 2
+    assert [p.iteration for p in seen] == [0, 1, 2]  # Ipopt's count, the start included
+    assert all(p.inf_du is not None and p.inf_du >= 0 for p in seen)
+    # the plan is Ipopt's last iterate, with its objective
+    assert result.objective == pytest.approx(seen[-1].objective, rel=1e-12)
     assert all(np.isfinite(np.asarray(result.q)).ravel())
 
 
@@ -348,14 +355,16 @@ def test_an_inverse_dynamics_guess_that_cannot_be_computed_leaves_the_interpolat
     # the scene's max_wall_time caps: the plan reports it instead of raising.
     sc = scene(UNDERACTUATED, duration=2.0, initial={"q": [0.0, 0.5], "dq": [0.0, 1e200]},
                final={"q": [0.3, 1.0], "dq": [0.0, 0.0]},
-               solver={"initial_guess": "inverse-dynamics", "max_iter": 3, "max_wall_time": 1.0})
+               solver={"initial_guess": "inverse-dynamics", "max_iter": 3, "max_wall_time": 1.0,
+                       "retries": 0})
     result = plan(sc)
     assert not result.solver.success
     assert result.solver.initial_guess == (
         "interpolation; inverse-dynamics refused: the inverse dynamics did not finish within "
         "1 s: the motion is far too fast for its duration; scale down passive_motion, its "
         "rates over duration, or active_initial")
-    fresh = plan(scene(UNDERACTUATED, N=20))
+    fresh = plan(scene(UNDERACTUATED, N=20, duration=2.0,
+                       final={"q": [0.3, 1.0], "dq": [0.0, 0.0]}))
     assert fresh.solver.initial_guess == "interpolation"
     stored = fresh.model_dump()
     del stored["solver"]["initial_guess"]  # a plan stored before the field existed

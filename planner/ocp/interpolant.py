@@ -31,11 +31,14 @@ def integrate(coeffs: np.ndarray, start: np.ndarray, h: np.ndarray) -> np.ndarra
     return out
 
 
-def hermite(v: np.ndarray, dv: np.ndarray, h: np.ndarray) -> np.ndarray:
+def hermite(v: np.ndarray, dv: np.ndarray, h: np.ndarray,
+            dv_end: np.ndarray | None = None) -> np.ndarray:
     """Cubic Hermite coefficients (K, 4, dim) through values v (K + 1, dim) and their time
-    derivatives dv (K + 1, dim) at breakpoints spaced h (K,) [s]."""
+    derivatives dv (K + 1, dim) at breakpoints spaced h (K,) [s]; dv_end (K, dim), when
+    given, are the derivatives at the end of each interval instead of dv[1:]."""
     h = np.asarray(h, float)[:, None]
-    data = np.stack([v[:-1], dv[:-1] * h, v[1:], dv[1:] * h], axis=1)
+    end = dv[1:] if dv_end is None else dv_end
+    data = np.stack([v[:-1], dv[:-1] * h, v[1:], end * h], axis=1)
     return np.einsum("mj,kjd->kmd", HERMITE, data)
 
 

@@ -17,10 +17,10 @@ Handler = Callable[[Progress], bool]
 class IterationMonitor(ca.Callback):
     """Called by Ipopt once per iteration (iteration 0 is the starting point).
 
-    Iterations are counted across the solves of one plan: a solve starts at `first`, the
+    Iterations are numbered across the solves of one plan: a solve starts at `first`, the
     plan's iterations so far. The monitor stops the solve (Ipopt's User_Requested_Stop)
-    when the handler returns False, when the plan's iteration budget `max_iter` is spent
-    or when the deadline (time.perf_counter() seconds) has passed; `reason` says which.
+    when the handler returns False, when the solve has made `max_iter` iterations or when
+    the deadline (time.perf_counter() seconds) has passed; `reason` says which.
     """
 
     def __init__(self, nx: int, ng: int, np_: int):
@@ -80,7 +80,7 @@ class IterationMonitor(ca.Callback):
                                 mesh_pass=self.mesh_pass)
             if self.handler(progress) is False:
                 self.reason = "cancelled"
-        if not self.reason and self.iteration >= self.max_iter:
+        if not self.reason and self.calls - 1 >= self.max_iter:
             self.reason = "max_iter"
         elif not self.reason and time.perf_counter() > self.deadline:
             self.reason = "max_wall_time"

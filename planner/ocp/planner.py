@@ -10,8 +10,10 @@ stays at the same local optimum.
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -41,7 +43,7 @@ from planner.ocp.result import (
 )
 from planner.ocp.solve import Budget, Solution, solve
 from planner.ocp.transcription import Interpolant
-from planner.ocp.verify import resimulation_error, verify
+from planner.ocp.verify import open_loop, verify
 from planner.scene import DurationRange, Scene
 
 DENSE_POINTS = 2000  # about this many dense samples per plan
@@ -61,10 +63,33 @@ class Outcome:
     finite: bool
     errors: np.ndarray
     errors_status: str
+    replayed: tuple[float | None, str]
     record: MeshPass
 
     def accurate(self, tolerance: float) -> bool:
         return self.finite and bool(np.all(self.errors <= tolerance))
+
+
+@dataclass(frozen=True)
+class Start:
+    """Where an attempt starts: its name (the plan's `solver.strategy`), the mesh of its
+    first solve, the initial guess with what it was, and the duration [s] and robot (the
+    co-designed waves) it starts from."""
+
+    name: str
+    mesh: Mesh
+    guess: Guess
+    guess_used: str
+    T: float
+    robot: Robot
+
+
+@dataclass
+class Attempt:
+    """The solves of one start: the first, then its mesh refinement."""
+
+    start: Start
+    outcomes: list[Outcome]
 
 
 def plan(scene: Scene, progress: Handler | None = None, warm_start: Plan | None = None) -> Plan:
@@ -76,30 +101,77 @@ def plan(scene: Scene, progress: Handler | None = None, warm_start: Plan | None 
     """
     budget = Budget.of(scene.solver.max_iter, scene.solver.max_wall_time)
     robot, T = _design_robot(scene), _duration_guess(scene)
-    guess, guess_used = _guess(scene, robot, T, warm_start)
+    tolerance = scene.solver.resimulation_tolerance
+    attempts: list[Attempt] = []
+    starts = itertools.islice(_starts(scene, robot, T, warm_start, attempts),
+                              1 + scene.solver.retries)
+    for start in starts:
+        outcomes = [_solve_on(scene, instance(scene, start.robot, start.mesh, start.T),
+                              start.robot, start.T, start.guess, budget, progress,
+                              _passes(attempts), start.name)]
+        attempts.append(Attempt(start, outcomes))
+        _refine(scene, outcomes, budget, progress, _passes(attempts))
+        last = outcomes[-1]
+        settled = last.accurate(tolerance) or not scene.transcription.refinement.enabled
+        if last.solution.success and settled or budget.spent \
+                or last.solution.status == "User_Requested_Stop":
+            break
+    return _result(scene, attempts, budget)
+
+
+def _passes(attempts: list[Attempt]) -> int:
+    return sum(len(a.outcomes) for a in attempts)
+
+
+def _starts(scene: Scene, robot: Robot, T: float, warm_start: Plan | None,
+            attempts: list[Attempt]) -> Iterator[Start]:
+    """The attempts of a plan, in order, each tried while the ones before it have not
+    given a converged plan (with mesh refinement on: an accurate one; docs/planner.md,
+    "Retries"): the scene's own start; a restart from the last iterate of a solve that did
+    not converge; the classical inverse dynamics as the initial guess; a first mesh of
+    twice, then of half the intervals."""
     tr = scene.transcription
     mesh = Mesh(np.asarray(tr.breaks)) if tr.breaks else Mesh.uniform(tr.intervals)
-    inst = instance(scene, robot, mesh, T)
-    build_time = 0.0 if inst.cache_hit else inst.problem.build_time
-    outcomes = [_solve_on(scene, inst, robot, T, guess, budget, progress, 0)]
-    refinement = scene.transcription.refinement
+    guess, used = _guess(scene, robot, T, warm_start)
+    yield Start("direct", mesh, guess, used, T, robot)
+    last = attempts[-1].outcomes[-1]
+    if last.finite and not last.solution.success:
+        yield Start("restart from the last iterate", last.inst.mesh,
+                    interpolant_guess(last.interp, last.T), "the last iterate", last.T,
+                    last.robot)
+    if used != "inverse-dynamics" and _inverse_dynamics_applies(robot):
+        try:
+            yield Start("inverse-dynamics start", mesh, inverse_dynamics_guess(scene, robot, T),
+                        "inverse-dynamics", T, robot)
+        except ValueError:
+            pass
+    first = hermite_guess(scene, robot, T)
+    for intervals in (2 * tr.intervals, max(tr.intervals // 2, 1)):
+        yield Start(f"first mesh of {intervals} intervals", Mesh.uniform(intervals), first,
+                    "interpolation", T, robot)
+
+
+def _inverse_dynamics_applies(robot: Robot) -> bool:
+    """The classical inverse dynamics needs passive joints and as many active ones."""
+    return 0 < len(robot.passive) <= len(robot.active)
+
+
+def _refine(scene: Scene, outcomes: list[Outcome], budget: Budget,
+            progress: Handler | None, first_pass: int) -> None:
+    """Refine the mesh of the last outcome while it converged but is not accurate."""
+    refinement, tolerance = scene.transcription.refinement, scene.solver.resimulation_tolerance
     while refinement.enabled and len(outcomes) <= refinement.max_passes and not budget.spent:
         last = outcomes[-1]
-        if not last.solution.success or last.accurate(scene.solver.resimulation_tolerance):
-            break
+        if not last.solution.success or last.accurate(tolerance):
+            return
         mesh = refined(last.inst.mesh, last.errors, last.inst.problem.transcription.order,
-                       scene.solver.resimulation_tolerance, refinement.max_intervals)
+                       tolerance, refinement.max_intervals)
         if mesh is None:
-            break
+            return
         inst = instance(scene, last.robot, mesh, last.T)
-        build_time += 0.0 if inst.cache_hit else inst.problem.build_time
         outcomes.append(_solve_on(scene, inst, last.robot, last.T,
                                   interpolant_guess(last.interp, last.T), budget, progress,
-                                  len(outcomes)))
-    best = min(outcomes, key=_rank)
-    strategy = "direct" if best is outcomes[0] else "refined"
-    return _result(scene, best, outcomes, budget, build_time, outcomes[0].inst.cache_hit,
-                   guess_used, strategy)
+                                  first_pass + len(outcomes) - 1, last.record.strategy))
 
 
 def _rank(outcome: Outcome) -> tuple[bool, float]:
@@ -109,7 +181,8 @@ def _rank(outcome: Outcome) -> tuple[bool, float]:
 
 
 def _solve_on(scene: Scene, inst: Instance, robot: Robot, T: float, guess: Guess,
-              budget: Budget, progress: Handler | None, mesh_pass: int) -> Outcome:
+              budget: Budget, progress: Handler | None, mesh_pass: int,
+              strategy: str) -> Outcome:
     """Solve on the instance's mesh from a guess, and estimate the plan's interval errors."""
     started = time.perf_counter()
     x0 = initial_point(inst, guess, T, robot)
@@ -118,15 +191,17 @@ def _solve_on(scene: Scene, inst: Instance, robot: Robot, T: float, guess: Guess
     solved = _solved_robot(inst, robot, solution.x) if finite else robot
     duration = _duration(scene, inst, solution.x) if finite else T
     interp = _interpolant(inst, solved, duration, solution.x)
-    errors, status, replay = np.full(inst.mesh.intervals, np.inf), NOT_FINITE, None
+    errors, status, replayed = np.full(inst.mesh.intervals, np.inf), NOT_FINITE, (None, NOT_FINITE)
     if finite:
         errors, status = interval_errors(solved, interp)
-        replay = resimulation_error(solved, interp, 1)[0]
-    record = MeshPass(intervals=inst.mesh.intervals, iterations=solution.iterations,
+        replayed = open_loop(solved, interp)
+    record = MeshPass(strategy=strategy, intervals=inst.mesh.intervals,
+                      iterations=solution.iterations,
                       status=solution.status, objective=_finite_or_none(solution.objective),
                       max_local_error=_finite_or_none(float(errors.max())),
-                      resimulation_error=replay, time=time.perf_counter() - started)
-    return Outcome(inst, solution, solved, duration, interp, finite, errors, status, record)
+                      resimulation_error=replayed[0], time=time.perf_counter() - started)
+    return Outcome(inst, solution, solved, duration, interp, finite, errors, status, replayed,
+                   record)
 
 
 def _guess(scene: Scene, robot: Robot, T: float, warm_start: Plan | None) -> tuple[Guess, str]:
@@ -192,8 +267,10 @@ def _interpolant(inst: Instance, robot: Robot, T: float, x: np.ndarray) -> Inter
                                                   dynamics.forward_many)
 
 
-def _result(scene: Scene, best: Outcome, outcomes: list[Outcome], budget: Budget,
-            build_time: float, cache_hit: bool, guess_used: str, strategy: str) -> Plan:
+def _result(scene: Scene, attempts: list[Attempt], budget: Budget) -> Plan:
+    ranked = [(o, a) for a in attempts for o in a.outcomes]
+    best, attempt = min(ranked, key=lambda pair: _rank(pair[0]))
+    outcomes = [o for o, _ in ranked]
     sol, interp, robot = best.solution, best.interp, best.robot
     breaks = best.inst.mesh.breaks * best.T
     tolerance = scene.solver.resimulation_tolerance
@@ -203,9 +280,11 @@ def _result(scene: Scene, best: Outcome, outcomes: list[Outcome], budget: Budget
     per = max(1, math.ceil(DENSE_POINTS / best.inst.mesh.intervals))
     t_dense = np.concatenate([np.linspace(a, b, per, endpoint=False)
                               for a, b in zip(breaks[:-1], breaks[1:])] + [breaks[-1:]])
-    verification = (verify(robot, interp, t_dense, best.errors, best.errors_status, tolerance,
-                           scene.task.torque_limit)
-                    if best.finite else _unverified(tolerance))
+    verification, feedback = (verify(robot, interp, t_dense, best.errors, best.errors_status,
+                                     best.replayed, tolerance, scene.task.torque_limit)
+                              if best.finite else (_unverified(tolerance), None))
+    built = [o.inst for o in outcomes if not o.inst.cache_hit]
+    refined_by = " + mesh refinement" if best is not attempt.outcomes[0] else ""
     return Plan(
         t=breaks.tolist(), q=_finite(interp.q(breaks)), dq=_finite(interp.dq(breaks)),
         ddq=_finite(interp.dq(breaks, derivative=1)), tau=_finite(interp.tau(breaks)),
@@ -218,11 +297,15 @@ def _result(scene: Scene, best: Outcome, outcomes: list[Outcome], budget: Budget
                        phase=link.wave.phase)
                for j, link in enumerate(robot.links) if link.wave is not None],
         solver=SolverReport(status=sol.status, success=success, message=note,
-                            iterations=budget.used, build_time=build_time,
+                            iterations=budget.used,
+                            build_time=sum(i.problem.build_time for i in built),
                             solve_time=sum(o.solution.time for o in outcomes),
                             total_time=time.perf_counter() - budget.started,
-                            cache_hit=cache_hit, initial_guess=guess_used, strategy=strategy),
+                            cache_hit=outcomes[0].inst.cache_hit,
+                            initial_guess=attempt.start.guess_used,
+                            strategy=attempt.start.name + refined_by),
         mesh_passes=[o.record for o in outcomes],
+        feedback=feedback,
         verification=verification,
     )
 

@@ -90,6 +90,8 @@ class SolverReport(_Out):
 class MeshPass(_Out):
     """One solve of the plan on one mesh."""
 
+    strategy: str = Field(default="direct", description="the attempt it belongs to (see "
+                                                        "SolverReport.strategy)")
     intervals: int
     iterations: int = Field(description="Ipopt iterations of this solve")
     status: str = Field(description="Ipopt's return status")
@@ -146,7 +148,8 @@ class Verification(_Out):
     resimulation_error: float | None = Field(
         description="[rad] open-loop behaviour: max |q_sim - q_plan| with the delivered "
                     "torque fed to CVODES (rtol 1e-10) from the plan's initial state over "
-                    "the whole horizon")
+                    "the whole horizon, at the breakpoints and 3 points between each two "
+                    "(POST /v1/simulate with samples_per_interval 4 gives the same)")
     resimulation_status: str
     growth_factor: float | None = Field(
         default=None,
@@ -162,8 +165,6 @@ class Verification(_Out):
         default=None,
         description="[rad] the same from the initial state perturbed by `perturbation` "
                     "(every angle and rate)")
-    perturbed_open_loop_error: float | None = Field(
-        default=None, description="[rad] the open-loop replay from that perturbed state")
     perturbation: float | None = Field(
         default=None, description="[rad, rad/s] the perturbation of every initial angle "
                                   "and rate")

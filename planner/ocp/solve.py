@@ -21,8 +21,8 @@ _MESSAGES = {"User_Requested_Stop": "the solve was cancelled",
 
 @dataclass
 class Budget:
-    """What a plan may still spend: Ipopt iterations up to `max_iter` in all (`used` so
-    far) and wall time up to `deadline` (time.perf_counter() seconds)."""
+    """What a plan may spend: `max_iter` Ipopt iterations per solve, wall time up to
+    `deadline` (time.perf_counter() seconds) in all; `used` counts its iterations so far."""
 
     started: float
     deadline: float
@@ -36,7 +36,7 @@ class Budget:
 
     @property
     def spent(self) -> bool:
-        return self.used >= self.max_iter or time.perf_counter() >= self.deadline
+        return time.perf_counter() >= self.deadline
 
 
 @dataclass(frozen=True)
@@ -64,8 +64,8 @@ def message(status: str, success: bool) -> str:
 
 def solve(inst: Instance, x0: np.ndarray, budget: Budget, handler: Handler | None,
           mesh_pass: int, multipliers: tuple[np.ndarray, np.ndarray] | None = None) -> Solution:
-    """Solve from x0 (with multipliers (lam_x, lam_g): the warm-start solver); counts the
-    iterations into `budget`. Never raises for a solver failure."""
+    """Solve from x0 (with multipliers (lam_x, lam_g): the warm-start solver); adds its
+    iterations to `budget.used`. Never raises for a solver failure."""
     prob = inst.problem
     solver = prob.solver if multipliers is None else prob.warm_solver()
     monitor = prob.monitor

@@ -3,8 +3,10 @@
 - accuracy: every interval re-integrated from the plan's own state (planner.ocp.accuracy);
 - open-loop re-simulation: the delivered torque (the transcription's own torque
   polynomial) fed to CVODES (rtol = atol = 1e-10) from the planned initial state over the
-  whole horizon;
+  whole horizon (planner.ocp.feedback.replay);
 - the delivered torque against the task's torque limit, on the dense samples;
+- open-loop sensitivity, a time-varying LQR feedback along the plan and its closed-loop
+  replay (planner.ocp.feedback);
 - the dynamics defect of the interpolant, integral of |M ddq + h - B tau|_2 dt by
   5-point Gauss-Legendre quadrature per interval;
 - sigma_min(M_pa) along the plan, with and without waves, and the configurations that are
@@ -19,9 +21,9 @@ from scipy.optimize import brentq, minimize_scalar
 
 from planner.dynamics import functions
 from planner.model import Robot, Structure, parameters
-from planner.ocp.result import Crossing, Verification
+from planner.ocp.feedback import PERTURBATION, gains, growth_factor, linearise, replay
+from planner.ocp.result import Crossing, Feedback, Verification
 from planner.ocp.transcription import Interpolant
-from planner.simulate import simulate
 
 RESIM_TOL = 1e-10
 _GAUSS_S, _GAUSS_W = np.polynomial.legendre.leggauss(5)
@@ -39,15 +41,12 @@ def coupling_along(robot: Robot, q: np.ndarray) -> tuple[np.ndarray, np.ndarray 
     return sv, (np.linalg.det(mpa) if rows == cols else None)
 
 
-def resimulation_error(robot: Robot, interp: Interpolant, samples: int) -> tuple[float | None, str]:
-    """max |q_sim - q_plan| [rad] over breakpoints and `samples` points per interval."""
+def open_loop(robot: Robot, interp: Interpolant) -> tuple[float | None, str]:
+    """The whole-horizon replay of the delivered torque from the planned initial state:
+    max |q_sim - q_plan| [rad] and "completed", or None and where CVODES failed."""
     breaks = interp.q.breaks
-    x0 = np.concatenate([interp.q(breaks[:1])[0], interp.dq(breaks[:1])[0]])
-    sim = simulate(robot, breaks, interp.tau.coeffs, x0, samples, RESIM_TOL, RESIM_TOL)
-    if sim.status != "completed":
-        return None, sim.message
-    t = np.asarray(sim.t)
-    return float(np.abs(np.asarray(sim.q) - interp.q(t)).max()), "completed"
+    start = np.concatenate([interp.q(breaks[:1])[0], interp.dq(breaks[:1])[0]])
+    return replay(robot, interp, start, None, RESIM_TOL)
 
 
 def defect(robot: Robot, interp: Interpolant) -> float:
@@ -98,16 +97,37 @@ def torque_excess(tau: np.ndarray, limit: list[float] | float | None) -> float |
     return float(np.maximum(np.abs(tau) - bound[None, :], 0.0).max(initial=0.0))
 
 
+def _feedback(robot: Robot, interp: Interpolant,
+              torque_limit: list[float] | float | None) -> tuple[Feedback | None, dict]:
+    """The plan's LQR feedback and what it and the open-loop sensitivity measure."""
+    lin = linearise(robot, interp)
+    if lin is None:
+        return None, {}
+    scale = max(float(np.max(torque_limit)) if torque_limit is not None
+                else float(np.abs(interp.tau.coeffs[:, 0]).max(initial=0.0)), 1.0)
+    fb = gains(lin, np.diff(interp.q.breaks), scale)
+    K = np.asarray(fb.gains)
+    breaks = interp.q.breaks
+    start = np.concatenate([interp.q(breaks[:1])[0], interp.dq(breaks[:1])[0]])
+    return fb, {"growth_factor": growth_factor(lin),
+                "closed_loop_error": replay(robot, interp, start, K)[0],
+                "perturbed_closed_loop_error": replay(robot, interp, start + PERTURBATION, K)[0],
+                "perturbation": PERTURBATION}
+
+
 def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.ndarray,
-           errors_status: str, tolerance: float,
-           torque_limit: list[float] | float | None) -> Verification:
-    """All checks of a plan of `robot` whose interpolant is `interp` and whose interval
-    errors [rad] are `errors`; verified when every one is at most `tolerance` [rad]."""
-    error, status = resimulation_error(robot, interp, max(1, round(len(t_dense) / len(errors))))
+           errors_status: str, replayed: tuple[float | None, str], tolerance: float,
+           torque_limit: list[float] | float | None) -> tuple[Verification, Feedback | None]:
+    """All checks of a plan of `robot` whose interpolant is `interp`, whose interval errors
+    [rad] are `errors` and whose open-loop replay gave `replayed`; verified when every
+    interval error is at most `tolerance` [rad]. Also the plan's feedback (None where the
+    linearisation failed)."""
+    error, status = replayed
     sigma, _ = coupling_along(robot, interp.q(t_dense))
     crossings, waveless_min = singular_crossings(robot, interp, t_dense)
     finite = np.isfinite(sigma)
     local = float(errors.max())
+    fb, measured = _feedback(robot, interp, torque_limit)
     return Verification(
         local_error=local if np.isfinite(local) else None,
         interval_errors=[float(e) if np.isfinite(e) else None for e in errors],
@@ -121,7 +141,8 @@ def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.nd
         min_sigma=float(sigma[finite].min()) if finite.any() else None,
         waveless_min_sigma=waveless_min,
         waveless_singular_crossings=crossings,
-    )
+        **measured,
+    ), fb
 
 
 def unverified_reason(v: Verification) -> str | None:

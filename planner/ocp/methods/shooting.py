@@ -22,9 +22,8 @@ CVODES_TOL = 1e-10  # CVODES' relative and absolute tolerance across a shooting 
 
 class MultipleShooting:
     """Torques constant per interval; the end state by fixed-step RK4 or CVODES; the
-    interpolant between nodes is the cubic Hermite through the node states and rates
-    (accelerations at a node with the torque of the interval it starts, the last one
-    held)."""
+    interpolant between nodes is the cubic Hermite through the node states and their
+    rates, each interval's accelerations at both ends under its own torque."""
 
     name = "multiple-shooting"
     order = 4
@@ -78,7 +77,9 @@ class MultipleShooting:
                     fd: Accelerations) -> Interpolant:
         h = np.diff(breaks)
         q, dq, tau = sol["q"].T, sol["dq"].T, sol["tau"].T
-        ddq = fd(q, dq, np.vstack([tau, tau[-1:]]))
+        ddq = fd(q[:-1], dq[:-1], tau)
+        ddq_end = fd(q[1:], dq[1:], tau)
+        starts = np.vstack([ddq, ddq_end[-1:]])
         return Interpolant(PiecewisePolynomial(breaks, hermite(q, dq, h)),
-                           PiecewisePolynomial(breaks, hermite(dq, ddq, h)),
+                           PiecewisePolynomial(breaks, hermite(dq, starts, h, ddq_end)),
                            PiecewisePolynomial(breaks, tau[:, None, :]))

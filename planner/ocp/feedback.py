@@ -1,0 +1,148 @@
+"""Open-loop sensitivity of a plan and a time-varying LQR feedback along it.
+
+Along many optimal motions of underactuated arms the dynamics are strongly unstable: a
+replay of the whole horizon from the start departs from the plan however exact the
+transcription. Linearised along the plan (the variational equations of the dynamics,
+integrated by RK4 with SUBSTEPS steps per interval along the plan's own states and
+torques), x_{k+1} = A_k x_k + B_k u_k with u_k a torque offset held over interval k:
+
+- the growth factor is max_k ||A_{k-1} ... A_0||_2, how much an error of the initial
+  state grows at most along the plan;
+- the feedback is the discrete LQR of that linearisation with state weights 1/Q_SCALE^2
+  (angles) and 1/DQ_SCALE^2 (rates) and torque weights 1/tau_scale^2 (tau_scale the torque
+  limit, else the plan's largest torque, at least 1 N m), each times the interval's length
+  h_k; the correction -K_k (x(t_k) - x_plan(t_k)) is held over interval k;
+- a replay simulates the plan's torque (and the feedback, when given) interval by
+  interval with CVODES from a start state; the open-loop replay from the planned initial
+  state (rtol = atol = 1e-10, as POST /v1/simulate by default) is the plan's
+  resimulation_error; the closed-loop ones (rtol = atol = REPLAY_TOL) start there and at
+  a state perturbed by PERTURBATION on every angle and rate.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import casadi as ca
+import numpy as np
+
+from planner.dynamics import functions
+from planner.model import Robot, Structure, parameters
+from planner.ocp.flow import inputs, integrator
+from planner.ocp.result import Feedback
+from planner.ocp.transcription import Interpolant
+
+Q_SCALE = 0.01  # [rad] angle error worth one unit of LQR cost
+DQ_SCALE = 0.1  # [rad/s] rate error worth one unit
+PERTURBATION = 1e-3  # [rad, rad/s] added to every initial angle and rate
+REPLAY_SAMPLES = 4  # comparison points per interval
+REPLAY_TOL = 1e-8  # CVODES rtol = atol of the closed-loop replays
+SUBSTEPS = 4  # RK4 steps per interval of the variational equations
+
+
+@dataclass(frozen=True)
+class Linearisation:
+    """A_k (N, 2n, 2n) and B_k (N, 2n, na) along a plan; None where CVODES failed."""
+
+    A: np.ndarray
+    B: np.ndarray
+
+
+@lru_cache(maxsize=64)
+def _jacobians(s: Structure) -> ca.Function:
+    """(x, tau, p) -> (df/dx (2n x 2n), df/dtau (2n x na)) of the first-order dynamics."""
+    ode = functions(s)["ode"]
+    x, tau, p = ode.sx_in()
+    dx = ode(x, tau, p)
+    return ca.Function("jacobians", [x, tau, p], [ca.jacobian(dx, x), ca.jacobian(dx, tau)])
+
+
+def linearise(robot: Robot, interp: Interpolant) -> Linearisation | None:
+    """The plan's interval-by-interval linearisation (None where it is not finite)."""
+    s = Structure.of(robot)
+    breaks = interp.q.breaks
+    h = np.diff(breaks)
+    N, n2, na = h.size, 2 * s.n, len(s.active_idx)
+    fractions = np.arange(2 * SUBSTEPS + 1) / (2 * SUBSTEPS)  # substep ends and midpoints
+    t = (breaks[:-1, None] + h[:, None] * fractions[None, :]).ravel()
+    x = np.hstack([interp.q(t), interp.dq(t)])
+    jac_x, jac_u = _jacobians(s).map(t.size)(x.T, interp.tau(t).T, parameters(robot, s))
+    Ax = np.array(jac_x).reshape(n2, t.size, n2).transpose(1, 0, 2).reshape(N, -1, n2, n2)
+    Bu = np.array(jac_u).reshape(n2, t.size, na).transpose(1, 0, 2).reshape(N, -1, n2, na)
+    phi = np.broadcast_to(np.eye(n2), (N, n2, n2)).copy()
+    gamma = np.zeros((N, n2, na))
+    dt = (h / SUBSTEPS)[:, None, None]
+    for j in range(SUBSTEPS):
+        a0, am, a1 = Ax[:, 2 * j], Ax[:, 2 * j + 1], Ax[:, 2 * j + 2]
+        b0, bm, b1 = Bu[:, 2 * j], Bu[:, 2 * j + 1], Bu[:, 2 * j + 2]
+        phi = _rk4(phi, a0, am, a1, 0, 0, 0, dt)
+        gamma = _rk4(gamma, a0, am, a1, b0, bm, b1, dt)
+    if not (np.all(np.isfinite(phi)) and np.all(np.isfinite(gamma))):
+        return None
+    return Linearisation(phi, gamma)
+
+
+def _rk4(y, a0, am, a1, b0, bm, b1, dt):
+    """One RK4 step of y' = A(t) y + B(t) for a batch of intervals (A, B at the step's start,
+    middle and end)."""
+    k1 = a0 @ y + b0
+    k2 = am @ (y + dt / 2 * k1) + bm
+    k3 = am @ (y + dt / 2 * k2) + bm
+    k4 = a1 @ (y + dt * k3) + b1
+    return y + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+
+
+def growth_factor(lin: Linearisation) -> float:
+    """max_k ||Phi(t_k, 0)||_2 along the plan."""
+    phi, worst = np.eye(lin.A.shape[1]), 1.0
+    for A in lin.A:
+        phi = A @ phi
+        worst = max(worst, float(np.linalg.norm(phi, 2)))
+    return worst
+
+
+def gains(lin: Linearisation, h: np.ndarray, tau_scale: float) -> Feedback:
+    """The discrete LQR gains K_k (N, na, 2n) for interval lengths h [s]."""
+    N, n2, na = lin.B.shape
+    n = n2 // 2
+    q_weights = np.concatenate([np.full(n, Q_SCALE**-2), np.full(n, DQ_SCALE**-2)])
+    r_weights = np.full(na, tau_scale**-2)
+    S = np.diag(q_weights)
+    K = np.zeros((N, na, n2))
+    for k in range(N - 1, -1, -1):
+        A, B = lin.A[k], lin.B[k]
+        R, Q = np.diag(r_weights * h[k]), np.diag(q_weights * h[k])
+        K[k] = np.linalg.solve(R + B.T @ S @ B, B.T @ S @ A)
+        S = Q + A.T @ S @ (A - B @ K[k])
+        S = (S + S.T) / 2
+    return Feedback(gains=K.tolist(), state_weights=q_weights.tolist(),
+                    torque_weights=r_weights.tolist())
+
+
+def replay(robot: Robot, interp: Interpolant, start: np.ndarray, K: np.ndarray | None,
+           tol: float = REPLAY_TOL) -> tuple[float | None, str]:
+    """max |q_sim - q_plan| [rad] over REPLAY_SAMPLES points per interval of a replay from
+    `start` (2n) under the plan's torque and, with gains K (N, na, 2n), the feedback; and
+    "completed" or where CVODES failed (the error is then None)."""
+    s = Structure.of(robot)
+    coeffs = interp.tau.coeffs
+    N, degree = coeffs.shape[0], coeffs.shape[1] - 1
+    flow = integrator(s, degree, REPLAY_SAMPLES, tol)
+    _, params = inputs(robot, interp)
+    breaks = interp.q.breaks
+    x, worst = np.asarray(start, float), 0.0
+    for k in range(N):
+        planned = np.concatenate([interp.q(breaks[k:k + 1])[0], interp.dq(breaks[k:k + 1])[0]])
+        u = np.zeros(len(s.active_idx)) if K is None else -K[k] @ (x - planned)
+        where = f"between t = {breaks[k]:.6g} s and t = {breaks[k + 1]:.6g} s"
+        try:
+            states = np.array(flow(x0=x, p=params[:, k], u=u)["xf"])
+        except RuntimeError:
+            return None, f"CVODES failed {where}"
+        t = breaks[k] + (breaks[k + 1] - breaks[k]) * np.arange(1, REPLAY_SAMPLES + 1) / REPLAY_SAMPLES
+        error = np.abs(states[:s.n].T - interp.q(t)).max()
+        if not np.isfinite(error):
+            return None, f"the state became non-finite {where}"
+        worst, x = max(worst, float(error)), states[:, -1]
+    return worst, "completed"

@@ -1,0 +1,52 @@
+"""The flow of the dynamics across the intervals of a plan, by CVODES, all intervals at once.
+
+On interval k, in normalised time s = (t - t_k) / h_k in [0, 1], the arm follows
+M ddq + h = B (tau_k(s) + u), tau_k the plan's torque polynomial and u a constant torque
+offset [N m] (0 for the plan itself, a feedback correction otherwise). The integrator is
+mapped over intervals, each started from its own state: one call re-integrates every
+interval of a plan.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import casadi as ca
+import numpy as np
+
+from planner.dynamics import functions
+from planner.model import Robot, Structure, parameters
+from planner.ocp.transcription import Interpolant
+
+TOL = 1e-10  # CVODES rtol = atol of the states
+
+
+@lru_cache(maxsize=64)
+def integrator(s: Structure, degree: int, outputs: int, tol: float = TOL) -> ca.Function:
+    """(x0 (2n), p, u (na)) -> xf (2n x outputs) at s = 1/outputs, 2/outputs, ..., 1;
+    p = [robot parameters, torque coefficients (degree + 1 by na, power-major), h]."""
+    f = functions(s)["ode"]
+    na = len(s.active_idx)
+    x, u = ca.SX.sym("x", 2 * s.n), ca.SX.sym("u", na)
+    sn, h = ca.SX.sym("s"), ca.SX.sym("h")
+    coeffs = ca.SX.sym("c", (degree + 1) * na)
+    p = ca.SX.sym("p", s.n_params)
+    tau = sum(coeffs[j * na:(j + 1) * na] * sn**j for j in range(degree + 1)) + u
+    dae = {"x": x, "u": u, "t": sn, "p": ca.vertcat(p, coeffs, h), "ode": h * f(x, tau, p)}
+    grid = list(np.linspace(0.0, 1.0, outputs + 1)[1:])
+    return ca.integrator("flow", "cvodes", dae, 0.0, grid,
+                         {"abstol": tol, "reltol": tol, "show_eval_warnings": False,
+                          "disable_internal_warnings": True})
+
+
+def inputs(robot: Robot, interp: Interpolant) -> tuple[np.ndarray, np.ndarray]:
+    """The plan's state at the start of every interval (2n x N) and the integrator's p of
+    every interval (columns)."""
+    breaks = interp.q.breaks
+    starts = np.hstack([interp.q(breaks[:-1]), interp.dq(breaks[:-1])]).T
+    coeffs = interp.tau.coeffs  # (N, m, na)
+    N = coeffs.shape[0]
+    p = parameters(robot, Structure.of(robot))
+    params = np.vstack([np.repeat(p[:, None], N, axis=1), coeffs.reshape(N, -1).T,
+                        np.diff(breaks)[None, :]])
+    return starts, params
