@@ -62,23 +62,30 @@ class Grid(BaseModel):
             raise ValueError(f"upper: needs {len(self.lower)} entries, as many as lower")
         if any(u < lo for lo, u in zip(self.lower, self.upper)):
             raise ValueError("upper: every entry must be >= the matching entry of lower")
-        counts = self.points if isinstance(self.points, list) else [self.points] * len(self.lower)
+        counts = self._requested()
         if len(counts) != len(self.lower):
             raise ValueError(f"points: needs 1 or {len(self.lower)} entries")
         if any(c < 1 or (c < 2 and u > lo) for c, lo, u in zip(counts, self.lower, self.upper)):
             raise ValueError("points: an axis with lower < upper needs at least 2 points")
         return self
 
+    def _requested(self) -> list[int]:
+        """`points` as one count per axis."""
+        return self.points if isinstance(self.points, list) else [self.points] * len(self.lower)
+
+    def counts(self) -> list[int]:
+        """Points of every axis (1 on a degenerate axis), computed without building the axes."""
+        return [1 if u == lo else c for lo, u, c in zip(self.lower, self.upper, self._requested())]
+
     def axes(self) -> list[np.ndarray]:
         """Grid coordinates of every axis; a degenerate axis holds its single value."""
-        counts = self.points if isinstance(self.points, list) else [self.points] * len(self.lower)
-        return [np.array([lo]) if u == lo else np.linspace(lo, u, c)
-                for lo, u, c in zip(self.lower, self.upper, counts)]
+        return [np.array([lo]) if c == 1 else np.linspace(lo, u, c)
+                for lo, u, c in zip(self.lower, self.upper, self.counts())]
 
     @property
     def size(self) -> int:
-        """Number of grid points."""
-        return math.prod(len(axis) for axis in self.axes())
+        """Number of grid points (arithmetic: nothing is allocated, whatever the request)."""
+        return math.prod(self.counts())
 
 
 class CouplingRequest(BaseModel):
@@ -113,7 +120,7 @@ class CouplingRequest(BaseModel):
             if len(self.grid.lower) != n:
                 raise ValueError(f"grid.lower: needs {n} entries, one per joint")
             if self.grid.size > MAX_POINTS:
-                raise ValueError(f"grid: {self.grid.size:,} points exceed the limit of "
+                raise ValueError(f"grid.points: {self.grid.size:,} points exceed the limit of "
                                  f"{MAX_POINTS:,}; use fewer points per axis")
         return self
 

@@ -125,6 +125,15 @@ def test_the_points_limit_covers_grids(tmp_path):
                              "121 points exceed this server's limit of 100 (UNDERTOW_MAX_POINTS)")]
 
 
+@pytest.mark.parametrize("points", [10**8, 10**10, 10**12])
+def test_a_huge_grid_is_refused_at_the_field_not_allocated(api, points):
+    grid = {"lower": [0, 0], "upper": [1, 1], "points": points}
+    r = api.post("/v1/coupling", json={"robot": TWO_LINK, "grid": grid})
+    assert errors_of(r) == [(["body", "grid", "points"],
+                             f"{points * points:,} points exceed the limit of 200,000; "
+                             "use fewer points per axis")]
+
+
 def test_coupling_finds_the_waveless_singularity(api):
     r = api.post("/v1/coupling", json={"robot": WAVELESS,
                                        "configurations": [[0.0, 1.0], [0.0, 2.0]]})
