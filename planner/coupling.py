@@ -27,6 +27,7 @@ from scipy.optimize.elementwise import find_root
 
 from planner.dynamics import derive, functions
 from planner.model import Robot, Structure, parameters
+from planner.numbers import Count, Real
 
 MAX_POINTS = 200_000
 """Largest number of configurations one request may evaluate."""
@@ -51,9 +52,9 @@ class Grid(BaseModel):
 
     model_config = _STRICT
 
-    lower: list[float] = Field(min_length=1, description="lower corner, one angle per joint [rad]")
-    upper: list[float] = Field(min_length=1, description="upper corner, one angle per joint [rad]")
-    points: int | list[int] = Field(
+    lower: list[Real] = Field(min_length=1, description="lower corner, one angle per joint [rad]")
+    upper: list[Real] = Field(min_length=1, description="upper corner, one angle per joint [rad]")
+    points: Count | list[Count] = Field(
         default=51, description="grid points per axis (>= 2 where lower < upper)")
 
     @model_validator(mode="after")
@@ -94,7 +95,7 @@ class CouplingRequest(BaseModel):
     model_config = _STRICT
 
     robot: Robot
-    configurations: list[list[float]] | None = Field(
+    configurations: list[list[Real]] | None = Field(
         default=None, description="joint angles [rad], one row per configuration; "
                                   "consecutive rows are joined by straight segments")
     grid: Grid | None = None

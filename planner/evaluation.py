@@ -14,6 +14,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from planner.dynamics import Dynamics
 from planner.model import Robot
+from planner.numbers import Real
 
 _STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
@@ -25,9 +26,9 @@ class StateQuery(BaseModel):
 
     model_config = _STRICT
 
-    q: list[float]
-    dq: list[float]
-    ddq: list[float] | None = None
+    q: list[Real]
+    dq: list[Real]
+    ddq: list[Real] | None = None
 
 
 class DynamicsRequest(BaseModel):

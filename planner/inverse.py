@@ -35,6 +35,7 @@ from scipy.integrate import solve_ivp
 from planner.coupling import blocks, check_split, measures
 from planner.dynamics import derive, functions
 from planner.model import Robot, Structure, parameters
+from planner.numbers import Real
 from planner.profiles import PassiveMotion, SampledProfile
 
 _STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
@@ -65,8 +66,8 @@ class ActiveState(BaseModel):
 
     model_config = _STRICT
 
-    q: list[float]
-    dq: list[float]
+    q: list[Real]
+    dq: list[Real]
 
 
 class InverseDynamicsRequest(BaseModel):

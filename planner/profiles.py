@@ -15,6 +15,8 @@ from scipy.interpolate import CubicSpline
 from scipy.special import beta as beta_fn
 from scipy.special import betainc
 
+from planner.numbers import Real
+
 _STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 Motion = tuple[np.ndarray, np.ndarray, np.ndarray]
@@ -34,8 +36,8 @@ def _blend(start: list[float], end: list[float], s, ds, dds, duration: float) ->
 class _Endpoints(BaseModel):
     model_config = _STRICT
 
-    start: list[float] = Field(min_length=1, description="passive angles at t = 0 [rad]")
-    end: list[float] = Field(min_length=1, description="passive angles at t = T [rad]")
+    start: list[Real] = Field(min_length=1, description="passive angles at t = 0 [rad]")
+    end: list[Real] = Field(min_length=1, description="passive angles at t = T [rad]")
 
     @model_validator(mode="after")
     def _same_size(self):
@@ -93,8 +95,8 @@ class SampledProfile(BaseModel):
     model_config = _STRICT
 
     profile: Literal["samples"] = "samples"
-    t: list[float] = Field(min_length=2, description="strictly increasing times [s], t[0] = 0")
-    q: list[list[float]] = Field(min_length=2, description="passive angles at each time [rad]")
+    t: list[Real] = Field(min_length=2, description="strictly increasing times [s], t[0] = 0")
+    q: list[list[Real]] = Field(min_length=2, description="passive angles at each time [rad]")
 
     @model_validator(mode="after")
     def _consistent(self) -> SampledProfile:

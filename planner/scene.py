@@ -11,6 +11,7 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from planner.model import Robot
+from planner.numbers import Real
 from planner.profiles import PassiveMotion
 
 _STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
@@ -21,8 +22,8 @@ class State(BaseModel):
 
     model_config = _STRICT
 
-    q: list[float | None]
-    dq: list[float | None]
+    q: list[Real | None]
+    dq: list[Real | None]
 
 
 class FixedState(BaseModel):
@@ -30,8 +31,8 @@ class FixedState(BaseModel):
 
     model_config = _STRICT
 
-    q: list[float]
-    dq: list[float]
+    q: list[Real]
+    dq: list[Real]
 
 
 class DurationRange(BaseModel):
@@ -83,8 +84,8 @@ class Bounds(BaseModel):
 
     model_config = _STRICT
 
-    lower: list[float | None]
-    upper: list[float | None]
+    lower: list[Real | None]
+    upper: list[Real | None]
 
     @model_validator(mode="after")
     def _ordered(self) -> Bounds:
@@ -100,7 +101,7 @@ class WaveCoDesign(BaseModel):
     model_config = _STRICT
 
     amplitude_max: float = Field(gt=0.0, description="upper bound on every amplitude [m]")
-    frequency: list[float] = Field(description="fixed frequency of each active joint's wave")
+    frequency: list[Real] = Field(description="fixed frequency of each active joint's wave")
 
 
 class Task(BaseModel):
@@ -113,7 +114,7 @@ class Task(BaseModel):
     final: State
     tracking: Tracking | None = None
     tip_target: TipTarget | None = None
-    torque_limit: list[float] | float | None = Field(
+    torque_limit: list[Real] | Real | None = Field(
         default=None, description="|tau| bound [N m], per active joint or one for all")
     position_bounds: Bounds | None = None
     velocity_bounds: Bounds | None = None

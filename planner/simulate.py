@@ -25,6 +25,7 @@ from scipy.interpolate import CubicSpline
 
 from planner.dynamics import functions
 from planner.model import Robot, Structure, parameters
+from planner.numbers import Real
 
 Interpolation = Literal["zoh", "linear", "cubic"]
 Method = Literal["adams", "bdf"]
@@ -147,8 +148,8 @@ class InitialState(BaseModel):
 
     model_config = _STRICT
 
-    q: list[float]
-    dq: list[float]
+    q: list[Real]
+    dq: list[Real]
 
 
 class SimulationRequest(BaseModel):
@@ -159,8 +160,8 @@ class SimulationRequest(BaseModel):
     model_config = _STRICT
 
     robot: Robot
-    t: list[float] = Field(min_length=2, description="strictly increasing sample times [s]")
-    tau: list[list[float]] = Field(description="active torques at each time [N m]")
+    t: list[Real] = Field(min_length=2, description="strictly increasing sample times [s]")
+    tau: list[list[Real]] = Field(description="active torques at each time [N m]")
     interpolation: Interpolation = "linear"
     initial: InitialState
     samples_per_interval: int = Field(default=1, ge=1, le=100)

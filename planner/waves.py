@@ -43,6 +43,7 @@ from planner.dynamics import derive
 from planner.inverse import (ActiveState, InverseDynamicsRequest, InverseDynamicsResult,
                              active_acceleration, check_motion, check_prescribable, solve)
 from planner.model import Robot, Structure, Wave, parameters, wave_slots
+from planner.numbers import Real
 from planner.profiles import PassiveMotion
 
 _STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
@@ -67,8 +68,8 @@ class Region(BaseModel):
 
     model_config = _STRICT
 
-    lower: list[float] = Field(min_length=1)
-    upper: list[float] = Field(min_length=1)
+    lower: list[Real] = Field(min_length=1)
+    upper: list[Real] = Field(min_length=1)
 
 
 class Motion(BaseModel):

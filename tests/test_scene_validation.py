@@ -43,3 +43,16 @@ def test_edge_values_of_a_task_are_accepted(api, task):
     scene = two_link_scene()
     scene["task"].update(task)
     assert api.post("/v1/plans", json=scene).status_code == 202
+
+
+@pytest.mark.parametrize("values", [["0.1", "0.2"], [True, False]])
+def test_angles_must_be_json_numbers(api, values):
+    scene = two_link_scene()
+    scene["task"]["initial"]["q"] = values
+    scene["task"]["position_bounds"] = {"lower": [None, values[0]], "upper": [None, 1.0]}
+    r = api.post("/v1/plans", json=scene)
+    assert r.status_code == 422, r.text
+    assert [(e["loc"], e["msg"]) for e in r.json()["errors"]] == [
+        (["body", "task", "initial", "q", 0], "Input should be a valid number"),
+        (["body", "task", "initial", "q", 1], "Input should be a valid number"),
+        (["body", "task", "position_bounds", "lower", 1], "Input should be a valid number")]
