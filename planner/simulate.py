@@ -46,6 +46,7 @@ _FAILURES = {
                             "(values too large)",
     "CV_REPTD_RHSFUNC_ERR": "the dynamics became non-finite (values too large)",
     "CV_UNREC_RHSFUNC_ERR": "the dynamics became non-finite (values too large)",
+    "CV_BAD_T": "the integrator stopped short of the output time (values too large)",
 }
 
 _STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
@@ -79,7 +80,12 @@ def torque_coefficients(t: np.ndarray, tau: np.ndarray, kind: Interpolation) -> 
 @lru_cache(maxsize=64)
 def _integrator(s: Structure, degree: int, n_out: int, rtol: float, atol: float,
                 method: Method) -> ca.Function:
-    """CVODES over one interval in normalised time s in [0, 1], outputs at n_out points."""
+    """CVODES over one interval in normalised time s in [0, 1], outputs at n_out points.
+
+    A clock quadrature (ds/ds = 1, outside the error control) is read at every output:
+    CVODES can stop at s = 0 without an error (torques near the largest double), and
+    reading the clock at an output never reached then fails (CV_BAD_T) instead of
+    returning the initial state as the result."""
     f = functions(s)["ode"]
     na = len(s.active_idx)
     x = ca.SX.sym("x", 2 * s.n)
@@ -88,7 +94,7 @@ def _integrator(s: Structure, degree: int, n_out: int, rtol: float, atol: float,
     p = ca.SX.sym("p", s.n_params)
     h = ca.SX.sym("h")
     tau = sum(coeffs[j * na:(j + 1) * na] * sn**j for j in range(degree + 1))
-    dae = {"x": x, "t": sn, "p": ca.vertcat(p, coeffs, h), "ode": h * f(x, tau, p)}
+    dae = {"x": x, "t": sn, "p": ca.vertcat(p, coeffs, h), "ode": h * f(x, tau, p), "quad": 1}
     grid = np.linspace(0.0, 1.0, n_out + 1)[1:]
     opts = {"abstol": atol, "reltol": rtol, "max_num_steps": MAX_STEPS,
             "show_eval_warnings": False, "disable_internal_warnings": True, **_METHODS[method]}
@@ -97,7 +103,7 @@ def _integrator(s: Structure, degree: int, n_out: int, rtol: float, atol: float,
 
 def _reason(error: RuntimeError) -> str:
     """What CVODES reported, in words."""
-    flag = re.search(r'CVode returned "(\w+)"', str(error))
+    flag = re.search(r'CVode\w* returned "(\w+)"', str(error))
     if flag is None:
         return str(error).strip().splitlines()[-1]
     return f"{_FAILURES.get(flag[1], 'the integrator stopped')} (CVODES {flag[1]})"

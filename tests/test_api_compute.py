@@ -250,6 +250,15 @@ def test_simulation_without_torque_conserves_energy(api):
     assert energy[1] == pytest.approx(energy[0], rel=1e-7)
 
 
+def test_a_simulation_that_cannot_start_reports_failed_not_zeros(api):
+    request = {"robot": TWO_LINK, "t": [0.0, 1.0], "tau": [[1e300], [1e300]],
+               "initial": {"q": [0.0, 0.0], "dq": [0.0, 0.0]}, "samples_per_interval": 1}
+    trajectory = strict_json(api.post("/v1/simulate", json=request).text)
+    assert trajectory["status"] == "failed"
+    assert trajectory["message"].endswith("(values too large) (CVODES CV_BAD_T)")
+    assert trajectory["t"] == [0.0]
+
+
 def test_simulation_field_errors(api):
     request = {"robot": TWO_LINK, "t": [0.0, 1.0, 0.5], "tau": [[0.0]] * 3,
                "initial": {"q": [0, 0], "dq": [0, 0]}}
