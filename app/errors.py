@@ -17,6 +17,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, Field, ValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 log = logging.getLogger("undertow.errors")
 
@@ -126,15 +127,43 @@ async def _on_http(request: Request, exc: StarletteHTTPException) -> JSONRespons
                                      headers=getattr(exc, "headers", None)))
 
 
-async def _on_unexpected(request: Request, exc: Exception) -> JSONResponse:
-    log.exception("unhandled error on %s", request.url.path)
-    return problem(request, ApiError(500, "internal", "Internal server error",
-                                     "an unexpected error occurred; see the server log"))
+class UnexpectedErrorMiddleware:
+    """Answer an unhandled exception with a 500 problem and log it once.
+
+    Starlette's last-resort handler answers too, but then re-raises to the server, which
+    logs the exception a second time and closes the connection: a keep-alive client's
+    next request on it fails with a reset. Here the exception ends with the answer. One
+    raised after the response started cannot be answered and still goes to the server.
+    """
+
+    def __init__(self, app: ASGIApp):
+        self.app = app
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        started = False
+
+        async def watch(message: Message) -> None:
+            nonlocal started
+            started = started or message["type"] == "http.response.start"
+            await send(message)
+
+        try:
+            await self.app(scope, receive, watch)
+        except Exception:
+            if started:
+                raise
+            log.exception("unhandled error on %s", scope["path"])
+            error = ApiError(500, "internal", "Internal server error",
+                             "an unexpected error occurred; see the server log")
+            await problem(Request(scope), error)(scope, receive, send)
 
 
 def install(app: FastAPI) -> None:
-    """Register the problem+json handlers on an app."""
+    """Register the problem+json handlers on an app (and `UnexpectedErrorMiddleware`,
+    added with the app's middleware, for everything else)."""
     app.add_exception_handler(ApiError, _on_api_error)
     app.add_exception_handler(RequestValidationError, _on_validation)
     app.add_exception_handler(StarletteHTTPException, _on_http)
-    app.add_exception_handler(Exception, _on_unexpected)
