@@ -111,16 +111,25 @@ _HTTP_SLUGS = {400: "malformed-body", 401: "unauthorized", 404: "not-found", 405
                413: "request-too-large", 429: "queue-full"}
 
 
+_HTTP_TITLES = {400: "The body is not valid JSON", 413: "Request body too large"}
+
+
 async def _on_api_error(request: Request, exc: ApiError) -> JSONResponse:
     return problem(request, exc)
 
 
 async def _on_validation(request: Request, exc: RequestValidationError) -> JSONResponse:
+    unreadable = [e for e in exc.errors() if e["type"] == "json_invalid"]
+    if unreadable:  # FastAPI reports a body it cannot parse as a validation error
+        where = unreadable[0]["loc"][-1]
+        why = unreadable[0].get("ctx", {}).get("error", "not JSON")
+        return problem(request, ApiError(400, "malformed-body", _HTTP_TITLES[400],
+                                         f"{why} at character {where} of the body"))
     return problem(request, from_pydantic(exc.errors()))
 
 
 async def _on_http(request: Request, exc: StarletteHTTPException) -> JSONResponse:
-    title = {413: "Request body too large"}.get(exc.status_code, str(exc.detail))
+    title = _HTTP_TITLES.get(exc.status_code, str(exc.detail))
     detail = str(exc.detail)
     slug = _HTTP_SLUGS.get(exc.status_code, "http-error")
     return problem(request, ApiError(exc.status_code, slug, title, detail,

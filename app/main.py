@@ -15,6 +15,7 @@ from fastapi import Depends, FastAPI
 from fastapi.staticfiles import StaticFiles
 
 from app import errors
+from app.auth import ApiKeyMiddleware
 from app.body_limit import BodyLimitMiddleware
 from app.deps import require_api_key
 from app.jobs import JobRunner, SolveFunction, load_function
@@ -63,6 +64,7 @@ def create_app(settings: Settings | None = None, solve: SolveFunction | None = N
         app.include_router(router, dependencies=secured)
     app.add_middleware(errors.UnexpectedErrorMiddleware)
     app.add_middleware(BodyLimitMiddleware, limit=settings.max_body_bytes)
+    app.add_middleware(ApiKeyMiddleware, key=settings.api_key)
     app.add_middleware(MetricsMiddleware, metrics=app.state.metrics)
     app.add_middleware(RequestIdMiddleware)
     app.openapi = lambda: document(app)

@@ -47,6 +47,27 @@ def test_every_endpoint_but_healthz_needs_the_key(keyed, method, path, body):
     assert keyed.get("/healthz").status_code == 200
 
 
+@pytest.mark.parametrize("body, detail", [
+    (b"not json", "Expecting value at character 0 of the body"),
+    (b'{"robot": {"links": [}', "Expecting value at character 21 of the body"),
+    (b'{"states": [],}', "Expecting property name enclosed in double quotes at character 14 "
+                        "of the body"),
+    (b"[" * 2_000, "There was an error parsing the body")])
+def test_a_body_that_is_not_json_is_400(api, body, detail):
+    r = api.post("/v1/dynamics", content=body, headers={"content-type": "application/json"})
+    assert r.status_code == 400 and r.headers["content-type"] == "application/problem+json"
+    problem = r.json()
+    assert (problem["type"], problem["title"], problem["detail"]) == (
+        "urn:undertow:problem:malformed-body", "The body is not valid JSON", detail)
+
+
+@pytest.mark.parametrize("body", [b"not json", b'{"robot": 1}', b" " * 5_000_000])
+def test_the_key_is_checked_before_the_body_is_read(keyed, body):
+    r = keyed.post("/v1/dynamics", content=body, headers={"content-type": "application/json"})
+    assert r.status_code == 401, r.text
+    assert r.json()["type"] == "urn:undertow:problem:unauthorized"
+
+
 def test_a_body_over_the_limit_is_413(api):
     big = {**DYNAMICS, "states": DYNAMICS["states"] * 100}
     r = api.post("/v1/dynamics", json=big)
