@@ -17,6 +17,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, Field, ValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.routing import Match
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 log = logging.getLogger("undertow.errors")
@@ -128,12 +129,26 @@ async def _on_validation(request: Request, exc: RequestValidationError) -> JSONR
     return problem(request, from_pydantic(exc.errors()))
 
 
+_METHODS = ("DELETE", "GET", "HEAD", "OPTIONS", "PATCH", "POST", "PUT")
+
+
+def _allowed(request: Request) -> str:
+    """Every method some route of the app serves at this path (Starlette's 405 names only
+    those of the first route it found: GET but not DELETE of /v1/plans/{job_id})."""
+    def served(method: str) -> bool:
+        scope = {**request.scope, "method": method}
+        return any(route.matches(scope)[0] == Match.FULL for route in request.app.routes)
+    return ", ".join(filter(served, _METHODS))
+
+
 async def _on_http(request: Request, exc: StarletteHTTPException) -> JSONResponse:
     title = _HTTP_TITLES.get(exc.status_code, str(exc.detail))
     detail = str(exc.detail)
     slug = _HTTP_SLUGS.get(exc.status_code, "http-error")
-    return problem(request, ApiError(exc.status_code, slug, title, detail,
-                                     headers=getattr(exc, "headers", None)))
+    headers = getattr(exc, "headers", None)
+    if exc.status_code == 405:
+        headers = {**(headers or {}), "Allow": _allowed(request)}
+    return problem(request, ApiError(exc.status_code, slug, title, detail, headers=headers))
 
 
 class UnexpectedErrorMiddleware:

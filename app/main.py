@@ -8,11 +8,9 @@ from __future__ import annotations
 
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
-from pathlib import Path
 
 from anyio import CapacityLimiter
 from fastapi import Depends, FastAPI
-from fastapi.staticfiles import StaticFiles
 
 from app import errors
 from app.auth import ApiKeyMiddleware
@@ -25,6 +23,7 @@ from app.openapi import document
 from app.routes import dynamics, examples, health, plans, plots
 from app.settings import Settings, get_settings
 from app.store import SqliteJobStore
+from app.viewer import ViewerMount
 
 DESCRIPTION = """Feed-forward torque planning for underactuated planar manipulators whose
 active joints carry a small-amplitude wave. Angles in radians, SI units, 0-based joint
@@ -68,8 +67,7 @@ def create_app(settings: Settings | None = None, solve: SolveFunction | None = N
     app.add_middleware(MetricsMiddleware, metrics=app.state.metrics)
     app.add_middleware(RequestIdMiddleware)
     app.openapi = lambda: document(app)
-    viewer = StaticFiles(directory=Path(__file__).parent / "static", html=True)
-    app.mount("/", viewer, name="viewer")
+    app.router.routes.append(ViewerMount())
     return app
 
 

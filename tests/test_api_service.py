@@ -103,6 +103,21 @@ def test_unknown_routes_and_methods_are_problems(api):
     assert r.status_code == 405 and r.json()["type"] == "urn:undertow:problem:method-not-allowed"
 
 
+@pytest.mark.parametrize("method, path, allow", [
+    ("GET", "/v1/dynamics", "POST"), ("DELETE", "/v1/simulate", "POST"),
+    ("PUT", "/v1/plans/abc", "DELETE, GET"), ("PATCH", "/v1/plans", "GET, POST"),
+    ("POST", "/healthz", "GET"), ("POST", "/", "GET, HEAD"), ("PUT", "/viewer.js", "GET, HEAD")])
+def test_a_wrong_method_is_405_naming_every_allowed_method(api, method, path, allow):
+    r = api.request(method, path)
+    assert (r.status_code, r.headers["allow"]) == (405, allow)
+    assert r.json()["type"] == "urn:undertow:problem:method-not-allowed"
+
+
+@pytest.mark.parametrize("path", ["/", "/index.html", "/viewer.js", "/viewer.css"])
+def test_the_viewer_is_served_at_the_root(api, path):
+    assert api.get(path).status_code == 200
+
+
 def test_logs_are_json_lines_with_the_request_id(api, caplog):
     with caplog.at_level(logging.INFO, logger="undertow.access"):
         api.get("/healthz", headers={"X-Request-ID": "log-me"})
