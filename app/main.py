@@ -56,6 +56,7 @@ def create_app(settings: Settings | None = None, solve: SolveFunction | None = N
                   lifespan=lifespan, generate_unique_id_function=lambda route: route.name)
     app.state.settings = settings
     app.state.metrics = Metrics()
+    app.state.quick_limiter = CapacityLimiter(settings.quick_threads)
     errors.install(app)
     app.include_router(health.router)
     secured = [Depends(require_api_key)]

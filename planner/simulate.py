@@ -23,7 +23,9 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator
 from scipy.interpolate import CubicSpline
 
+from planner import budget
 from planner.dynamics import functions
+from planner.exclusive import Exclusive
 from planner.model import Robot, Structure, parameters
 from planner.numbers import Real
 
@@ -79,7 +81,7 @@ def torque_coefficients(t: np.ndarray, tau: np.ndarray, kind: Interpolation) -> 
 
 @lru_cache(maxsize=64)
 def _integrator(s: Structure, degree: int, n_out: int, rtol: float, atol: float,
-                method: Method) -> ca.Function:
+                method: Method) -> Exclusive:
     """CVODES over one interval in normalised time s in [0, 1], outputs at n_out points.
 
     A clock quadrature (ds/ds = 1, outside the error control) is read at every output:
@@ -98,7 +100,7 @@ def _integrator(s: Structure, degree: int, n_out: int, rtol: float, atol: float,
     grid = np.linspace(0.0, 1.0, n_out + 1)[1:]
     opts = {"abstol": atol, "reltol": rtol, "max_num_steps": MAX_STEPS,
             "show_eval_warnings": False, "disable_internal_warnings": True, **_METHODS[method]}
-    return ca.integrator("sim", "cvodes", dae, 0.0, list(grid), opts)
+    return Exclusive(ca.integrator("sim", "cvodes", dae, 0.0, list(grid), opts))
 
 
 def _reason(error: RuntimeError) -> str:
@@ -110,13 +112,15 @@ def _reason(error: RuntimeError) -> str:
 
 
 def simulate(robot: Robot, breakpoints, coeffs, x0, samples_per_interval: int = 1,
-             rtol: float = 1e-10, atol: float = 1e-10, *, method: Method = "adams") -> Trajectory:
+             rtol: float = 1e-10, atol: float = 1e-10, *, method: Method = "adams",
+             deadline: float | None = None) -> Trajectory:
     """Integrate M ddq + h = B tau from x0 = (q, dq) under piecewise-polynomial torques.
 
     breakpoints (K + 1,) [s]; coeffs (K, degree + 1, n_active) as in `torque_coefficients`.
     Returns the state at every breakpoint and `samples_per_interval - 1` points between.
     A failed integration does not raise: it returns what was reached with status
-    "failed" and a message saying in which interval and why.
+    "failed" and a message saying in which interval and why. Past `deadline`
+    (`time.monotonic()`, checked between intervals) it raises BudgetExceeded.
     """
     s = Structure.of(robot)
     p = parameters(robot, s)
@@ -129,8 +133,10 @@ def simulate(robot: Robot, breakpoints, coeffs, x0, samples_per_interval: int = 
     for k in range(K):
         h = tk[k + 1] - tk[k]
         where = f"between t = {tk[k]:.6g} s and t = {tk[k + 1]:.6g} s"
+        what = f"the simulation (at t = {tk[k]:.6g} s of {tk[-1]:.6g} s)"
+        budget.check(deadline, what)
         try:
-            out = sim(x0=x, p=np.concatenate([p, coeffs[k].ravel(), [h]]))
+            out, _ = sim(deadline, what, x0=x, p=np.concatenate([p, coeffs[k].ravel(), [h]]))
         except RuntimeError as exc:
             return _trajectory(times, states, s.n, "failed",
                                f"integration failed {where}: {_reason(exc)}")
@@ -174,6 +180,11 @@ class SimulationRequest(BaseModel):
     rtol: float = Field(default=1e-10, ge=1e-14, le=1e-2)
     atol: float = Field(default=1e-10, ge=1e-14, le=1e-2)
 
+    @property
+    def output_samples(self) -> int:
+        """Samples of the trajectory `run` returns: (len(t) - 1) * samples_per_interval + 1."""
+        return (len(self.t) - 1) * self.samples_per_interval + 1
+
     @field_validator("t")
     @classmethod
     def _increasing(cls, t: list[float]) -> list[float]:
@@ -206,9 +217,10 @@ class SimulationRequest(BaseModel):
         return initial
 
 
-def run(request: SimulationRequest) -> Trajectory:
-    """Simulate a request: interpolate its torques and integrate from its initial state."""
+def run(request: SimulationRequest, *, deadline: float | None = None) -> Trajectory:
+    """Simulate a request: interpolate its torques and integrate from its initial state
+    (BudgetExceeded past `deadline`, a `time.monotonic()` value)."""
     coeffs = torque_coefficients(np.asarray(request.t), np.asarray(request.tau), request.interpolation)
     x0 = np.concatenate([request.initial.q, request.initial.dq])
     return simulate(request.robot, request.t, coeffs, x0, request.samples_per_interval,
-                    request.rtol, request.atol)
+                    request.rtol, request.atol, deadline=deadline)
