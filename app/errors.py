@@ -108,11 +108,13 @@ def problem(request: Request, error: ApiError) -> JSONResponse:
                         media_type=MEDIA_TYPE, headers=error.headers)
 
 
-_HTTP_SLUGS = {400: "malformed-body", 401: "unauthorized", 404: "not-found", 405: "method-not-allowed",
-               413: "request-too-large", 429: "queue-full"}
+_HTTP_SLUGS = {400: "malformed-body", 401: "unauthorized", 404: "not-found",
+               405: "method-not-allowed", 408: "request-timeout", 413: "request-too-large",
+               429: "queue-full"}
 
 
-_HTTP_TITLES = {400: "The body is not valid JSON", 413: "Request body too large"}
+_HTTP_TITLES = {400: "The body is not valid JSON", 408: "Request body too slow",
+                413: "Request body too large"}
 
 
 async def _on_api_error(request: Request, exc: ApiError) -> JSONResponse:

@@ -63,7 +63,8 @@ def create_app(settings: Settings | None = None, solve: SolveFunction | None = N
     for router in (dynamics.router, plans.router, examples.router, plots.router):
         app.include_router(router, dependencies=secured)
     app.add_middleware(errors.UnexpectedErrorMiddleware)
-    app.add_middleware(BodyLimitMiddleware, limit=settings.max_body_bytes)
+    app.add_middleware(BodyLimitMiddleware, limit=settings.max_body_bytes,
+                       timeout=settings.read_timeout)
     app.add_middleware(ApiKeyMiddleware, key=settings.api_key)
     app.add_middleware(MetricsMiddleware, metrics=app.state.metrics)
     app.add_middleware(RequestIdMiddleware)

@@ -47,6 +47,8 @@ class Settings(BaseSettings):
                                   "synchronous computation, its wait for a thread included [s]")
     max_wave_screening: int = Field(default=500_000, ge=1, description="configurations the "
                                     "screening of one wave design may evaluate")
+    read_timeout: float = Field(default=10.0, gt=0.0, description="time a client has to send "
+                                "a request's head, and again its body [s]")
     retry_after: int = Field(default=5, ge=1, description="Retry-After [s] when the queue is full")
     log_level: str = Field(default="INFO")
 

@@ -2,19 +2,15 @@
 
 from __future__ import annotations
 
-import contextlib
 import http.client
 import json
 import logging
-import threading
-import time
 from collections.abc import Iterator
 
 import pytest
-import uvicorn
 from fastapi import FastAPI
 from fastapi.routing import APIRoute
-from service_fixtures import free_port
+from service_fixtures import serving
 
 from app.main import create_app
 from app.settings import Settings
@@ -42,24 +38,6 @@ def failing_app(tmp_path_factory) -> FastAPI:
     app = create_app(settings)
     app.router.routes.insert(0, APIRoute("/v1/boom", _boom, methods=["GET"]))
     return app
-
-
-@contextlib.contextmanager
-def serving(app: FastAPI) -> Iterator[int]:
-    """uvicorn serving `app` on 127.0.0.1 in a thread of this process; yields the port."""
-    port = free_port()
-    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_config=None))
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 30
-    while not server.started:
-        assert time.monotonic() < deadline and thread.is_alive(), "server did not start"
-        time.sleep(0.05)
-    try:
-        yield port
-    finally:
-        server.should_exit = True
-        thread.join(30)
 
 
 @pytest.fixture
