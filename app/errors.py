@@ -17,7 +17,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, Field, ValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
-from starlette.routing import Match
+from starlette.routing import Match, Mount
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 log = logging.getLogger("undertow.errors")
@@ -138,8 +138,10 @@ def _allowed(request: Request) -> str:
     """Every method some route of the app serves at this path (Starlette's 405 names only
     those of the first route it found: GET but not DELETE of /v1/plans/{job_id})."""
     def served(method: str) -> bool:
-        scope = {**request.scope, "method": method}
-        return any(route.matches(scope)[0] == Match.FULL for route in request.app.routes)
+        scope = {**request.scope, "method": method,  # as the app saw it, not a mount
+                 "root_path": request.scope.get("app_root_path", "")}
+        return any(route.matches(scope)[0] == Match.FULL for route in request.app.routes
+                   if not isinstance(route, Mount) or method in ("GET", "HEAD"))  # files
     return ", ".join(filter(served, _METHODS))
 
 

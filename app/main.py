@@ -11,6 +11,7 @@ from contextlib import asynccontextmanager
 
 from anyio import CapacityLimiter
 from fastapi import Depends, FastAPI
+from fastapi_offline import FastAPIOffline
 
 from app import errors
 from app.auth import ApiKeyMiddleware
@@ -52,8 +53,8 @@ def create_app(settings: Settings | None = None, solve: SolveFunction | None = N
         finally:
             runner.shutdown()
 
-    app = FastAPI(title="undertow", version="0.1.0", description=DESCRIPTION,
-                  lifespan=lifespan, generate_unique_id_function=lambda route: route.name)
+    app = FastAPIOffline(title="undertow", version="0.1.0", description=DESCRIPTION,
+                         lifespan=lifespan, generate_unique_id_function=lambda route: route.name)
     app.state.settings = settings
     app.state.metrics = Metrics()
     app.state.quick_limiter = CapacityLimiter(settings.quick_threads)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 
 import pytest
 from service_fixtures import TWO_LINK, client
@@ -118,6 +119,18 @@ def test_the_viewer_is_served_at_the_root(api, path):
     assert api.get(path).status_code == 200
 
 
+@pytest.mark.parametrize("page", ["/docs", "/redoc"])
+def test_the_api_pages_load_everything_from_this_server(api, page):
+    html = api.get(page).text
+    assets = re.findall(r'(?:src|href)="([^"]+)"', html)
+    assert assets and not [a for a in assets if "://" in a or a.startswith("//")]
+    for asset in assets:
+        if asset != "/openapi.json":
+            r = api.get(asset)
+            assert r.status_code == 200 and len(r.content) > 1000, asset
+    assert api.post(assets[0]).headers["allow"] == "GET, HEAD"
+
+
 def test_logs_are_json_lines_with_the_request_id(api, caplog):
     with caplog.at_level(logging.INFO, logger="undertow.access"):
         api.get("/healthz", headers={"X-Request-ID": "log-me"})
@@ -147,6 +160,15 @@ def test_metrics_count_requests_by_route_template_and_status(api):
     assert metric(text, 'undertow_http_request_duration_seconds_count{method="GET",'
                         'route="/v1/plans/{job_id}"}') >= 3
     assert 'undertow_jobs{state="queued"} 0.0' in text
+
+
+def test_metrics_name_the_api_description_by_its_path(api):
+    for path in ("/openapi.json", "/docs", "/nowhere"):
+        api.get(path)
+    text = api.get("/metrics").text
+    for route, status in (("/openapi.json", 200), ("/docs", 200), ("unmatched", 404)):
+        assert metric(text, f'undertow_http_requests_total{{method="GET",route="{route}",'
+                            f'status="{status}"}}') >= 1
 
 
 def test_settings_come_from_undertow_environment_variables(monkeypatch):
