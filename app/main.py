@@ -13,7 +13,7 @@ from anyio import CapacityLimiter
 from fastapi import Depends, FastAPI
 from fastapi_offline import FastAPIOffline
 
-from app import errors
+from app import errors, viewer
 from app.auth import ApiKeyMiddleware
 from app.body_limit import BodyLimitMiddleware
 from app.deps import require_api_key
@@ -24,7 +24,6 @@ from app.openapi import document
 from app.routes import dynamics, examples, health, plans, plots
 from app.settings import Settings, get_settings
 from app.store import SqliteJobStore
-from app.viewer import ViewerMount
 
 DESCRIPTION = """Feed-forward torque planning for underactuated planar manipulators whose
 active joints carry a small-amplitude wave. Angles in radians, SI units, 0-based joint
@@ -70,7 +69,7 @@ def create_app(settings: Settings | None = None, solve: SolveFunction | None = N
     app.add_middleware(MetricsMiddleware, metrics=app.state.metrics)
     app.add_middleware(RequestIdMiddleware)
     app.openapi = lambda: document(app)
-    app.router.routes.append(ViewerMount())
+    app.router.routes.extend(viewer.routes())
     return app
 
 

@@ -119,6 +119,15 @@ def test_the_viewer_is_served_at_the_root(api, path):
     assert api.get(path).status_code == 200
 
 
+def test_the_viewer_gets_the_figures_palette(api):
+    from planner.plots import PALETTE
+
+    r = api.get("/palette.js")
+    assert r.headers["content-type"].startswith("text/javascript")
+    prefix = "window.UNDERTOW_PALETTE = "
+    assert r.text.startswith(prefix) and json.loads(r.text[len(prefix):].rstrip(";\n")) == PALETTE
+
+
 @pytest.mark.parametrize("page", ["/docs", "/redoc"])
 def test_the_api_pages_load_everything_from_this_server(api, page):
     html = api.get(page).text
