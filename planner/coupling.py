@@ -21,14 +21,14 @@ from typing import Literal
 
 import casadi as ca
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, Field, model_validator
 from scipy.optimize import minimize, minimize_scalar
 from scipy.optimize.elementwise import find_root
 
 from planner import budget
 from planner.dynamics import derive, functions
 from planner.model import Robot, Structure, parameters
-from planner.numbers import Count, Real
+from planner.schema import REQUEST as _STRICT
 
 MAX_POINTS = 200_000
 """Largest number of configurations one request may evaluate."""
@@ -40,7 +40,6 @@ CHUNK = 4096
 """Configurations per mapped CasADi call."""
 _REFINING = "the refinement of singular point {} of {}"
 
-_STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 SplitKind = Literal["square", "fewer-active", "more-active"]
 
@@ -54,9 +53,9 @@ class Grid(BaseModel):
 
     model_config = _STRICT
 
-    lower: list[Real] = Field(min_length=1, description="lower corner, one angle per joint [rad]")
-    upper: list[Real] = Field(min_length=1, description="upper corner, one angle per joint [rad]")
-    points: Count | list[Count] = Field(
+    lower: list[float] = Field(min_length=1, description="lower corner, one angle per joint [rad]")
+    upper: list[float] = Field(min_length=1, description="upper corner, one angle per joint [rad]")
+    points: int | list[int] = Field(
         default=51, description="grid points per axis (>= 2 where lower < upper)")
 
     @model_validator(mode="after")
@@ -97,7 +96,7 @@ class CouplingRequest(BaseModel):
     model_config = _STRICT
 
     robot: Robot
-    configurations: list[list[Real]] | None = Field(
+    configurations: list[list[float]] | None = Field(
         default=None, description="joint angles [rad], one row per configuration; "
                                   "consecutive rows are joined by straight segments")
     grid: Grid | None = None

@@ -15,9 +15,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from planner import budget
 from planner.dynamics import Dynamics
 from planner.model import Robot
-from planner.numbers import Real
-
-_STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+from planner.schema import REQUEST as _STRICT
 
 MAX_STATES = 10_000
 
@@ -27,9 +25,9 @@ class StateQuery(BaseModel):
 
     model_config = _STRICT
 
-    q: list[Real]
-    dq: list[Real]
-    ddq: list[Real] | None = None
+    q: list[float]
+    dq: list[float]
+    ddq: list[float] | None = None
 
 
 class DynamicsRequest(BaseModel):

@@ -29,17 +29,15 @@ from typing import Literal
 
 import casadi as ca
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, Field, model_validator
 from scipy.integrate import solve_ivp
 
 from planner import budget
 from planner.coupling import blocks, check_split, measures
 from planner.dynamics import derive, functions
 from planner.model import Robot, Structure, parameters
-from planner.numbers import Real
 from planner.profiles import PassiveMotion, SampledProfile
-
-_STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+from planner.schema import REQUEST as _STRICT
 
 RESOLUTION = 1e-8
 """Smallest sigma_min(M_pa) / max_i M_ii the integration follows. The entries of M carry
@@ -67,8 +65,8 @@ class ActiveState(BaseModel):
 
     model_config = _STRICT
 
-    q: list[Real]
-    dq: list[Real]
+    q: list[float]
+    dq: list[float]
 
 
 class InverseDynamicsRequest(BaseModel):

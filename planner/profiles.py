@@ -10,14 +10,12 @@ from functools import cached_property
 from typing import Annotated, Literal, Union
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, Field, model_validator
 from scipy.interpolate import CubicSpline
 from scipy.special import beta as beta_fn
 from scipy.special import betainc
 
-from planner.numbers import Real
-
-_STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+from planner.schema import REQUEST as _STRICT
 
 Motion = tuple[np.ndarray, np.ndarray, np.ndarray]
 
@@ -36,8 +34,8 @@ def _blend(start: list[float], end: list[float], s, ds, dds, duration: float) ->
 class _Endpoints(BaseModel):
     model_config = _STRICT
 
-    start: list[Real] = Field(min_length=1, description="passive angles at t = 0 [rad]")
-    end: list[Real] = Field(min_length=1, description="passive angles at t = T [rad]")
+    start: list[float] = Field(min_length=1, description="passive angles at t = 0 [rad]")
+    end: list[float] = Field(min_length=1, description="passive angles at t = T [rad]")
 
     @model_validator(mode="after")
     def _same_size(self):
@@ -95,8 +93,8 @@ class SampledProfile(BaseModel):
     model_config = _STRICT
 
     profile: Literal["samples"] = "samples"
-    t: list[Real] = Field(min_length=2, description="strictly increasing times [s], t[0] = 0")
-    q: list[list[Real]] = Field(min_length=2, description="passive angles at each time [rad]")
+    t: list[float] = Field(min_length=2, description="strictly increasing times [s], t[0] = 0")
+    q: list[list[float]] = Field(min_length=2, description="passive angles at each time [rad]")
 
     @model_validator(mode="after")
     def _consistent(self) -> SampledProfile:

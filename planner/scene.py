@@ -8,13 +8,11 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, Field, model_validator
 
 from planner.model import Robot
-from planner.numbers import Real
 from planner.profiles import PassiveMotion
-
-_STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+from planner.schema import REQUEST as _STRICT
 
 
 class State(BaseModel):
@@ -22,8 +20,8 @@ class State(BaseModel):
 
     model_config = _STRICT
 
-    q: list[Real | None]
-    dq: list[Real | None]
+    q: list[float | None]
+    dq: list[float | None]
 
 
 class FixedState(BaseModel):
@@ -31,8 +29,8 @@ class FixedState(BaseModel):
 
     model_config = _STRICT
 
-    q: list[Real]
-    dq: list[Real]
+    q: list[float]
+    dq: list[float]
 
 
 class DurationRange(BaseModel):
@@ -84,8 +82,8 @@ class Bounds(BaseModel):
 
     model_config = _STRICT
 
-    lower: list[Real | None]
-    upper: list[Real | None]
+    lower: list[float | None]
+    upper: list[float | None]
 
     @model_validator(mode="after")
     def _ordered(self) -> Bounds:
@@ -101,7 +99,7 @@ class WaveCoDesign(BaseModel):
     model_config = _STRICT
 
     amplitude_max: float = Field(gt=0.0, description="upper bound on every amplitude [m]")
-    frequency: list[Real] = Field(description="fixed frequency of each active joint's wave")
+    frequency: list[float] = Field(description="fixed frequency of each active joint's wave")
 
 
 class Task(BaseModel):
@@ -114,7 +112,7 @@ class Task(BaseModel):
     final: State
     tracking: Tracking | None = None
     tip_target: TipTarget | None = None
-    torque_limit: list[Real] | Real | None = Field(
+    torque_limit: list[float] | float | None = Field(
         default=None, description="|tau| bound [N m], per active joint or one for all")
     position_bounds: Bounds | None = None
     velocity_bounds: Bounds | None = None

@@ -14,6 +14,7 @@ oscillatory, not stiff, and on every robot measured Adams drifts less in energy 
 from __future__ import annotations
 
 import itertools
+import math
 import re
 from functools import lru_cache
 from typing import Literal
@@ -27,7 +28,7 @@ from planner import budget
 from planner.dynamics import functions
 from planner.exclusive import Exclusive
 from planner.model import Robot, Structure, parameters
-from planner.numbers import Real
+from planner.schema import REQUEST as _STRICT
 
 Interpolation = Literal["zoh", "linear", "cubic"]
 Method = Literal["adams", "bdf"]
@@ -50,8 +51,6 @@ _FAILURES = {
     "CV_UNREC_RHSFUNC_ERR": "the dynamics became non-finite (values too large)",
     "CV_BAD_T": "the integrator stopped short of the output time (values too large)",
 }
-
-_STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class Trajectory(BaseModel):
@@ -119,34 +118,56 @@ def simulate(robot: Robot, breakpoints, coeffs, x0, samples_per_interval: int = 
     breakpoints (K + 1,) [s]; coeffs (K, degree + 1, n_active) as in `torque_coefficients`.
     Returns the state at every breakpoint and `samples_per_interval - 1` points between.
     A failed integration does not raise: it returns what was reached with status
-    "failed" and a message saying in which interval and why. Past `deadline`
-    (`time.monotonic()`, checked between intervals) it raises BudgetExceeded.
+    "failed" and a message saying in which interval and why.
+
+    With a `deadline` (`time.monotonic()`) every output is one CVODES call (the interval's
+    torque polynomial restricted to it), checked against the deadline before it starts,
+    so that past it BudgetExceeded comes after at most one output's MAX_STEPS steps;
+    without one, one call integrates a whole interval.
     """
     s = Structure.of(robot)
     p = parameters(robot, s)
     tk = np.asarray(breakpoints, float)
     coeffs = np.asarray(coeffs, float)
     K, degree = coeffs.shape[0], coeffs.shape[1] - 1
-    sim = _integrator(s, degree, samples_per_interval, rtol, atol, method)
+    pieces = 1 if deadline is None else samples_per_interval
+    per_call = samples_per_interval // pieces
+    sim = _integrator(s, degree, per_call, rtol, atol, method)
     x = np.asarray(x0, float)
     times, states = [tk[0]], [x]
     for k in range(K):
         h = tk[k + 1] - tk[k]
         where = f"between t = {tk[k]:.6g} s and t = {tk[k + 1]:.6g} s"
-        what = f"the simulation (at t = {tk[k]:.6g} s of {tk[-1]:.6g} s)"
-        budget.check(deadline, what)
-        try:
-            out, _ = sim(deadline, what, x0=x, p=np.concatenate([p, coeffs[k].ravel(), [h]]))
-        except RuntimeError as exc:
-            return _trajectory(times, states, s.n, "failed",
-                               f"integration failed {where}: {_reason(exc)}")
-        xf = np.array(out["xf"])
-        if not np.all(np.isfinite(xf)):
-            return _trajectory(times, states, s.n, "failed", f"the state became non-finite {where}")
-        times += list(tk[k] + h * np.linspace(0, 1, samples_per_interval + 1)[1:])
-        states += list(xf.T)
-        x = xf[:, -1]
+        outputs = tk[k] + h * np.linspace(0, 1, samples_per_interval + 1)[1:]
+        for j in range(pieces):
+            what = f"the simulation (at t = {tk[k] + h * j / pieces:.6g} s of {tk[-1]:.6g} s)"
+            budget.check(deadline, what)
+            c = _restricted(coeffs[k], j / pieces, 1 / pieces)
+            try:
+                out, _ = sim(deadline, what, x0=x, p=np.concatenate([p, c.ravel(), [h / pieces]]))
+            except RuntimeError as exc:
+                return _trajectory(times, states, s.n, "failed",
+                                   f"integration failed {where}: {_reason(exc)}")
+            xf = np.array(out["xf"])
+            if not np.all(np.isfinite(xf)):
+                return _trajectory(times, states, s.n, "failed",
+                                   f"the state became non-finite {where}")
+            times += list(outputs[j * per_call:(j + 1) * per_call])
+            states += list(xf.T)
+            x = xf[:, -1]
     return _trajectory(times, states, s.n, "completed", "")
+
+
+def _restricted(c: np.ndarray, start: float, width: float) -> np.ndarray:
+    """Coefficients (degree + 1, n_active) of sum_j c[j] s^j on s in [start, start + width],
+    in the local u = (s - start) / width in [0, 1]."""
+    if start == 0.0 and width == 1.0:
+        return c
+    out = np.zeros_like(c)
+    for j in range(len(c)):
+        for m in range(j + 1):
+            out[m] += math.comb(j, m) * start ** (j - m) * width**m * c[j]
+    return out
 
 
 def _trajectory(times, states, n, status, message) -> Trajectory:
@@ -160,8 +181,8 @@ class InitialState(BaseModel):
 
     model_config = _STRICT
 
-    q: list[Real]
-    dq: list[Real]
+    q: list[float]
+    dq: list[float]
 
 
 class SimulationRequest(BaseModel):
@@ -172,8 +193,8 @@ class SimulationRequest(BaseModel):
     model_config = _STRICT
 
     robot: Robot
-    t: list[Real] = Field(min_length=2, description="strictly increasing sample times [s]")
-    tau: list[list[Real]] = Field(description="active torques at each time [N m]")
+    t: list[float] = Field(min_length=2, description="strictly increasing sample times [s]")
+    tau: list[list[float]] = Field(description="active torques at each time [N m]")
     interpolation: Interpolation = "linear"
     initial: InitialState
     samples_per_interval: int = Field(default=1, ge=1, le=100)

@@ -36,7 +36,7 @@ from typing import Literal
 
 import casadi as ca
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, Field, model_validator
 
 from planner import budget
 from planner.coupling import evaluate, measures
@@ -45,10 +45,9 @@ from planner.exclusive import Exclusive
 from planner.inverse import (ActiveState, InverseDynamicsRequest, InverseDynamicsResult,
                              active_acceleration, check_motion, check_prescribable, solve)
 from planner.model import Robot, Structure, Wave, parameters, wave_slots
-from planner.numbers import Real
 from planner.profiles import PassiveMotion
+from planner.schema import REQUEST as _STRICT
 
-_STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 AMPLITUDE_FRACTION = 0.95
 """Largest amplitude as a fraction of the link length (r stays >= 5 % of l)."""
@@ -76,8 +75,8 @@ class Region(BaseModel):
 
     model_config = _STRICT
 
-    lower: list[Real] = Field(min_length=1)
-    upper: list[Real] = Field(min_length=1)
+    lower: list[float] = Field(min_length=1)
+    upper: list[float] = Field(min_length=1)
 
 
 class Motion(BaseModel):

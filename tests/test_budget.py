@@ -82,6 +82,30 @@ def test_a_simulation_stops_part_way_at_its_deadline_and_says_where():
     assert simulate.run(_simulation(1.0, 4)).status == "completed"  # no deadline, no bound
 
 
+def test_one_long_interval_stops_between_its_outputs():
+    """A torque interval is integrated output by output under a deadline: one CVODES call
+    over a whole interval could run for minutes past it."""
+    request = _simulation(100.0, 1).model_copy(update={"samples_per_interval": 100})
+    with pytest.raises(BudgetExceeded) as info:
+        simulate.run(request, deadline=time.monotonic() + 0.3)
+    where = _stop_point(r"the simulation \(at t = (\S+) s of 100 s\) ran past its deadline",
+                        str(info.value))
+    assert 0.0 < where < 100.0
+
+
+@pytest.mark.parametrize("kind", ["zoh", "linear", "cubic"])
+def test_a_deadline_leaves_the_trajectory_as_it_was(kind):
+    t = np.linspace(0.0, 2.0, 9)
+    request = simulate.SimulationRequest.model_validate({
+        "robot": TWO_LINK, "t": t.tolist(), "tau": np.sin(3 * t)[:, None].tolist(),
+        "interpolation": kind, "initial": {"q": [0.3, -0.2], "dq": [0.0, 0.5]},
+        "samples_per_interval": 7, "rtol": 1e-12, "atol": 1e-12})
+    free, bounded = simulate.run(request), simulate.run(request, deadline=time.monotonic() + 60)
+    assert bounded.t == free.t and bounded.status == free.status == "completed"
+    np.testing.assert_allclose(bounded.q, free.q, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(bounded.dq, free.dq, rtol=0, atol=1e-8)
+
+
 def test_an_inverse_dynamics_stops_part_way_at_its_deadline():
     request = inverse.InverseDynamicsRequest.model_validate(
         {**examples.example("seed-arm-waves").request, "rtol": 1e-13, "atol": 1e-13})
