@@ -18,6 +18,7 @@ _DESCRIPTIONS = {
     400: "the body could not be read as JSON",
     401: "missing or wrong X-API-Key",
     404: "no such resource",
+    408: "the request body did not arrive within UNDERTOW_READ_TIMEOUT",
     409: "the resource is in a state that does not allow this",
     413: "the request body is too large",
     422: "invalid request: `errors` lists each offending field",
@@ -71,8 +72,8 @@ def document(app: FastAPI) -> dict[str, Any]:
             if responses.get("422", {}).get("description") == "Validation Error":
                 responses["422"] = problem_response(422)  # FastAPI's own shape
             if "requestBody" in operation:
-                responses["400"] = problem_response(400)
-                responses["413"] = problem_response(413)
+                for status in (400, 408, 413):
+                    responses[str(status)] = problem_response(status)
             if operation.get("security"):
                 responses["401"] = problem_response(401)
     app.openapi_schema = doc
