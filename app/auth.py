@@ -14,6 +14,7 @@ from starlette.requests import Request
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from app.errors import ApiError, problem
+from app.middleware import HttpMiddleware
 
 HEADER = "X-API-Key"
 
@@ -37,14 +38,15 @@ def protected(path: str) -> bool:
     return path == "/metrics" or path == "/v1" or path.startswith("/v1/")
 
 
-class ApiKeyMiddleware:
+class ApiKeyMiddleware(HttpMiddleware):
     """401 for a protected path without the server's key, before the body is read."""
 
     def __init__(self, app: ASGIApp, key: str | None):
-        self.app, self.key = app, key
+        super().__init__(app)
+        self.key = key
 
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] == "http" and self.key and protected(scope["path"]):
+    async def http(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if self.key and protected(scope["path"]):
             given = dict(scope["headers"]).get(HEADER.lower().encode())
             if not accepted(self.key, given.decode("latin-1") if given is not None else None):
                 await problem(Request(scope), unauthorized())(scope, receive, send)

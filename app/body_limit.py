@@ -9,6 +9,7 @@ from starlette.requests import Request
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from app.errors import ApiError, problem
+from app.middleware import HttpMiddleware
 
 DETAIL = "the request body exceeds the limit of {limit} bytes (UNDERTOW_MAX_BODY_BYTES)"
 LATE = "the request body did not arrive within {timeout:g} s (UNDERTOW_READ_TIMEOUT)"
@@ -28,18 +29,16 @@ class BodyTooSlow(HTTPException):
         super().__init__(408, LATE.format(timeout=timeout), headers={"Connection": "close"})
 
 
-class BodyLimitMiddleware:
+class BodyLimitMiddleware(HttpMiddleware):
     """At most `limit` bytes of body: a larger Content-Length is refused before reading,
     a body without one is counted as it streams in. The whole body must arrive within
     `timeout` seconds of the request's head."""
 
     def __init__(self, app: ASGIApp, limit: int, timeout: float):
-        self.app, self.limit, self.timeout = app, limit, timeout
+        super().__init__(app)
+        self.limit, self.timeout = limit, timeout
 
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http":
-            await self.app(scope, receive, send)
-            return
+    async def http(self, scope: Scope, receive: Receive, send: Send) -> None:
         declared = dict(scope["headers"]).get(b"content-length")
         if declared is not None and declared.isdigit() and int(declared) > self.limit:
             error = ApiError(413, "request-too-large", "Request body too large",

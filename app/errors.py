@@ -18,7 +18,9 @@ from fastapi.responses import JSONResponse
 from pydantic import BaseModel, Field, ValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.routing import Match, Mount
-from starlette.types import ASGIApp, Message, Receive, Scope, Send
+from starlette.types import Message, Receive, Scope, Send
+
+from app.middleware import HttpMiddleware
 
 log = logging.getLogger("undertow.errors")
 
@@ -155,7 +157,7 @@ async def _on_http(request: Request, exc: StarletteHTTPException) -> JSONRespons
     return problem(request, ApiError(exc.status_code, slug, title, detail, headers=headers))
 
 
-class UnexpectedErrorMiddleware:
+class UnexpectedErrorMiddleware(HttpMiddleware):
     """Answer an unhandled exception with a 500 problem and log it once.
 
     Starlette's last-resort handler answers too, but then re-raises to the server, which
@@ -164,13 +166,7 @@ class UnexpectedErrorMiddleware:
     raised after the response started cannot be answered and still goes to the server.
     """
 
-    def __init__(self, app: ASGIApp):
-        self.app = app
-
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http":
-            await self.app(scope, receive, send)
-            return
+    async def http(self, scope: Scope, receive: Receive, send: Send) -> None:
         started = False
 
         async def watch(message: Message) -> None:

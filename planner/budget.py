@@ -54,15 +54,16 @@ def solving(deadline: float | None) -> Iterator[None]:
         _solve_deadline.reset(token)
 
 
-class _Stop(ca.Callback):
-    """Ipopt's iteration callback: ask Ipopt to stop (status User_Requested_Stop) once the
-    deadline of the thread's current `solving` block has passed."""
+class IterationCallback(ca.Callback):
+    """The plumbing of an Ipopt iteration callback (nlpsol's `iteration_callback`): the
+    solver's outputs x, f, g and their multipliers in, one flag out, non-zero to stop.
+    A subclass sets its state, calls this constructor last, and gives `eval`."""
 
-    def __init__(self, nx: int, ng: int, np_: int):
+    def __init__(self, name: str, nx: int, ng: int, np_: int):
         ca.Callback.__init__(self)
         self.sizes = {"x": nx, "lam_x": nx, "g": ng, "lam_g": ng, "p": np_, "lam_p": np_,
                       "f": 1}
-        self.construct(f"stop_{nx}_{ng}_{np_}", {})
+        self.construct(name, {})
 
     def get_n_in(self) -> int:
         return ca.nlpsol_n_out()
@@ -78,6 +79,14 @@ class _Stop(ca.Callback):
 
     def get_sparsity_in(self, i: int) -> ca.Sparsity:
         return ca.Sparsity.dense(self.sizes[ca.nlpsol_out(i)], 1)
+
+
+class _Stop(IterationCallback):
+    """Stop Ipopt (status User_Requested_Stop) once the deadline of the thread's current
+    `solving` block has passed."""
+
+    def __init__(self, nx: int, ng: int, np_: int):
+        super().__init__(f"stop_{nx}_{ng}_{np_}", nx, ng, np_)
 
     def eval(self, arg) -> list[int]:
         deadline = _solve_deadline.get()
