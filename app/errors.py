@@ -17,6 +17,10 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from pydantic import BaseModel, Field, ValidationError
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.routing import Match, Mount
+from starlette.types import Message, Receive, Scope, Send
+
+from app.middleware import HttpMiddleware
 
 log = logging.getLogger("undertow.errors")
 
@@ -106,8 +110,13 @@ def problem(request: Request, error: ApiError) -> JSONResponse:
                         media_type=MEDIA_TYPE, headers=error.headers)
 
 
-_HTTP_SLUGS = {400: "malformed-body", 401: "unauthorized", 404: "not-found", 405: "method-not-allowed",
-               413: "request-too-large", 429: "queue-full"}
+_HTTP_SLUGS = {400: "malformed-body", 401: "unauthorized", 404: "not-found",
+               405: "method-not-allowed", 408: "request-timeout", 413: "request-too-large",
+               429: "queue-full"}
+
+
+_HTTP_TITLES = {400: "The body is not valid JSON", 408: "Request body too slow",
+                413: "Request body too large"}
 
 
 async def _on_api_error(request: Request, exc: ApiError) -> JSONResponse:
@@ -115,26 +124,70 @@ async def _on_api_error(request: Request, exc: ApiError) -> JSONResponse:
 
 
 async def _on_validation(request: Request, exc: RequestValidationError) -> JSONResponse:
+    unreadable = [e for e in exc.errors() if e["type"] == "json_invalid"]
+    if unreadable:  # FastAPI reports a body it cannot parse as a validation error
+        where = unreadable[0]["loc"][-1]
+        why = unreadable[0].get("ctx", {}).get("error", "not JSON")
+        return problem(request, ApiError(400, "malformed-body", _HTTP_TITLES[400],
+                                         f"{why} at character {where} of the body"))
     return problem(request, from_pydantic(exc.errors()))
 
 
+_METHODS = ("DELETE", "GET", "HEAD", "OPTIONS", "PATCH", "POST", "PUT")
+
+
+def _allowed(request: Request) -> str:
+    """Every method some route of the app serves at this path (Starlette's 405 names only
+    those of the first route it found: GET but not DELETE of /v1/plans/{job_id})."""
+    def served(method: str) -> bool:
+        scope = {**request.scope, "method": method,  # as the app saw it, not a mount
+                 "root_path": request.scope.get("app_root_path", "")}
+        return any(route.matches(scope)[0] == Match.FULL for route in request.app.routes
+                   if not isinstance(route, Mount) or method in ("GET", "HEAD"))  # files
+    return ", ".join(filter(served, _METHODS))
+
+
 async def _on_http(request: Request, exc: StarletteHTTPException) -> JSONResponse:
-    title = {413: "Request body too large"}.get(exc.status_code, str(exc.detail))
+    title = _HTTP_TITLES.get(exc.status_code, str(exc.detail))
     detail = str(exc.detail)
     slug = _HTTP_SLUGS.get(exc.status_code, "http-error")
-    return problem(request, ApiError(exc.status_code, slug, title, detail,
-                                     headers=getattr(exc, "headers", None)))
+    headers = getattr(exc, "headers", None)
+    if exc.status_code == 405:
+        headers = {**(headers or {}), "Allow": _allowed(request)}
+    return problem(request, ApiError(exc.status_code, slug, title, detail, headers=headers))
 
 
-async def _on_unexpected(request: Request, exc: Exception) -> JSONResponse:
-    log.exception("unhandled error on %s", request.url.path)
-    return problem(request, ApiError(500, "internal", "Internal server error",
-                                     "an unexpected error occurred; see the server log"))
+class UnexpectedErrorMiddleware(HttpMiddleware):
+    """Answer an unhandled exception with a 500 problem and log it once.
+
+    Starlette's last-resort handler answers too, but then re-raises to the server, which
+    logs the exception a second time and closes the connection: a keep-alive client's
+    next request on it fails with a reset. Here the exception ends with the answer. One
+    raised after the response started cannot be answered and still goes to the server.
+    """
+
+    async def http(self, scope: Scope, receive: Receive, send: Send) -> None:
+        started = False
+
+        async def watch(message: Message) -> None:
+            nonlocal started
+            started = started or message["type"] == "http.response.start"
+            await send(message)
+
+        try:
+            await self.app(scope, receive, watch)
+        except Exception:
+            if started:
+                raise
+            log.exception("unhandled error on %s", scope["path"])
+            error = ApiError(500, "internal", "Internal server error",
+                             "an unexpected error occurred; see the server log")
+            await problem(Request(scope), error)(scope, receive, send)
 
 
 def install(app: FastAPI) -> None:
-    """Register the problem+json handlers on an app."""
+    """Register the problem+json handlers on an app (and `UnexpectedErrorMiddleware`,
+    added with the app's middleware, for everything else)."""
     app.add_exception_handler(ApiError, _on_api_error)
     app.add_exception_handler(RequestValidationError, _on_validation)
     app.add_exception_handler(StarletteHTTPException, _on_http)
-    app.add_exception_handler(Exception, _on_unexpected)

@@ -1,7 +1,8 @@
 """Server-side limits on what one request may ask for (each set by an UNDERTOW_* variable).
 
-Violations become 422 problems naming the field and the limit; the body size is limited
-by the app itself (413) and the job queue by the runner (429).
+Every limit is checked by arithmetic on the validated request, before anything is
+computed or allocated. Violations become 422 problems naming the field and the limit;
+the body size is limited by the app itself (413) and the job queue by the runner (429).
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ def nodes(transcription: Transcription) -> int:
     }[transcription.method]
 
 
-def _points(body: BaseModel) -> list[tuple[list[str], int]]:
+def _sized(body: BaseModel) -> list[tuple[list[str], int]]:
     """How many points each sized field of a request asks for: top-level lists (states,
     configurations, sample times), `samples` and `certification_points` counts, a grid's
     size."""
@@ -42,9 +43,14 @@ def _points(body: BaseModel) -> list[tuple[list[str], int]]:
     return sizes
 
 
+def points(body: BaseModel) -> int:
+    """The most points any sized field of a request asks for (0 when it has none)."""
+    return max((size for _, size in _sized(body)), default=0)
+
+
 def _request_errors(body: BaseModel, settings: Settings) -> list[FieldError]:
-    """Links of the robot, the number of points a request asks for, and the size of a
-    wave design's search."""
+    """Links of the robot, the number of points a request asks for or a simulation
+    returns, and the size of a wave design's search."""
     errors = []
     robot = getattr(body, "robot", None)
     if robot is not None and robot.n > settings.max_links:
@@ -58,11 +64,25 @@ def _request_errors(body: BaseModel, settings: Settings) -> list[FieldError]:
         if isinstance(value, int) and value > cap:
             errors.append(field_error(["body", name], f"at most {cap} on this server ({var}), "
                                                       f"got {value}", "limit"))
-    for loc, size in _points(body):
+    for loc, size in _sized(body):
         if size > settings.max_points:
             errors.append(field_error(["body", *loc],
                                       f"{size} points exceed this server's limit of "
                                       f"{settings.max_points} (UNDERTOW_MAX_POINTS)", "limit"))
+    samples = getattr(body, "output_samples", None)
+    if samples is not None and samples > settings.max_points:
+        errors.append(field_error(["body", "samples_per_interval"],
+                                  f"{samples} samples ((len(t) - 1) x samples_per_interval + 1) "
+                                  f"exceed this server's limit of {settings.max_points} "
+                                  "(UNDERTOW_MAX_POINTS)", "limit"))
+    screening = getattr(body, "screening", None)
+    if screening is not None and screening > settings.max_wave_screening:
+        errors.append(field_error(["body", "frequency_max"],
+                                  f"the screening would evaluate {screening} configurations, "
+                                  f"more than this server's limit of "
+                                  f"{settings.max_wave_screening} (UNDERTOW_MAX_WAVE_SCREENING); "
+                                  "lower frequency_max or fix joints of the region "
+                                  "(lower == upper)", "limit"))
     return errors
 
 

@@ -8,13 +8,13 @@ from __future__ import annotations
 
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
-from pathlib import Path
 
 from anyio import CapacityLimiter
 from fastapi import Depends, FastAPI
-from fastapi.staticfiles import StaticFiles
+from fastapi_offline import FastAPIOffline
 
-from app import errors
+from app import errors, viewer
+from app.auth import ApiKeyMiddleware
 from app.body_limit import BodyLimitMiddleware
 from app.deps import require_api_key
 from app.jobs import JobRunner, SolveFunction, load_function
@@ -52,21 +52,24 @@ def create_app(settings: Settings | None = None, solve: SolveFunction | None = N
         finally:
             runner.shutdown()
 
-    app = FastAPI(title="undertow", version="0.1.0", description=DESCRIPTION,
-                  lifespan=lifespan, generate_unique_id_function=lambda route: route.name)
+    app = FastAPIOffline(title="undertow", version="0.1.0", description=DESCRIPTION,
+                         lifespan=lifespan, generate_unique_id_function=lambda route: route.name)
     app.state.settings = settings
     app.state.metrics = Metrics()
+    app.state.quick_limiter = CapacityLimiter(settings.quick_threads)
     errors.install(app)
     app.include_router(health.router)
     secured = [Depends(require_api_key)]
     for router in (dynamics.router, plans.router, examples.router, plots.router):
         app.include_router(router, dependencies=secured)
-    app.add_middleware(BodyLimitMiddleware, limit=settings.max_body_bytes)
+    app.add_middleware(errors.UnexpectedErrorMiddleware)
+    app.add_middleware(BodyLimitMiddleware, limit=settings.max_body_bytes,
+                       timeout=settings.read_timeout)
+    app.add_middleware(ApiKeyMiddleware, key=settings.api_key)
     app.add_middleware(MetricsMiddleware, metrics=app.state.metrics)
     app.add_middleware(RequestIdMiddleware)
     app.openapi = lambda: document(app)
-    viewer = StaticFiles(directory=Path(__file__).parent / "static", html=True)
-    app.mount("/", viewer, name="viewer")
+    app.router.routes.extend(viewer.routes())
     return app
 
 

@@ -84,7 +84,10 @@ class MetricsMiddleware:
         try:
             await self.app(scope, receive, record_status)
         finally:
-            route = getattr(scope.get("route"), "path", "unmatched")
+            # answered without an API route: the API description and static files by
+            # their path (a fixed set), anything refused before routing as unmatched
+            route = getattr(scope.get("route"), "path", None) or (
+                scope["path"] if status < 400 else "unmatched")
             method = scope["method"]
             self.metrics.requests.labels(method, route, str(status)).inc()
             self.metrics.latency.labels(method, route).observe(time.perf_counter() - start)

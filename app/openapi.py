@@ -18,26 +18,36 @@ _DESCRIPTIONS = {
     400: "the body could not be read as JSON",
     401: "missing or wrong X-API-Key",
     404: "no such resource",
+    408: "the request body did not arrive within UNDERTOW_READ_TIMEOUT",
     409: "the resource is in a state that does not allow this",
     413: "the request body is too large",
     422: "invalid request: `errors` lists each offending field",
     429: "the job queue is full; retry after the Retry-After header's seconds",
+    503: "every compute thread stayed busy for UNDERTOW_COMPUTE_WAIT; retry after the "
+         "Retry-After header's seconds",
 }
 
 
-def problem_response(status: int) -> dict[str, Any]:
+BUDGET = (f"{_DESCRIPTIONS[422]}; or type budget-exceeded: the computation ran out of its "
+          "time budget (UNDERTOW_SYNC_WALL_TIME)")
+"""The 422 of a synchronous computation."""
+
+
+def problem_response(status: int, description: str | None = None) -> dict[str, Any]:
     """The OpenAPI response object of a problem with this status."""
-    response: dict[str, Any] = {"description": _DESCRIPTIONS[status],
+    response: dict[str, Any] = {"description": description or _DESCRIPTIONS[status],
                                 "content": {MEDIA_TYPE: {"schema": _REF}}}
-    if status == 429:
+    if status in (429, 503):
         response["headers"] = {"Retry-After": {"description": "seconds to wait",
                                                "schema": {"type": "integer"}}}
     return response
 
 
-def problems(*statuses: int) -> dict[int | str, dict[str, Any]]:
-    """`responses=` argument of a route that can answer with these problems."""
-    return {status: problem_response(status) for status in statuses}
+def problems(*statuses: int, **descriptions: str) -> dict[int | str, dict[str, Any]]:
+    """`responses=` argument of a route that can answer with these problems;
+    `descriptions` (as `s422=...`) replace the default description of a status."""
+    return {status: problem_response(status, descriptions.get(f"s{status}"))
+            for status in statuses}
 
 
 def _problem_schemas() -> dict[str, Any]:
@@ -59,11 +69,11 @@ def document(app: FastAPI) -> dict[str, Any]:
     for operations in doc["paths"].values():
         for operation in operations.values():
             responses = operation["responses"]
-            if "422" in responses:
-                responses["422"] = problem_response(422)
+            if responses.get("422", {}).get("description") == "Validation Error":
+                responses["422"] = problem_response(422)  # FastAPI's own shape
             if "requestBody" in operation:
-                responses["400"] = problem_response(400)
-                responses["413"] = problem_response(413)
+                for status in (400, 408, 413):
+                    responses[str(status)] = problem_response(status)
             if operation.get("security"):
                 responses["401"] = problem_response(401)
     app.openapi_schema = doc

@@ -37,6 +37,18 @@ class Settings(BaseSettings):
     max_wave_frequency: int = Field(default=6, ge=1, description="largest frequency_max of one "
                                     "wave design (the screening grows as its power)")
     compute_threads: int = Field(default=4, ge=1, description="concurrent synchronous computations")
+    quick_threads: int = Field(default=1, ge=1, description="threads kept for quick requests: "
+                               "dynamics or coupling at no more than quick_points points")
+    quick_points: int = Field(default=64, ge=0, description="points (states, configurations, "
+                              "grid points) of a quick request")
+    compute_wait: float = Field(default=5.0, ge=0.0, description="longest wait for a compute "
+                                "thread [s]; then 503 with Retry-After")
+    sync_wall_time: float = Field(default=20.0, gt=0.0, description="wall-time budget of one "
+                                  "synchronous computation, its wait for a thread included [s]")
+    max_wave_screening: int = Field(default=500_000, ge=1, description="configurations the "
+                                    "screening of one wave design may evaluate")
+    read_timeout: float = Field(default=10.0, gt=0.0, description="time a client has to send "
+                                "a request's head, and again its body [s]")
     retry_after: int = Field(default=5, ge=1, description="Retry-After [s] when the queue is full")
     log_level: str = Field(default="INFO")
 

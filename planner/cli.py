@@ -311,9 +311,11 @@ _COMMANDS = {"plan": "plan", "inverse-dynamics": "inverse", "wave-design": "desi
 def cmd_serve(args: argparse.Namespace) -> int:
     import uvicorn
 
+    from app.server import PROTOCOL
+
     if args.workers is not None:
         os.environ["UNDERTOW_WORKERS"] = str(args.workers)
-    uvicorn.run("app.main:app", host=args.host, port=args.port)
+    uvicorn.run("app.main:app", host=args.host, port=args.port, http=PROTOCOL)
     return OK
 
 

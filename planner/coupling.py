@@ -21,12 +21,14 @@ from typing import Literal
 
 import casadi as ca
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, Field, model_validator
 from scipy.optimize import minimize, minimize_scalar
 from scipy.optimize.elementwise import find_root
 
+from planner import budget
 from planner.dynamics import derive, functions
 from planner.model import Robot, Structure, parameters
+from planner.schema import REQUEST as _STRICT
 
 MAX_POINTS = 200_000
 """Largest number of configurations one request may evaluate."""
@@ -36,8 +38,8 @@ MAX_SINGULAR = 1_000
 """Largest number of singular points a report refines and lists."""
 CHUNK = 4096
 """Configurations per mapped CasADi call."""
+_REFINING = "the refinement of singular point {} of {}"
 
-_STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 SplitKind = Literal["square", "fewer-active", "more-active"]
 
@@ -62,23 +64,30 @@ class Grid(BaseModel):
             raise ValueError(f"upper: needs {len(self.lower)} entries, as many as lower")
         if any(u < lo for lo, u in zip(self.lower, self.upper)):
             raise ValueError("upper: every entry must be >= the matching entry of lower")
-        counts = self.points if isinstance(self.points, list) else [self.points] * len(self.lower)
+        counts = self._requested()
         if len(counts) != len(self.lower):
             raise ValueError(f"points: needs 1 or {len(self.lower)} entries")
         if any(c < 1 or (c < 2 and u > lo) for c, lo, u in zip(counts, self.lower, self.upper)):
             raise ValueError("points: an axis with lower < upper needs at least 2 points")
         return self
 
+    def _requested(self) -> list[int]:
+        """`points` as one count per axis."""
+        return self.points if isinstance(self.points, list) else [self.points] * len(self.lower)
+
+    def counts(self) -> list[int]:
+        """Points of every axis (1 on a degenerate axis), computed without building the axes."""
+        return [1 if u == lo else c for lo, u, c in zip(self.lower, self.upper, self._requested())]
+
     def axes(self) -> list[np.ndarray]:
         """Grid coordinates of every axis; a degenerate axis holds its single value."""
-        counts = self.points if isinstance(self.points, list) else [self.points] * len(self.lower)
-        return [np.array([lo]) if u == lo else np.linspace(lo, u, c)
-                for lo, u, c in zip(self.lower, self.upper, counts)]
+        return [np.array([lo]) if c == 1 else np.linspace(lo, u, c)
+                for lo, u, c in zip(self.lower, self.upper, self.counts())]
 
     @property
     def size(self) -> int:
-        """Number of grid points."""
-        return math.prod(len(axis) for axis in self.axes())
+        """Number of grid points (arithmetic: nothing is allocated, whatever the request)."""
+        return math.prod(self.counts())
 
 
 class CouplingRequest(BaseModel):
@@ -113,7 +122,7 @@ class CouplingRequest(BaseModel):
             if len(self.grid.lower) != n:
                 raise ValueError(f"grid.lower: needs {n} entries, one per joint")
             if self.grid.size > MAX_POINTS:
-                raise ValueError(f"grid: {self.grid.size:,} points exceed the limit of "
+                raise ValueError(f"grid.points: {self.grid.size:,} points exceed the limit of "
                                  f"{MAX_POINTS:,}; use fewer points per axis")
         return self
 
@@ -223,11 +232,13 @@ def _mapped(s: Structure, name: str, size: int) -> ca.Function:
     return f.map(size)
 
 
-def evaluate(s: Structure, name: str, configurations, p) -> np.ndarray:
+def evaluate(s: Structure, name: str, configurations, p,
+             deadline: float | None = None) -> np.ndarray:
     """Evaluate function `name` (of q and p: "Mpa", "dMpa", "M", ...) at every configuration.
 
     configurations: (K, n); p: one parameter vector (n_params,) or one per row (K, n_params).
-    Returns (K, rows, cols) of the function's output at each configuration.
+    Returns (K, rows, cols) of the function's output at each configuration. Past
+    `deadline` (`time.monotonic()`, checked between chunks) it raises BudgetExceeded.
     """
     Q = np.atleast_2d(np.asarray(configurations, dtype=float))
     P = np.asarray(p, dtype=float)
@@ -238,6 +249,7 @@ def evaluate(s: Structure, name: str, configurations, p) -> np.ndarray:
     cols //= size
     out = np.empty((K, rows, cols))
     for start in range(0, K, size):
+        budget.check(deadline, f"the evaluation of {name} (at configuration {start:,} of {K:,})")
         stop = min(start + size, K)
         args = [_pad(Q[start:stop], size).T,
                 P if P.ndim == 1 else _pad(P[start:stop], size).T]
@@ -253,10 +265,11 @@ def _pad(rows: np.ndarray, size: int) -> np.ndarray:
     return np.vstack([rows, np.repeat(rows[-1:], missing, axis=0)]) if missing else rows
 
 
-def blocks(robot: Robot, configurations, structure: Structure | None = None) -> np.ndarray:
+def blocks(robot: Robot, configurations, structure: Structure | None = None,
+           deadline: float | None = None) -> np.ndarray:
     """M_pa at every configuration: (K, n_passive, n_active) [kg m^2] for q of shape (K, n)."""
     s = structure or Structure.of(robot)
-    return evaluate(s, "Mpa", configurations, parameters(robot, s))
+    return evaluate(s, "Mpa", configurations, parameters(robot, s), deadline)
 
 
 def measures(mpa: np.ndarray) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
@@ -301,7 +314,7 @@ def _edges(shape: tuple[int, ...]) -> list[tuple[np.ndarray, np.ndarray]]:
 
 
 def _sign_changes(robot: Robot, s: Structure, Q: np.ndarray, det: np.ndarray,
-                  pairs) -> tuple[list[SingularPoint], int]:
+                  pairs, deadline: float | None = None) -> tuple[list[SingularPoint], int]:
     """Grid points with det = 0, and every sign change of det between neighbours refined
     on the straight segment between them (all edges at once: Chandrupatla's bracketing
     method, scipy.optimize.elementwise.find_root, to machine precision).
@@ -322,7 +335,7 @@ def _sign_changes(robot: Robot, s: Structure, Q: np.ndarray, det: np.ndarray,
     def det_along(u: np.ndarray, *columns: np.ndarray) -> np.ndarray:
         n = len(columns) // 2
         q = np.stack([a + u * d for a, d in zip(columns[:n], columns[n:])], axis=-1)
-        return measures(evaluate(s, "Mpa", q.reshape(-1, s.n), p))[0].reshape(u.shape)
+        return measures(evaluate(s, "Mpa", q.reshape(-1, s.n), p, deadline))[0].reshape(u.shape)
 
     res = find_root(det_along, (np.zeros(len(lo)), np.ones(len(lo))),
                     args=(*start.T, *step.T), tolerances={"xatol": 1e-16, "xrtol": 1e-15})
@@ -390,9 +403,10 @@ def _refine_minimum(robot: Robot, s: Structure, lower: np.ndarray, upper: np.nda
 
 
 def _minima_points(robot: Robot, s: Structure, Q: np.ndarray, idx: np.ndarray,
-                   boxes) -> list[SingularPoint]:
+                   boxes, deadline: float | None = None) -> list[SingularPoint]:
     found = []
     for k in idx:
+        budget.check(deadline, _REFINING.format(len(found), len(idx)))
         lower, upper = boxes(k)
         q = _refine_minimum(robot, s, lower, upper, Q[k])
         found.append(_singular(robot, s, q, "sigma-minimum"))
@@ -426,28 +440,34 @@ def _points(request: CouplingRequest):
     return Q, _edges(shape), boxes, False
 
 
-def analyse(request: CouplingRequest) -> CouplingReport:
+def analyse(request: CouplingRequest, *, deadline: float | None = None) -> CouplingReport:
     """det, sigma_min and condition of M_pa at the requested configurations, the singular
-    points between them, and the smallest sigma_min met."""
+    points between them, and the smallest sigma_min met (BudgetExceeded past `deadline`,
+    a `time.monotonic()` value)."""
+    with budget.part_of("the coupling analysis"):
+        return _analyse(request, deadline)
+
+
+def _analyse(request: CouplingRequest, deadline: float | None) -> CouplingReport:
     robot = request.robot
     s = Structure.of(robot)
     split = split_of(robot)
     Q, pairs, boxes, is_path = _points(request)
-    det, smin, smax = measures(blocks(robot, Q, s))
+    det, smin, smax = measures(blocks(robot, Q, s, deadline))
 
     singular: list[SingularPoint] = []
     omitted = 0
     if split.kind != "fewer-active":
         if det is not None:
-            singular, omitted = _sign_changes(robot, s, Q, det, pairs)
+            singular, omitted = _sign_changes(robot, s, Q, det, pairs, deadline)
         near = _near_sign_change(det, pairs, len(Q))
         idx = _local_minima(smin.copy(), pairs, request.threshold, near)
-        budget = MAX_SINGULAR - len(singular)
-        omitted += max(len(idx) - budget, 0)
+        room = MAX_SINGULAR - len(singular)
+        omitted += max(len(idx) - room, 0)
         if is_path:
-            singular += _path_minima(robot, s, Q, idx[:budget])
+            singular += _path_minima(robot, s, Q, idx[:room], deadline)
         else:
-            singular += _minima_points(robot, s, Q, idx[:budget], boxes)
+            singular += _minima_points(robot, s, Q, idx[:room], boxes, deadline)
 
     k = int(np.argmin(smin))
     best = MinSigma(q=Q[k].tolist(), sigma_min=float(smin[k]))
@@ -464,11 +484,13 @@ def analyse(request: CouplingRequest) -> CouplingReport:
                           min_sigma=best)
 
 
-def _path_minima(robot: Robot, s: Structure, Q: np.ndarray, idx: np.ndarray) -> list[SingularPoint]:
+def _path_minima(robot: Robot, s: Structure, Q: np.ndarray, idx: np.ndarray,
+                 deadline: float | None = None) -> list[SingularPoint]:
     """Refine local minima of sigma_min along the polyline through the configurations."""
     found = []
     K = len(Q)
     for k in idx:
+        budget.check(deadline, _REFINING.format(len(found), len(idx)))
         prev, nxt = Q[max(k - 1, 0)], Q[min(k + 1, K - 1)]
 
         def along(u: float) -> np.ndarray:

@@ -12,10 +12,10 @@ import math
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from planner import budget
 from planner.dynamics import Dynamics
 from planner.model import Robot
-
-_STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+from planner.schema import REQUEST as _STRICT
 
 MAX_STATES = 10_000
 
@@ -105,10 +105,15 @@ def _result(dyn: Dynamics, k: int, state: StateQuery) -> DynamicsResult:
         generalized_forces=None if forces is None else forces.tolist())
 
 
-def evaluate(request: DynamicsRequest) -> DynamicsResponse:
+def evaluate(request: DynamicsRequest, *, deadline: float | None = None) -> DynamicsResponse:
     """Evaluate the dynamics at every state of a request.
 
-    Raises ValueError ("states.k: ...") where a state is so large that a value overflows.
+    Raises ValueError ("states.k: ...") where a state is so large that a value overflows,
+    BudgetExceeded past `deadline` (a `time.monotonic()` value).
     """
     dyn = Dynamics(request.robot)
-    return DynamicsResponse(results=[_result(dyn, k, s) for k, s in enumerate(request.states)])
+    results = []
+    for k, state in enumerate(request.states):
+        budget.check(deadline, f"the dynamics (at state {k} of {len(request.states)})")
+        results.append(_result(dyn, k, state))
+    return DynamicsResponse(results=results)

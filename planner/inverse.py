@@ -29,15 +29,15 @@ from typing import Literal
 
 import casadi as ca
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, Field, model_validator
 from scipy.integrate import solve_ivp
 
+from planner import budget
 from planner.coupling import blocks, check_split, measures
 from planner.dynamics import derive, functions
 from planner.model import Robot, Structure, parameters
 from planner.profiles import PassiveMotion, SampledProfile
-
-_STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+from planner.schema import REQUEST as _STRICT
 
 RESOLUTION = 1e-8
 """Smallest sigma_min(M_pa) / max_i M_ii the integration follows. The entries of M carry
@@ -168,7 +168,7 @@ class _Problem:
     object with `evaluate(t, duration) -> (q, dq, ddq)`)."""
 
     def __init__(self, robot: Robot, motion, duration: float, threshold: float,
-                 wall_time: float | None = None):
+                 wall_time: float | None = None, deadline: float | None = None):
         self.robot = robot
         self.s = Structure.of(self.robot)
         self.p = parameters(self.robot, self.s)
@@ -179,6 +179,7 @@ class _Problem:
         self.threshold = threshold
         self.wall_time = WALL_TIME if wall_time is None else wall_time
         self.deadline = time.monotonic() + self.wall_time
+        self.budget = deadline  # the caller's, apart from the motion's own wall time
 
     def full(self, t, xa: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """All joints' q, dq and the passive ddq at times t (K,) for active states (K, 2 na)."""
@@ -190,6 +191,7 @@ class _Problem:
         return q, dq, ddqp
 
     def rhs(self, t: float, x: np.ndarray) -> np.ndarray:
+        budget.check(self.budget, f"the inverse dynamics (at t = {t:.6g} s of {self.T:g} s)")
         if time.monotonic() > self.deadline:
             raise _OverBudget
         q, dq, ddqp = self.full(t, x[None, :])
@@ -206,21 +208,24 @@ class _Problem:
         return float(measures(block[None])[1][0]), level
 
 
-def solve(request: InverseDynamicsRequest) -> InverseDynamicsResult:
-    """Active motion and torques for the prescribed passive motion, or the singular stop."""
+def solve(request: InverseDynamicsRequest, *,
+          deadline: float | None = None) -> InverseDynamicsResult:
+    """Active motion and torques for the prescribed passive motion, or the singular stop
+    (BudgetExceeded past `deadline`, a `time.monotonic()` value)."""
     return integrate(request.robot, request.passive_motion, request.duration,
                      request.active_initial, request.samples, request.sigma_threshold,
-                     request.rtol, request.atol)
+                     request.rtol, request.atol, deadline=deadline)
 
 
 def integrate(robot: Robot, motion, duration: float, active_initial: ActiveState,
               samples: int, sigma_threshold: float, rtol: float = 1e-10,
-              atol: float = 1e-10, wall_time: float | None = None) -> InverseDynamicsResult:
+              atol: float = 1e-10, wall_time: float | None = None, *,
+              deadline: float | None = None) -> InverseDynamicsResult:
     """`solve` for an already checked robot and motion; the motion may be any object with
     `evaluate(t, duration) -> (q, dq, ddq)` of the passive joints. Past wall_time [s] of
     integration (default WALL_TIME) it raises ValueError, as it does when the results
-    overflow."""
-    pb = _Problem(robot, motion, duration, sigma_threshold, wall_time)
+    overflow; past `deadline` (`time.monotonic()`) BudgetExceeded."""
+    pb = _Problem(robot, motion, duration, sigma_threshold, wall_time, deadline)
     x0 = np.concatenate([active_initial.q, active_initial.dq])
     grid = np.linspace(0.0, duration, samples)
     sigma0, level0 = pb.sigma(0.0, x0)

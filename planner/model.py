@@ -14,7 +14,9 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator
+from pydantic import BaseModel, Field, ValidationInfo, field_validator
+
+from planner.schema import REQUEST as _FINITE
 
 MAX_LINKS = 8
 MIN_LENGTH, MAX_LENGTH = 1e-4, 1e3  # m
@@ -23,8 +25,6 @@ MAX_INERTIA = 1e6  # kg m^2
 MAX_GRAVITY = 1e3  # m/s^2
 MAX_FREQUENCY = 100.0  # periods per turn
 MAX_PHASE = 1e3  # rad
-
-_FINITE = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class Wave(BaseModel):

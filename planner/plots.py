@@ -47,6 +47,14 @@ _SPIKE = 100.0  # a torque peak this many times the median switches to a symlog 
 _SIGMA_FLOOR = 1e-12  # [kg m^2] lower clip of sigma_min on the log axis
 _WITH, _WITHOUT, _MARK = "#1f6fb4", "#9a9a9a", "#d62728"
 _ACTIVE, _PASSIVE = "#ff7f0e", "#555555"
+JOINT_COLOURS = ("#1f6fb4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#17becf",
+                 "#bcbd22")
+"""Colour of joint j's curves (j modulo 8): neither the marks' red nor the waveless grey."""
+PALETTE = {"joints": list(JOINT_COLOURS), "with": _WITH, "without": _WITHOUT, "mark": _MARK,
+           "active": _ACTIVE, "passive": _PASSIVE}
+"""Every colour of the figures by role; the browser viewer draws with the same ones."""
+GRAVITY_GID = "gravity"
+"""gid of the gravity arrow in each snapshot."""
 
 
 # --------------------------------------------------------------------------- public API
@@ -210,6 +218,9 @@ def _snapshots(fig: Figure, strip, robot: Robot, t: np.ndarray, q: np.ndarray,
         ax.scatter(*_screen(tips[1:]), s=sizes, c=colors, zorder=4, edgecolors="white",
                    linewidths=0.6)
         ax.plot([0.0], [0.0], marker="s", color="#222222", ms=5, zorder=5)
+        ax.annotate("", xy=(0.07, 0.66), xytext=(0.07, 0.94), xycoords="axes fraction",
+                    arrowprops={"arrowstyle": "-|>", "color": "#777777", "lw": 1.2},
+                    gid=f"{GRAVITY_GID}-{col}")  # the model's x axis: drawn downwards
         ax.set_title(f"t = {t[k]:.2f} s", fontsize=9)
         ax.set_xlim(cx - half, cx + half)
         ax.set_ylim(cy - half, cy + half)
@@ -229,9 +240,14 @@ def _snapshot_key(ax: Axes) -> None:
                Line2D([], [], ls="", marker="o", color=_ACTIVE, label="mass, active joint"),
                Line2D([], [], color=_ACTIVE, lw=1.5, label="active link's mass\npath r(q) e(q), swept"),
                Line2D([], [], color="#c7c7c7", lw=0.9, label="last tip's path"),
-               Line2D([], [], ls="", marker="v", color="#777777", label="gravity (x) down")]
+               Line2D([], [], ls="", marker="$\\downarrow$", color="#777777",
+                      label="gravity (x) down")]
     ax.legend(handles=handles, loc="center left", fontsize=7.5, frameon=False,
               borderaxespad=0.0, handlelength=1.6)
+
+
+def _joint_colour(j: int) -> str:
+    return JOINT_COLOURS[j % len(JOINT_COLOURS)]
 
 
 def _joint_label(robot: Robot | None, j: int) -> str:
@@ -244,7 +260,7 @@ def _angles(ax: Axes, t: np.ndarray, q: np.ndarray, robot: Robot | None) -> None
     for j in range(q.shape[1]):
         active = robot is not None and robot.links[j].joint == "active"
         ax.plot(t, q[:, j], lw=1.6, ls="-" if active or robot is None else "--",
-                color=f"C{j % 10}", label=_joint_label(robot, j))
+                color=_joint_colour(j), label=_joint_label(robot, j))
     ax.set_ylabel("q [rad]")
     ax.grid(True, alpha=0.3)
 
@@ -252,7 +268,7 @@ def _angles(ax: Axes, t: np.ndarray, q: np.ndarray, robot: Robot | None) -> None
 def _torques(ax: Axes, t: np.ndarray, tau: np.ndarray, robot: Robot | None) -> None:
     active = robot.active if robot is not None else list(range(tau.shape[1]))
     for col, j in enumerate(active):
-        ax.plot(t, tau[:, col], lw=1.6, color=f"C{j % 10}", label=f"tau{j}")
+        ax.plot(t, tau[:, col], lw=1.6, color=_joint_colour(j), label=f"tau{j}")
     magnitude = np.abs(tau[np.isfinite(tau)])
     if magnitude.size and magnitude.max() > _SPIKE * max(np.median(magnitude), 1e-12):
         typical = max(float(np.percentile(magnitude, 90)), 1e-9)
@@ -294,10 +310,14 @@ def _legend(ax: Axes) -> None:
 
 
 def _plan_title(plan: Plan) -> str:
+    """Whether the plan is verified (its re-simulation error against the tolerance), then
+    Ipopt's outcome and the plan's figures."""
     v = plan.verification
-    parts = [f"plan: {plan.solver.status} ({plan.solver.iterations} iterations)",
-             f"T = {plan.duration:.3g} s", f"objective {plan.objective:.4g}"]
+    verdict = {True: "verified", False: "not verified"}.get(v.verified, "not checked")
     if v.resimulation_error is not None:
-        parts.append(f"re-simulation error {v.resimulation_error:.2g} rad")
-    parts.append(f"{len(v.waveless_singular_crossings)} waveless singular crossing(s)")
-    return " · ".join(parts)
+        bound = f" (tolerance {v.tolerance:.2g} rad)" if v.tolerance is not None else ""
+        verdict += f": re-simulation error {v.resimulation_error:.2g} rad{bound}"
+    parts = [f"Ipopt {plan.solver.status} ({plan.solver.iterations} iterations)",
+             f"T = {plan.duration:.3g} s", f"objective {plan.objective:.4g}",
+             f"{len(v.waveless_singular_crossings)} waveless singular crossing(s)"]
+    return f"plan {verdict}\n" + " · ".join(parts)

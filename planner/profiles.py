@@ -10,12 +10,12 @@ from functools import cached_property
 from typing import Annotated, Literal, Union
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, Field, model_validator
 from scipy.interpolate import CubicSpline
 from scipy.special import beta as beta_fn
 from scipy.special import betainc
 
-_STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+from planner.schema import REQUEST as _STRICT
 
 Motion = tuple[np.ndarray, np.ndarray, np.ndarray]
 

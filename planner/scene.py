@@ -8,12 +8,11 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, Field, model_validator
 
 from planner.model import Robot
 from planner.profiles import PassiveMotion
-
-_STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+from planner.schema import REQUEST as _STRICT
 
 
 class State(BaseModel):
@@ -86,6 +85,13 @@ class Bounds(BaseModel):
     lower: list[float | None]
     upper: list[float | None]
 
+    @model_validator(mode="after")
+    def _ordered(self) -> Bounds:
+        for k, (lo, hi) in enumerate(zip(self.lower, self.upper)):
+            if lo is not None and hi is not None and lo > hi:
+                raise ValueError(f"lower.{k}: must not exceed upper.{k} ({lo:g} > {hi:g})")
+        return self
+
 
 class WaveCoDesign(BaseModel):
     """Let the planner choose the active joints' wave amplitudes and phases (frequency fixed)."""
@@ -114,6 +120,17 @@ class Task(BaseModel):
     coupling_margin: float | None = Field(
         default=None, gt=0.0, description="sigma_min(M_pa) >= margin along the path")
     co_design: WaveCoDesign | None = None
+
+    @model_validator(mode="after")
+    def _positive(self) -> Task:
+        if isinstance(self.duration, float) and self.duration <= 0.0:
+            raise ValueError(f"duration: must be greater than 0 s (got {self.duration:g})")
+        limits = self.torque_limit if isinstance(self.torque_limit, list) else [self.torque_limit]
+        for k, limit in enumerate(limits):
+            if limit is not None and limit < 0.0:
+                where = f".{k}" if isinstance(self.torque_limit, list) else ""
+                raise ValueError(f"torque_limit{where}: must not be negative (got {limit:g} N m)")
+        return self
 
 
 Method = Literal["trapezoidal", "hermite-simpson", "legendre", "radau", "multiple-shooting"]

@@ -14,6 +14,7 @@ oscillatory, not stiff, and on every robot measured Adams drifts less in energy 
 from __future__ import annotations
 
 import itertools
+import math
 import re
 from functools import lru_cache
 from typing import Literal
@@ -23,8 +24,11 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator
 from scipy.interpolate import CubicSpline
 
+from planner import budget
 from planner.dynamics import functions
+from planner.exclusive import Exclusive
 from planner.model import Robot, Structure, parameters
+from planner.schema import REQUEST as _STRICT
 
 Interpolation = Literal["zoh", "linear", "cubic"]
 Method = Literal["adams", "bdf"]
@@ -45,9 +49,8 @@ _FAILURES = {
                             "(values too large)",
     "CV_REPTD_RHSFUNC_ERR": "the dynamics became non-finite (values too large)",
     "CV_UNREC_RHSFUNC_ERR": "the dynamics became non-finite (values too large)",
+    "CV_BAD_T": "the integrator stopped short of the output time (values too large)",
 }
-
-_STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class Trajectory(BaseModel):
@@ -77,8 +80,13 @@ def torque_coefficients(t: np.ndarray, tau: np.ndarray, kind: Interpolation) -> 
 
 @lru_cache(maxsize=64)
 def _integrator(s: Structure, degree: int, n_out: int, rtol: float, atol: float,
-                method: Method) -> ca.Function:
-    """CVODES over one interval in normalised time s in [0, 1], outputs at n_out points."""
+                method: Method) -> Exclusive:
+    """CVODES over one interval in normalised time s in [0, 1], outputs at n_out points.
+
+    A clock quadrature (ds/ds = 1, outside the error control) is read at every output:
+    CVODES can stop at s = 0 without an error (torques near the largest double), and
+    reading the clock at an output never reached then fails (CV_BAD_T) instead of
+    returning the initial state as the result."""
     f = functions(s)["ode"]
     na = len(s.active_idx)
     x = ca.SX.sym("x", 2 * s.n)
@@ -87,53 +95,79 @@ def _integrator(s: Structure, degree: int, n_out: int, rtol: float, atol: float,
     p = ca.SX.sym("p", s.n_params)
     h = ca.SX.sym("h")
     tau = sum(coeffs[j * na:(j + 1) * na] * sn**j for j in range(degree + 1))
-    dae = {"x": x, "t": sn, "p": ca.vertcat(p, coeffs, h), "ode": h * f(x, tau, p)}
+    dae = {"x": x, "t": sn, "p": ca.vertcat(p, coeffs, h), "ode": h * f(x, tau, p), "quad": 1}
     grid = np.linspace(0.0, 1.0, n_out + 1)[1:]
     opts = {"abstol": atol, "reltol": rtol, "max_num_steps": MAX_STEPS,
             "show_eval_warnings": False, "disable_internal_warnings": True, **_METHODS[method]}
-    return ca.integrator("sim", "cvodes", dae, 0.0, list(grid), opts)
+    return Exclusive(ca.integrator("sim", "cvodes", dae, 0.0, list(grid), opts))
 
 
 def _reason(error: RuntimeError) -> str:
     """What CVODES reported, in words."""
-    flag = re.search(r'CVode returned "(\w+)"', str(error))
+    flag = re.search(r'CVode\w* returned "(\w+)"', str(error))
     if flag is None:
         return str(error).strip().splitlines()[-1]
     return f"{_FAILURES.get(flag[1], 'the integrator stopped')} (CVODES {flag[1]})"
 
 
 def simulate(robot: Robot, breakpoints, coeffs, x0, samples_per_interval: int = 1,
-             rtol: float = 1e-10, atol: float = 1e-10, *, method: Method = "adams") -> Trajectory:
+             rtol: float = 1e-10, atol: float = 1e-10, *, method: Method = "adams",
+             deadline: float | None = None) -> Trajectory:
     """Integrate M ddq + h = B tau from x0 = (q, dq) under piecewise-polynomial torques.
 
     breakpoints (K + 1,) [s]; coeffs (K, degree + 1, n_active) as in `torque_coefficients`.
     Returns the state at every breakpoint and `samples_per_interval - 1` points between.
     A failed integration does not raise: it returns what was reached with status
     "failed" and a message saying in which interval and why.
+
+    With a `deadline` (`time.monotonic()`) every output is one CVODES call (the interval's
+    torque polynomial restricted to it), checked against the deadline before it starts,
+    so that past it BudgetExceeded comes after at most one output's MAX_STEPS steps;
+    without one, one call integrates a whole interval.
     """
     s = Structure.of(robot)
     p = parameters(robot, s)
     tk = np.asarray(breakpoints, float)
     coeffs = np.asarray(coeffs, float)
     K, degree = coeffs.shape[0], coeffs.shape[1] - 1
-    sim = _integrator(s, degree, samples_per_interval, rtol, atol, method)
+    pieces = 1 if deadline is None else samples_per_interval
+    per_call = samples_per_interval // pieces
+    sim = _integrator(s, degree, per_call, rtol, atol, method)
     x = np.asarray(x0, float)
     times, states = [tk[0]], [x]
     for k in range(K):
         h = tk[k + 1] - tk[k]
         where = f"between t = {tk[k]:.6g} s and t = {tk[k + 1]:.6g} s"
-        try:
-            out = sim(x0=x, p=np.concatenate([p, coeffs[k].ravel(), [h]]))
-        except RuntimeError as exc:
-            return _trajectory(times, states, s.n, "failed",
-                               f"integration failed {where}: {_reason(exc)}")
-        xf = np.array(out["xf"])
-        if not np.all(np.isfinite(xf)):
-            return _trajectory(times, states, s.n, "failed", f"the state became non-finite {where}")
-        times += list(tk[k] + h * np.linspace(0, 1, samples_per_interval + 1)[1:])
-        states += list(xf.T)
-        x = xf[:, -1]
+        outputs = tk[k] + h * np.linspace(0, 1, samples_per_interval + 1)[1:]
+        for j in range(pieces):
+            what = f"the simulation (at t = {tk[k] + h * j / pieces:.6g} s of {tk[-1]:.6g} s)"
+            budget.check(deadline, what)
+            c = _restricted(coeffs[k], j / pieces, 1 / pieces)
+            try:
+                out, _ = sim(deadline, what, x0=x, p=np.concatenate([p, c.ravel(), [h / pieces]]))
+            except RuntimeError as exc:
+                return _trajectory(times, states, s.n, "failed",
+                                   f"integration failed {where}: {_reason(exc)}")
+            xf = np.array(out["xf"])
+            if not np.all(np.isfinite(xf)):
+                return _trajectory(times, states, s.n, "failed",
+                                   f"the state became non-finite {where}")
+            times += list(outputs[j * per_call:(j + 1) * per_call])
+            states += list(xf.T)
+            x = xf[:, -1]
     return _trajectory(times, states, s.n, "completed", "")
+
+
+def _restricted(c: np.ndarray, start: float, width: float) -> np.ndarray:
+    """Coefficients (degree + 1, n_active) of sum_j c[j] s^j on s in [start, start + width],
+    in the local u = (s - start) / width in [0, 1]."""
+    if start == 0.0 and width == 1.0:
+        return c
+    out = np.zeros_like(c)
+    for j in range(len(c)):
+        for m in range(j + 1):
+            out[m] += math.comb(j, m) * start ** (j - m) * width**m * c[j]
+    return out
 
 
 def _trajectory(times, states, n, status, message) -> Trajectory:
@@ -167,6 +201,11 @@ class SimulationRequest(BaseModel):
     rtol: float = Field(default=1e-10, ge=1e-14, le=1e-2)
     atol: float = Field(default=1e-10, ge=1e-14, le=1e-2)
 
+    @property
+    def output_samples(self) -> int:
+        """Samples of the trajectory `run` returns: (len(t) - 1) * samples_per_interval + 1."""
+        return (len(self.t) - 1) * self.samples_per_interval + 1
+
     @field_validator("t")
     @classmethod
     def _increasing(cls, t: list[float]) -> list[float]:
@@ -199,9 +238,10 @@ class SimulationRequest(BaseModel):
         return initial
 
 
-def run(request: SimulationRequest) -> Trajectory:
-    """Simulate a request: interpolate its torques and integrate from its initial state."""
+def run(request: SimulationRequest, *, deadline: float | None = None) -> Trajectory:
+    """Simulate a request: interpolate its torques and integrate from its initial state
+    (BudgetExceeded past `deadline`, a `time.monotonic()` value)."""
     coeffs = torque_coefficients(np.asarray(request.t), np.asarray(request.tau), request.interpolation)
     x0 = np.concatenate([request.initial.q, request.initial.dq])
     return simulate(request.robot, request.t, coeffs, x0, request.samples_per_interval,
-                    request.rtol, request.atol)
+                    request.rtol, request.atol, deadline=deadline)

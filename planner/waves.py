@@ -36,16 +36,18 @@ from typing import Literal
 
 import casadi as ca
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, Field, model_validator
 
+from planner import budget
 from planner.coupling import evaluate, measures
 from planner.dynamics import derive
+from planner.exclusive import Exclusive
 from planner.inverse import (ActiveState, InverseDynamicsRequest, InverseDynamicsResult,
                              active_acceleration, check_motion, check_prescribable, solve)
 from planner.model import Robot, Structure, Wave, parameters, wave_slots
 from planner.profiles import PassiveMotion
+from planner.schema import REQUEST as _STRICT
 
-_STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 AMPLITUDE_FRACTION = 0.95
 """Largest amplitude as a fraction of the link length (r stays >= 5 % of l)."""
@@ -53,6 +55,12 @@ EXCHANGE_ROUNDS = 6
 """Largest number of NLP solves per starting point (exchange iterations)."""
 EXCHANGE_TOL = 0.01
 """The exchange stops when the dense minimum is within this fraction of the NLP bound."""
+MAX_SCREENING = 5_000_000
+"""Largest number of configurations the screening of one design may evaluate
+(candidates x samples of each, `WaveDesignRequest.screening`)."""
+SCREEN_STEPS = 100
+"""RK4 steps of the screening's inverse dynamics along a motion."""
+_WHAT = "the wave design"
 _IPOPT = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",
           "ipopt.max_iter": 250, "ipopt.tol": 1e-9, "ipopt.acceptable_tol": 1e-6}
 """Ipopt settings. The motion NLP is also expanded to SX (builds once per ladder size,
@@ -114,7 +122,23 @@ class WaveDesignRequest(BaseModel):
         else:
             m = self.motion
             check_motion(self.robot, m.passive_motion, m.duration, m.active_initial, "motion.")
+        if self.screening > MAX_SCREENING:
+            raise ValueError(f"frequency_max: the screening would evaluate {self.screening:,} "
+                             f"configurations, more than the limit of {MAX_SCREENING:,}; lower "
+                             "frequency_max or fix joints of the region (lower == upper)")
         return self
+
+    @property
+    def screening(self) -> int:
+        """Configurations the screening evaluates, counted without building anything:
+        every frequency and phase combination of the active joints times its samples (the
+        region's coarse grid, or the motion's RK4 steps)."""
+        na = len(self.robot.active)
+        candidates = (self.frequency_max * _phases_per_joint(na)) ** na
+        if self.region is None:
+            return candidates * (SCREEN_STEPS + 1)
+        free = sum(hi > lo for lo, hi in zip(self.region.lower, self.region.upper))
+        return candidates * _coarse_points(free) ** free
 
 
 class WaveSpec(BaseModel):
@@ -208,7 +232,7 @@ def _decision(na: int):
 
 
 @lru_cache(maxsize=16)
-def _region_nlp(s: Structure, count: int) -> ca.Function:
+def _region_nlp(s: Structure, count: int) -> Exclusive:
     """maximise s over (a, eps, s) s.t. the bound holds at `count` configurations."""
     na = len(s.active_idx)
     a, eps, sig = _decision(na)
@@ -218,7 +242,8 @@ def _region_nlp(s: Structure, count: int) -> ca.Function:
     g = _sample_bound(s).map(count)(Q, p, sig**2, C)
     nlp = {"x": ca.vertcat(a, eps, sig), "p": ca.vertcat(base, freq, ca.vec(Q), ca.vec(C)),
            "f": -sig, "g": ca.vec(g)}
-    return ca.nlpsol("waves_region", "ipopt", nlp, _IPOPT)
+    return Exclusive(ca.nlpsol("waves_region", "ipopt", nlp,
+                               {**_IPOPT, **budget.ipopt_stop(nlp)}))
 
 
 @lru_cache(maxsize=16)
@@ -253,7 +278,7 @@ def _interval(na: int, nz: int) -> ca.Function:
 
 
 @lru_cache(maxsize=16)
-def _motion_nlp(s: Structure, K: int) -> tuple[ca.Function, int]:
+def _motion_nlp(s: Structure, K: int) -> tuple[Exclusive, int]:
     """maximise s over (a, eps, s, node states) along K intervals; returns (solver, nz)."""
     na, npas = len(s.active_idx), len(s.passive_idx)
     nz = 3 * na + (npas if na > npas else 0)
@@ -270,7 +295,8 @@ def _motion_nlp(s: Structure, K: int) -> tuple[ca.Function, int]:
     nlp = {"x": ca.vertcat(a, eps, sig, ca.vec(Z)), "f": -sig, "g": g,
            "p": ca.vertcat(base, freq, ca.vec(QP), ca.vec(DQP), ca.vec(DDQP), H.T, X0,
                            ca.vec(C))}
-    return ca.nlpsol("waves_motion", "ipopt", nlp, {**_IPOPT, "expand": True}), nz
+    options = {**_IPOPT, "expand": True, **budget.ipopt_stop(nlp)}
+    return Exclusive(ca.nlpsol("waves_motion", "ipopt", nlp, options)), nz
 
 
 # --------------------------------------------------------------------------- candidates
@@ -347,16 +373,17 @@ class _RegionProblem:
 
     SAMPLES = "grid points of the box, joined by the dense grid's worst points"
 
-    def __init__(self, request: WaveDesignRequest, s: Structure, base: Robot):
-        self.s, self.base = s, base
+    def __init__(self, request: WaveDesignRequest, s: Structure, base: Robot,
+                 deadline: float | None = None):
+        self.s, self.base, self.deadline = s, base, deadline
         self.p = parameters(base, s)
         lower, upper = np.array(request.region.lower), np.array(request.region.upper)
         self.free = np.flatnonzero(upper > lower)
         d = max(len(self.free), 1)
-        coarse = min(17, max(3, round(300 ** (1 / d))))
+        coarse = _coarse_points(len(self.free))
         self.samples = _box_grid(lower, upper, coarse)
-        budget = request.certification_points or 40_000
-        self.dense_points = max(3, int(budget ** (1 / d)))
+        points = request.certification_points or 40_000
+        self.dense_points = max(3, int(points ** (1 / d)))
         if self.dense_points == coarse:
             self.dense_points += 1
         self.dense = _box_grid(lower, upper, self.dense_points)
@@ -367,24 +394,25 @@ class _RegionProblem:
         K = len(self.samples)
         Q = np.tile(self.samples, (len(cands), 1))
         P = np.repeat(_params(self.s, self.p, cands), K, axis=0)
-        smin = measures(evaluate(self.s, "Mpa", Q, P))[1]
+        smin = measures(evaluate(self.s, "Mpa", Q, P, self.deadline))[1]
         return list(smin.reshape(len(cands), K).min(axis=1))
 
     def optimise(self, c: Candidate, upper: np.ndarray) -> Candidate:
         solver = _region_nlp(self.s, len(self.samples))
         x0 = np.concatenate([c.amplitude, c.phase, [max(c.bound, 0.0)]])
         p = _params(self.s, self.p, [c])[0]
-        C = _normalisers(evaluate(self.s, "Mpa", self.samples, p))
+        C = _normalisers(evaluate(self.s, "Mpa", self.samples, p, self.deadline))
         par = np.concatenate([self.p, c.frequency, self.samples.ravel(), C.ravel()])
-        sol = solver(x0=x0, p=par, lbx=_lbx(upper), ubx=_ubx(upper), lbg=0.0, ubg=np.inf)
+        sol, stats = solver(self.deadline, _WHAT, x0=x0, p=par, lbx=_lbx(upper),
+                            ubx=_ubx(upper), lbg=0.0, ubg=np.inf)
         x = np.array(sol["x"]).ravel()
-        return _candidate_from(solver, x, c, upper)
+        return _candidate_from(stats, x, c, upper)
 
     def certify(self, c: Candidate) -> Certificate:
         """Dense-grid minimum minus the Lipschitz bound between grid points."""
         p = _params(self.s, self.p, [c])[0]
-        smin = measures(evaluate(self.s, "Mpa", self.dense, p))[1]
-        jac = evaluate(self.s, "dMpa", self.dense, p)  # (K, r*c, n)
+        smin = measures(evaluate(self.s, "Mpa", self.dense, p, self.deadline))[1]
+        jac = evaluate(self.s, "dMpa", self.dense, p, self.deadline)  # (K, r*c, n)
         slope = np.sqrt((jac**2).sum(axis=1)).max(axis=0)  # largest |dM_pa/dq_i|_F
         lipschitz = float((slope * self.steps / 2)[self.free].sum())
         value = float(smin.min()) - lipschitz
@@ -403,6 +431,11 @@ class _RegionProblem:
         self.samples = np.vstack([self.samples, cert.worst])
 
 
+def _coarse_points(free: int) -> int:
+    """Optimisation samples per free axis of a region: about 300 in all, 3 to 17 a side."""
+    return min(17, max(3, round(300 ** (1 / max(free, 1)))))
+
+
 def _box_grid(lower: np.ndarray, upper: np.ndarray, points: int) -> np.ndarray:
     axes = [np.array([lo]) if hi == lo else np.linspace(lo, hi, points)
             for lo, hi in zip(lower, upper)]
@@ -419,14 +452,14 @@ def _ubx(upper: np.ndarray, extra: int = 0) -> np.ndarray:
     return np.concatenate([upper, np.inf * np.ones(na), [np.inf], np.inf * np.ones(extra)])
 
 
-def _candidate_from(solver: ca.Function, x: np.ndarray, start: Candidate,
+def _candidate_from(stats: dict, x: np.ndarray, start: Candidate,
                     upper: np.ndarray, guess: np.ndarray | None = None) -> Candidate:
     """The NLP's waves (amplitudes clipped to their bounds, phases wrapped); the start,
     marked unsolved, when the NLP returned a non-finite point."""
     na = len(start.frequency)
     if not np.all(np.isfinite(x)):
         return Candidate(start.amplitude, start.frequency, start.phase, start.bound, False)
-    solved = solver.stats()["return_status"] in ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+    solved = stats["return_status"] in ("Solve_Succeeded", "Solved_To_Acceptable_Level")
     return Candidate(np.clip(x[:na], 0.0, upper), start.frequency.copy(), _wrap(x[na:2 * na]),
                      float(x[2 * na]), solved, guess)
 
@@ -442,10 +475,10 @@ class _MotionProblem:
                "the dense check fell short")
 
     LADDER = (40, 80, 160, 320)  # collocation intervals: few sizes, few NLP builds
-    SCREEN_STEPS = 100
 
-    def __init__(self, request: WaveDesignRequest, s: Structure, base: Robot):
-        self.s, self.base, self.motion = s, base, request.motion
+    def __init__(self, request: WaveDesignRequest, s: Structure, base: Robot,
+                 deadline: float | None = None):
+        self.s, self.base, self.motion, self.deadline = s, base, request.motion, deadline
         self.p = parameters(base, s)
         self.times = np.linspace(0.0, self.motion.duration, self.LADDER[0] + 1)
         self.dense = request.certification_points or 2001
@@ -457,7 +490,7 @@ class _MotionProblem:
         Score: the smallest sigma_min along a motion that keeps sigma_min >= margin / 2,
         else the fraction of the duration reached minus one (negative).
         """
-        steps, T = self.SCREEN_STEPS, self.motion.duration
+        steps, T = SCREEN_STEPS, self.motion.duration
         t = np.linspace(0.0, T, 2 * steps + 1)
         qp, dqp, ddqp = self.motion.passive_motion.evaluate(t, T)
         stages = np.hstack([qp, dqp, ddqp])  # (2 steps + 1, 3 npas)
@@ -473,8 +506,9 @@ class _MotionProblem:
         q[1:, :, self.s.active_idx] = X[:na].reshape(na, C, steps).transpose(2, 1, 0)
         finite = np.isfinite(q).all(axis=2)
         q[~finite] = 0.0
-        sigma = measures(evaluate(self.s, "Mpa", q.reshape(-1, self.s.n),
-                                  np.tile(P, (steps + 1, 1))))[1].reshape(steps + 1, C)
+        mpa = evaluate(self.s, "Mpa", q.reshape(-1, self.s.n), np.tile(P, (steps + 1, 1)),
+                       self.deadline)
+        sigma = measures(mpa)[1].reshape(steps + 1, C)
         bad = (sigma < self.threshold) | ~finite
         reached = np.where(bad.any(axis=0), bad.argmax(axis=0) / steps, 1.0)
         return [float(sigma[:, k].min()) if reached[k] == 1.0 else float(reached[k] - 1.0)
@@ -485,7 +519,7 @@ class _MotionProblem:
         return solve(InverseDynamicsRequest(
             robot=c.robot(self.base), passive_motion=m.passive_motion, duration=m.duration,
             active_initial=m.active_initial, samples=samples, sigma_threshold=self.threshold,
-            rtol=rtol, atol=rtol))
+            rtol=rtol, atol=rtol), deadline=self.deadline)
 
     def _guess(self, c: Candidate, nz: int) -> np.ndarray:
         """Node states of the NLP: c's own, else from its inverse dynamics."""
@@ -522,19 +556,20 @@ class _MotionProblem:
         init = self.motion.active_initial
         q = np.empty((len(self.times), self.s.n))
         q[:, self.s.passive_idx], q[:, self.s.active_idx] = qp, Z[:len(init.q)].T
-        C = _normalisers(evaluate(self.s, "Mpa", q, _params(self.s, self.p, [c])[0]))
+        C = _normalisers(evaluate(self.s, "Mpa", q, _params(self.s, self.p, [c])[0],
+                                  self.deadline))
         par = np.concatenate([self.p, c.frequency, qp.ravel(), dqp.ravel(), ddqp.ravel(),
                               np.diff(self.times), init.q, init.dq, C.ravel()])
         extra = Z.size
         n_res = solver.size_out("g")[0] - (K + 1) * _n_bound(self.s)
         lbg = np.concatenate([np.zeros(n_res), np.zeros((K + 1) * _n_bound(self.s))])
         ubg = np.concatenate([np.zeros(n_res), np.inf * np.ones((K + 1) * _n_bound(self.s))])
-        sol = solver(x0=x0, p=par, lbx=_lbx(upper, extra), ubx=_ubx(upper, extra),
-                     lbg=lbg, ubg=ubg)
+        sol, stats = solver(self.deadline, _WHAT, x0=x0, p=par, lbx=_lbx(upper, extra),
+                            ubx=_ubx(upper, extra), lbg=lbg, ubg=ubg)
         x = np.array(sol["x"]).ravel()
         na = len(upper)
         Z = x[2 * na + 1:].reshape(nz, K + 1, order="F")
-        return _candidate_from(solver, x, c, upper, Z)
+        return _candidate_from(stats, x, c, upper, Z)
 
     def certify(self, c: Candidate) -> Certificate:
         """Dense inverse-dynamics samples: their minimum minus the bound between samples."""
@@ -549,7 +584,7 @@ class _MotionProblem:
                                reached=stop / self.motion.duration)
         q, dq = np.array(result.q), np.array(result.dq)
         p = _params(self.s, self.p, [c])[0]
-        jac = evaluate(self.s, "dMpa", q, p)  # (K, r*c, n)
+        jac = evaluate(self.s, "dMpa", q, p, self.deadline)  # (K, r*c, n)
         rate = np.sqrt((np.einsum("kij,kj->ki", jac, dq) ** 2).sum(axis=1)).max()
         dt = self.motion.duration / (self.dense - 1)
         value = float(sigma.min() - rate * dt / 2)
@@ -616,20 +651,32 @@ def _rollout(s: Structure, steps: int) -> ca.Function:
 # --------------------------------------------------------------------------- design
 
 
-def design(request: WaveDesignRequest) -> WaveDesignResult:
-    """Waves that keep sigma_min(M_pa) >= margin, certified on dense samples."""
+def design(request: WaveDesignRequest, *, deadline: float | None = None) -> WaveDesignResult:
+    """Waves that keep sigma_min(M_pa) >= margin, certified on dense samples.
+
+    Past `deadline` (a `time.monotonic()` value) it raises BudgetExceeded: between starts
+    and exchange rounds, between chunks of evaluations, inside the inverse dynamics, and
+    at the next Ipopt iteration."""
+    with budget.part_of(_WHAT):
+        return _design(request, deadline)
+
+
+def _design(request: WaveDesignRequest, deadline: float | None) -> WaveDesignResult:
     base = request.robot.without_waves()
     s = wave_structure(base)
     upper = np.array([min(request.amplitude_max, AMPLITUDE_FRACTION * base.links[j].length)
                       for j in base.active])
-    problem = (_RegionProblem if request.region is not None else _MotionProblem)(request, s, base)
+    kind = _RegionProblem if request.region is not None else _MotionProblem
+    problem = kind(request, s, base, deadline)
 
-    cands = _candidates(len(upper), request.frequency_max, upper, _phases_per_joint(request))
+    phases = _phases_per_joint(len(upper))
+    cands = _candidates(len(upper), request.frequency_max, upper, phases)
     scores = problem.screen(cands)
     order = _diverse(cands, scores, request.starts)
 
     best: tuple[Candidate, Certificate] | None = None
-    for k in order:
+    for i, k in enumerate(order):
+        budget.check(deadline, f"{_WHAT} (after {i} of {len(order)} starts)")
         start = cands[k]
         start.bound = float(scores[k])
         floor = max(request.margin, best[1].value if best else -math.inf)
@@ -640,16 +687,16 @@ def design(request: WaveDesignRequest) -> WaveDesignResult:
     status = "certified" if cert.value >= request.margin else "infeasible"
     certified = max(cert.value, 0.0)
     method = (f"From the {len(order)} best of {len(cands)} screened starts (integer "
-              f"frequencies 1..{request.frequency_max}, {_phases_per_joint(request)} phases "
+              f"frequencies 1..{request.frequency_max}, {phases} phases "
               f"per joint), Ipopt maximised a lower bound on sigma_min(M_pa) at the "
               f"{problem.SAMPLES}; certified: {cert.describe}.")
     return WaveDesignResult(status=status, waves=c.specs(base), certified_sigma_min=certified,
                             method=method, robot=c.robot(base))
 
 
-def _phases_per_joint(request: WaveDesignRequest) -> int:
-    """Starting phases per joint: about 36 phase combinations per frequency combination."""
-    na = len(request.robot.active)
+def _phases_per_joint(na: int) -> int:
+    """Starting phases per joint of `na` active joints: about 36 phase combinations per
+    frequency combination."""
     return max(2, min(8, math.floor(36 ** (1 / na) + 1e-9)))
 
 

@@ -8,15 +8,19 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Self
 
 import httpx
+import uvicorn
+from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
 from app.main import create_app
+from app.server import PROTOCOL, HeadTimeoutProtocol
 from app.settings import Settings
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -50,6 +54,27 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+@contextlib.contextmanager
+def serving(app: FastAPI) -> Iterator[int]:
+    """uvicorn serving `app` on 127.0.0.1 in a thread of this process, with the service's
+    protocol (`app.server`); yields the port."""
+    port = free_port()
+    config = uvicorn.Config(app, host="127.0.0.1", port=port, log_config=None,
+                            http=HeadTimeoutProtocol)
+    server = uvicorn.Server(config)
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 30
+    while not server.started:
+        assert time.monotonic() < deadline and thread.is_alive(), "server did not start"
+        time.sleep(0.05)
+    try:
+        yield port
+    finally:
+        server.should_exit = True
+        thread.join(30)
+
+
 class LiveServer:
     """uvicorn serving app.main:app on 127.0.0.1 in a subprocess, with its own store."""
 
@@ -68,7 +93,7 @@ class LiveServer:
         with open(self.log, "ab") as log:
             self.proc = subprocess.Popen(
                 [sys.executable, "-m", "uvicorn", "app.main:app", "--host", "127.0.0.1",
-                 "--port", str(self.port), "--no-access-log"],
+                 "--port", str(self.port), "--no-access-log", "--http", PROTOCOL],
                 cwd=ROOT, env=self.env, stdout=log, stderr=subprocess.STDOUT,
                 start_new_session=True)
         deadline = time.monotonic() + timeout

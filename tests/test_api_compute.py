@@ -104,6 +104,38 @@ def test_dynamics_field_errors_name_the_field(api, change, expected):
     assert errors_of(api.post("/v1/dynamics", json=body)) == expected
 
 
+def _dynamics(q: list) -> tuple[str, dict]:
+    return "/v1/dynamics", {"robot": TWO_LINK, "states": [{"q": q, "dq": [0.0, 0.0]}]}
+
+
+def _coupling(q: list) -> tuple[str, dict]:
+    return "/v1/coupling", {"robot": TWO_LINK, "configurations": [q]}
+
+
+def _simulate(q: list) -> tuple[str, dict]:
+    return "/v1/simulate", {"robot": TWO_LINK, "t": [0.0, 1.0], "tau": [[0.0], [0.0]],
+                            "initial": {"q": q, "dq": [0.0, 0.0]}}
+
+
+@pytest.mark.parametrize("body, loc", [
+    (_dynamics, ["states", 0, "q"]), (_coupling, ["configurations", 0]),
+    (_simulate, ["initial", "q"])])
+@pytest.mark.parametrize("values", [["0.1", "0.2"], [True, False]])
+def test_numbers_must_be_json_numbers(api, body, loc, values):
+    path, request = body(values)
+    assert errors_of(api.post(path, json=request)) == [
+        (["body", *loc, 0], "Input should be a valid number"),
+        (["body", *loc, 1], "Input should be a valid number")]
+
+
+def test_grid_points_must_be_json_integers(api):
+    grid = {"lower": [0, 0], "upper": [1, 1], "points": "5"}
+    r = api.post("/v1/coupling", json={"robot": TWO_LINK, "grid": grid})
+    assert errors_of(r) == [(["body", "grid", "points", "int"], "Input should be a valid integer"),
+                            (["body", "grid", "points", "list[int]"],
+                             "Input should be a valid list")]
+
+
 def test_nan_in_the_body_is_refused(api):
     text = f'{{"robot": {json.dumps(TWO_LINK)}, "states": [{{"q": [NaN, 0], "dq": [0, 0]}}]}}'
     r = api.post("/v1/dynamics", content=text, headers={"content-type": "application/json"})
@@ -123,6 +155,15 @@ def test_the_points_limit_covers_grids(tmp_path):
         r = c.post("/v1/coupling", json={"robot": TWO_LINK, "grid": grid})
     assert errors_of(r) == [(["body", "grid", "points"],
                              "121 points exceed this server's limit of 100 (UNDERTOW_MAX_POINTS)")]
+
+
+@pytest.mark.parametrize("points", [10**8, 10**10, 10**12])
+def test_a_huge_grid_is_refused_at_the_field_not_allocated(api, points):
+    grid = {"lower": [0, 0], "upper": [1, 1], "points": points}
+    r = api.post("/v1/coupling", json={"robot": TWO_LINK, "grid": grid})
+    assert errors_of(r) == [(["body", "grid", "points"],
+                             f"{points * points:,} points exceed the limit of 200,000; "
+                             "use fewer points per axis")]
 
 
 def test_coupling_finds_the_waveless_singularity(api):
@@ -207,6 +248,15 @@ def test_simulation_without_torque_conserves_energy(api):
     energy = [res["kinetic_energy"] + res["potential_energy"] for res in
               api.post("/v1/dynamics", json={"robot": TWO_LINK, "states": ends}).json()["results"]]
     assert energy[1] == pytest.approx(energy[0], rel=1e-7)
+
+
+def test_a_simulation_that_cannot_start_reports_failed_not_zeros(api):
+    request = {"robot": TWO_LINK, "t": [0.0, 1.0], "tau": [[1e300], [1e300]],
+               "initial": {"q": [0.0, 0.0], "dq": [0.0, 0.0]}, "samples_per_interval": 1}
+    trajectory = strict_json(api.post("/v1/simulate", json=request).text)
+    assert trajectory["status"] == "failed"
+    assert trajectory["message"].endswith("(values too large) (CVODES CV_BAD_T)")
+    assert trajectory["t"] == [0.0]
 
 
 def test_simulation_field_errors(api):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 
 import pytest
 from service_fixtures import TWO_LINK, client
@@ -47,6 +48,27 @@ def test_every_endpoint_but_healthz_needs_the_key(keyed, method, path, body):
     assert keyed.get("/healthz").status_code == 200
 
 
+@pytest.mark.parametrize("body, detail", [
+    (b"not json", "Expecting value at character 0 of the body"),
+    (b'{"robot": {"links": [}', "Expecting value at character 21 of the body"),
+    (b'{"states": [],}', "Expecting property name enclosed in double quotes at character 14 "
+                        "of the body"),
+    (b"[" * 2_000, "There was an error parsing the body")])
+def test_a_body_that_is_not_json_is_400(api, body, detail):
+    r = api.post("/v1/dynamics", content=body, headers={"content-type": "application/json"})
+    assert r.status_code == 400 and r.headers["content-type"] == "application/problem+json"
+    problem = r.json()
+    assert (problem["type"], problem["title"], problem["detail"]) == (
+        "urn:undertow:problem:malformed-body", "The body is not valid JSON", detail)
+
+
+@pytest.mark.parametrize("body", [b"not json", b'{"robot": 1}', b" " * 5_000_000])
+def test_the_key_is_checked_before_the_body_is_read(keyed, body):
+    r = keyed.post("/v1/dynamics", content=body, headers={"content-type": "application/json"})
+    assert r.status_code == 401, r.text
+    assert r.json()["type"] == "urn:undertow:problem:unauthorized"
+
+
 def test_a_body_over_the_limit_is_413(api):
     big = {**DYNAMICS, "states": DYNAMICS["states"] * 100}
     r = api.post("/v1/dynamics", json=big)
@@ -82,6 +104,42 @@ def test_unknown_routes_and_methods_are_problems(api):
     assert r.status_code == 405 and r.json()["type"] == "urn:undertow:problem:method-not-allowed"
 
 
+@pytest.mark.parametrize("method, path, allow", [
+    ("GET", "/v1/dynamics", "POST"), ("DELETE", "/v1/simulate", "POST"),
+    ("PUT", "/v1/plans/abc", "DELETE, GET"), ("PATCH", "/v1/plans", "GET, POST"),
+    ("POST", "/healthz", "GET"), ("POST", "/", "GET, HEAD"), ("PUT", "/viewer.js", "GET, HEAD")])
+def test_a_wrong_method_is_405_naming_every_allowed_method(api, method, path, allow):
+    r = api.request(method, path)
+    assert (r.status_code, r.headers["allow"]) == (405, allow)
+    assert r.json()["type"] == "urn:undertow:problem:method-not-allowed"
+
+
+@pytest.mark.parametrize("path", ["/", "/index.html", "/viewer.js", "/viewer.css"])
+def test_the_viewer_is_served_at_the_root(api, path):
+    assert api.get(path).status_code == 200
+
+
+def test_the_viewer_gets_the_figures_palette(api):
+    from planner.plots import PALETTE
+
+    r = api.get("/palette.js")
+    assert r.headers["content-type"].startswith("text/javascript")
+    prefix = "window.UNDERTOW_PALETTE = "
+    assert r.text.startswith(prefix) and json.loads(r.text[len(prefix):].rstrip(";\n")) == PALETTE
+
+
+@pytest.mark.parametrize("page", ["/docs", "/redoc"])
+def test_the_api_pages_load_everything_from_this_server(api, page):
+    html = api.get(page).text
+    assets = re.findall(r'(?:src|href)="([^"]+)"', html)
+    assert assets and not [a for a in assets if "://" in a or a.startswith("//")]
+    for asset in assets:
+        if asset != "/openapi.json":
+            r = api.get(asset)
+            assert r.status_code == 200 and len(r.content) > 1000, asset
+    assert api.post(assets[0]).headers["allow"] == "GET, HEAD"
+
+
 def test_logs_are_json_lines_with_the_request_id(api, caplog):
     with caplog.at_level(logging.INFO, logger="undertow.access"):
         api.get("/healthz", headers={"X-Request-ID": "log-me"})
@@ -111,6 +169,15 @@ def test_metrics_count_requests_by_route_template_and_status(api):
     assert metric(text, 'undertow_http_request_duration_seconds_count{method="GET",'
                         'route="/v1/plans/{job_id}"}') >= 3
     assert 'undertow_jobs{state="queued"} 0.0' in text
+
+
+def test_metrics_name_the_api_description_by_its_path(api):
+    for path in ("/openapi.json", "/docs", "/nowhere"):
+        api.get(path)
+    text = api.get("/metrics").text
+    for route, status in (("/openapi.json", 200), ("/docs", 200), ("unmatched", 404)):
+        assert metric(text, f'undertow_http_requests_total{{method="GET",route="{route}",'
+                            f'status="{status}"}}') >= 1
 
 
 def test_settings_come_from_undertow_environment_variables(monkeypatch):

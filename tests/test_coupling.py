@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import tracemalloc
 
 import numpy as np
 import pytest
@@ -190,8 +191,22 @@ def test_grid_size_is_bounded():
     side = math.isqrt(MAX_POINTS) + 1
     assert message(robot=two_link().model_dump(), grid={
         "lower": [0, 0], "upper": [1, 1], "points": side}) == (
-        f"Value error, grid: {side * side:,} points exceed the limit of 200,000; "
+        f"Value error, grid.points: {side * side:,} points exceed the limit of 200,000; "
         "use fewer points per axis")
+
+
+@pytest.mark.parametrize("points", [10**8, 10**10, [10**9, 10**9]])
+def test_grid_size_is_checked_without_allocating_the_grid(points):
+    """Validation runs on the server's event loop: it must not build the grid's axes."""
+    tracemalloc.start()
+    try:
+        text = message(robot=two_link().model_dump(),
+                       grid={"lower": [0, 0], "upper": [1, 1], "points": points})
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert text.startswith("Value error, grid.points: ") and "exceed the limit" in text
+    assert peak < 1_000_000
 
 
 def test_rows_must_hold_one_angle_per_joint():

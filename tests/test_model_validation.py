@@ -114,7 +114,8 @@ CASES = {
                       ("links", 1, "wave", "frequency"), FINITE),
     "nan phase": (edit(("links", 1, "wave", "phase"), math.nan), ("links", 1, "wave", "phase"), FINITE),
     "inf gravity": (edit(("gravity",), math.inf), ("gravity",), FINITE),
-    "nan as a string": (edit(("links", 0, "length"), "nan"), ("links", 0, "length"), FINITE),
+    "nan as a string": (edit(("links", 0, "length"), "nan"), ("links", 0, "length"),
+                        "Input should be a valid number"),
     "wave on a passive joint": (
         edit(("links", 0, "wave"), {"amplitude": 0.05, "frequency": 2.0}), ("links", 0, "wave"),
         "Value error, a passive joint cannot carry a wave"),

@@ -98,6 +98,38 @@ def test_the_snapshots_draw_the_links_through_the_dynamics_tips(crossing_plan, s
     assert np.allclose(links.get_xdata(), tips[:, 1]) and np.allclose(links.get_ydata(), -tips[:, 0])
 
 
+def test_each_snapshot_draws_the_gravity_arrow_of_its_key(crossing_plan, scene):
+    fig = plots.plan_figure(crossing_plan, scene.robot, snapshots=4)
+    strip = [ax for ax in fig.axes if ax.get_title().startswith("t = ")]
+    arrows = [[a for a in ax.texts if (a.get_gid() or "").startswith(plots.GRAVITY_GID)]
+              for ax in strip]
+    assert [len(a) for a in arrows] == [1, 1, 1, 1]
+    (tail,), (head,) = [arrows[0][0].xyann], [arrows[0][0].xy]
+    assert head[0] == tail[0] and head[1] < tail[1]  # straight down the drawing
+    keys = [t.get_text() for ax in fig.axes if ax.get_legend() for t in ax.get_legend().texts]
+    assert "gravity (x) down" in keys
+
+
+@pytest.mark.parametrize("verified, word", [(True, "verified"), (False, "not verified")])
+def test_the_title_says_whether_the_plan_is_verified(crossing_plan, scene, verified, word):
+    data = crossing_plan.model_dump()
+    data["verification"].update(verified=verified, resimulation_error=0.25, tolerance=0.001)
+    title = plots.plan_figure(Plan.model_validate(data), scene.robot)._suptitle.get_text()
+    first, second = title.split("\n")
+    assert first == f"plan {word}: re-simulation error 0.25 rad (tolerance 0.001 rad)"
+    assert second.startswith(f"Ipopt {crossing_plan.solver.status} (")
+
+
+def test_joint_curves_take_the_shared_palette(crossing_plan, scene):
+    axes = time_axes(plots.plan_figure(crossing_plan, scene.robot))
+    angles = {line.get_label(): line.get_color() for line in axes["angles"].get_lines()}
+    torques = {line.get_label(): line.get_color() for line in axes["torques"].get_lines()}
+    assert angles == {"q0 (passive)": plots.JOINT_COLOURS[0], "q1 (active)": plots.JOINT_COLOURS[1],
+                      "waveless singular crossing": plots.PALETTE["mark"]}
+    assert torques["tau1"] == plots.JOINT_COLOURS[1]
+    assert plots.PALETTE["mark"] not in plots.JOINT_COLOURS
+
+
 def test_the_wavy_mass_path_passes_through_each_wavy_tip(make_robot, rng):
     for _ in range(5):
         robot = make_robot(int(rng.integers(2, 6)))

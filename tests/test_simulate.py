@@ -183,6 +183,18 @@ def test_a_failed_integration_reports_where_and_why_instead_of_raising():
     assert trajectory.q[0] == [0.3, -0.2]
 
 
+@pytest.mark.parametrize("samples", [1, 2])
+def test_torques_near_the_largest_double_fail_instead_of_returning_the_start(samples):
+    """CVODES stops at the first step without an error here; the result must not pass
+    the initial state off as the end of the motion."""
+    trajectory = run(SimulationRequest.model_validate(
+        request(t=[0.0, 1.0], tau=[[1e300], [1e300]], samples_per_interval=samples)))
+    assert (trajectory.status, trajectory.message) == ("failed", (
+        "integration failed between t = 0 s and t = 1 s: the integrator stopped short of the "
+        "output time (values too large) (CVODES CV_BAD_T)"))
+    assert trajectory.t == [0.0] and trajectory.q == [[0.3, -0.2]]
+
+
 REQUEST_ERRORS = {
     "decreasing t": (request(t=[0.0, 1.0, 0.5]), ("t",), "Value error, must be strictly increasing"),
     "repeated t": (request(t=[0.0, 0.5, 0.5]), ("t",), "Value error, must be strictly increasing"),

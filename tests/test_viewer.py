@@ -157,7 +157,9 @@ def choose_scene(page, server) -> str:
 
 def test_plan_an_example_and_watch_it(page, server, tmp_path):
     page.goto(server.url + "/")
-    choose_scene(page, server)
+    name = choose_scene(page, server)
+    scene = (CROSSING_SCENE if name == "pasted"
+             else httpx.get(f"{server.url}/v1/examples/{name}").json()["request"])
     assert page.locator("#links tbody tr").count() >= 2
     page.click("#plan")
     page.wait_for_function("['succeeded', 'failed', 'cancelled']"
@@ -181,9 +183,18 @@ def test_plan_an_example_and_watch_it(page, server, tmp_path):
     page.wait_for_timeout(300)
     sigma = colors(page, "sigma-plot", "with", "without", "mark")
     assert sigma["with"] > 500 and sigma["without"] > 300, sigma
-    assert (sigma["mark"] > 50) == bool(crossings), sigma
+    assert (sigma["mark"] > 25) == bool(crossings), sigma  # dashed, under the legend
     assert sum(colors(page, "torque-plot", "with", "active").values()) > 300
     assert sum(colors(page, "angle-plot", "with", "active").values()) > 300
+    labels = {name: page.get_attribute(f"#{name}", "aria-label")
+              for name in ("torque-plot", "sigma-plot", "angle-plot")}
+    joints = [link["joint"] for link in scene["robot"]["links"]]
+    assert labels == {  # the legends, as the PNG's
+        "torque-plot": ", ".join([f"tau{j}" for j, kind in enumerate(joints) if kind == "active"]
+                                 + ["over t [s]"]),
+        "sigma-plot": "without waves, with waves, over t [s]",
+        "angle-plot": ", ".join([f"q{j} ({kind})" for j, kind in enumerate(joints)]
+                                + ["over t [s]"])}
 
     # the arm moves; links, masses and the wavy mass path are drawn
     first = page.evaluate(ARM_DIGEST)

@@ -1,5 +1,6 @@
 """Synchronous computations: dynamics at states, coupling analysis, wave design, inverse
-dynamics, forward simulation. Each runs in a worker thread, bounded by the compute limiter."""
+dynamics, forward simulation. Each runs in a worker thread within its time budget
+(`app.routes._compute`)."""
 
 from __future__ import annotations
 
@@ -7,12 +8,13 @@ from typing import Annotated
 
 from fastapi import APIRouter, Body
 
-from app.deps import LimiterDep, SettingsDep
-from app.routes._compute import compute
+from app.deps import SettingsDep
+from app.openapi import BUDGET, problems
+from app.routes._compute import LanesDep, compute
 from app.schema_examples import body_examples
 from planner import coupling, evaluation, inverse, simulate, waves
 
-router = APIRouter(prefix="/v1", tags=["dynamics"])
+router = APIRouter(prefix="/v1", tags=["dynamics"], responses=problems(422, 503, s422=BUDGET))
 
 DynamicsBody = Annotated[evaluation.DynamicsRequest,
                          Body(openapi_examples=body_examples("dynamics"))]
@@ -26,31 +28,31 @@ SimulationBody = Annotated[simulate.SimulationRequest,
 
 @router.post("/dynamics", summary="M, h, gravity, energies, tips and coupling at given states")
 async def dynamics(request: DynamicsBody, settings: SettingsDep,
-                   limiter: LimiterDep) -> evaluation.DynamicsResponse:
-    return await compute(evaluation.evaluate, request, settings, limiter)
+                   lanes: LanesDep) -> evaluation.DynamicsResponse:
+    return await compute(evaluation.evaluate, request, settings, lanes, quick=True)
 
 
 @router.post("/coupling", summary="det, sigma_min and condition of M_pa; singular points")
 async def coupling_analysis(request: CouplingBody, settings: SettingsDep,
-                            limiter: LimiterDep) -> coupling.CouplingReport:
-    return await compute(coupling.analyse, request, settings, limiter)
+                            lanes: LanesDep) -> coupling.CouplingReport:
+    return await compute(coupling.analyse, request, settings, lanes, quick=True)
 
 
 @router.post("/waves/design",
              summary="Waves that keep sigma_min(M_pa) >= margin over a region or a motion")
 async def wave_design(request: WaveBody, settings: SettingsDep,
-                      limiter: LimiterDep) -> waves.WaveDesignResult:
-    return await compute(waves.design, request, settings, limiter)
+                      lanes: LanesDep) -> waves.WaveDesignResult:
+    return await compute(waves.design, request, settings, lanes)
 
 
 @router.post("/inverse-dynamics",
              summary="Classical inverse dynamics of a prescribed passive motion")
 async def inverse_dynamics(request: InverseBody, settings: SettingsDep,
-                           limiter: LimiterDep) -> inverse.InverseDynamicsResult:
-    return await compute(inverse.solve, request, settings, limiter)
+                           lanes: LanesDep) -> inverse.InverseDynamicsResult:
+    return await compute(inverse.solve, request, settings, lanes)
 
 
 @router.post("/simulate", summary="Forward simulation of given torques (CVODES)")
 async def simulation(request: SimulationBody, settings: SettingsDep,
-                     limiter: LimiterDep) -> simulate.Trajectory:
-    return await compute(simulate.run, request, settings, limiter)
+                     lanes: LanesDep) -> simulate.Trajectory:
+    return await compute(simulate.run, request, settings, lanes)

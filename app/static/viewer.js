@@ -11,9 +11,11 @@
   const FINAL = new Set(["succeeded", "failed", "cancelled"]);
   const POLL_MS = 250;
   const SIGMA_FLOOR = 1e-12;
-  const COLORS = ["#1f6fb4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#17becf", "#bcbd22"];
-  const C = { ink: "#1d2733", muted: "#8a94a0", grid: "#eef1f5", active: "#ff7f0e", passive: "#555555",
-              with: "#1f6fb4", without: "#9a9a9a", mark: "#d62728" };
+  // the figures' colours (planner.plots.PALETTE, served as /palette.js): one palette for both
+  const PALETTE = window.UNDERTOW_PALETTE;
+  const COLORS = PALETTE.joints;
+  const C = { ink: "#1d2733", muted: "#8a94a0", grid: "#eef1f5", active: PALETTE.active,
+              passive: PALETTE.passive, with: PALETTE.with, without: PALETTE.without, mark: PALETTE.mark };
 
   const state = {
     scene: null,        // the scene being edited (JSON object)
@@ -573,8 +575,9 @@
     return out;
   }
 
-  /** A time plot: series [{y, color, dash, width}], log scale, vertical marks; a cursor
-   *  is drawn over a cached background. */
+  /** A time plot: series [{y, color, dash, width, label}] with a legend of the labelled
+   *  ones, log scale, vertical marks, a "t [s]" axis; a cursor is drawn over a cached
+   *  background. */
   class TimePlot {
     constructor(canvas, t, series, options = {}) {
       Object.assign(this, { canvas, t, series, options });
@@ -590,7 +593,7 @@
       const [ctx, W, H] = prepare(this.canvas);
       const { t, series, options } = this;
       this.left = 58; this.right = 12;
-      const top = 8, bottom = 22;
+      const top = 8, bottom = 34;
       const t0 = t[0], t1 = t[t.length - 1];
       const log = !!options.log;
       const tr = (v) => log ? Math.log10(Math.max(v, SIGMA_FLOOR)) : v;
@@ -618,6 +621,8 @@
         line(ctx, X(v), top, X(v), H - bottom);
         ctx.fillText(fmtTick(v), X(v), H - bottom + 5);
       }
+      ctx.fillStyle = C.ink;
+      ctx.fillText("t [s]", (this.left + W - this.right) / 2, H - bottom + 19);
       ctx.strokeStyle = "#c5ccd4";
       ctx.strokeRect(this.left, top, W - this.left - this.right, H - top - bottom);
       // marks (waveless singular crossings)
@@ -639,6 +644,9 @@
       }
       ctx.restore();
       ctx.setLineDash([]);
+      legend(ctx, series.filter((s) => s.label), W - this.right - 6, top + 10);
+      this.canvas.setAttribute("aria-label", [...series.filter((s) => s.label).map((s) => s.label),
+        "over t [s]"].join(", "));
       if (options.note) {
         ctx.fillStyle = C.muted; ctx.textAlign = "center"; ctx.textBaseline = "middle";
         ctx.fillText(options.note, W / 2, H / 2);
@@ -664,6 +672,25 @@
     }
   }
 
+  /** One line sample and label per series, right-aligned at x on the row at y. */
+  function legend(ctx, series, x, y) {
+    ctx.font = "11px system-ui, sans-serif"; ctx.textAlign = "left"; ctx.textBaseline = "middle";
+    const widths = series.map((s) => ctx.measureText(s.label).width + 30);
+    let left = x - widths.reduce((a, w) => a + w, 0);
+    if (series.length) {
+      ctx.fillStyle = "rgba(255, 255, 255, 0.85)";
+      ctx.fillRect(left - 4, y - 8, x - left + 4, 16);
+    }
+    series.forEach((s, k) => {
+      ctx.strokeStyle = s.color; ctx.lineWidth = s.width || 1.6; ctx.setLineDash(s.dash || []);
+      line(ctx, left, y, left + 18, y);
+      ctx.setLineDash([]);
+      ctx.fillStyle = C.ink;
+      ctx.fillText(s.label, left + 22, y);
+      left += widths[k];
+    });
+  }
+
   const range = (a, b) => Array.from({ length: Math.max(0, b - a + 1) }, (_, k) => a + k);
   const fmtTick = (v) => Math.abs(v) >= 1000 || (v !== 0 && Math.abs(v) < 0.01) ? v.toExponential(0) : String(+v.toPrecision(3));
 
@@ -676,12 +703,14 @@
     const t = plan.dense.t;
     const marks = (plan.verification.waveless_singular_crossings || []).map((c) => c.time);
     const active = robot.links.map((l, i) => [l, i]).filter(([l]) => l.joint === "active");
-    const torque = active.map(([, j], col) => ({ y: plan.dense.tau.map((row) => row[col]), color: COLORS[j % COLORS.length] }));
+    const torque = active.map(([, j], col) => ({ y: plan.dense.tau.map((row) => row[col]),
+      color: COLORS[j % COLORS.length], label: `tau${j}` }));
     const angles = robot.links.map((l, j) => ({
       y: plan.dense.q.map((row) => row[j]), color: COLORS[j % COLORS.length],
-      dash: l.joint === "passive" ? [6, 4] : [] }));
+      dash: l.joint === "passive" ? [6, 4] : [], label: `q${j} (${l.joint})` }));
     const sigma = state.sigma.with
-      ? [{ y: state.sigma.without, color: C.without, width: 1.2 }, { y: state.sigma.with, color: C.with, width: 2 }]
+      ? [{ y: state.sigma.without, color: C.without, width: 1.2, label: "without waves" },
+         { y: state.sigma.with, color: C.with, width: 2, label: "with waves" }]
       : [];
     state.plots = [
       new TimePlot($("torque-plot"), t, torque, { marks }),

@@ -1,0 +1,106 @@
+"""Wall-time budgets of library computations: a deadline on the `time.monotonic` clock.
+
+The long loops of the library (the coupling analysis' chunks and refinements, the wave
+design's starts and exchange rounds, the simulation's torque intervals, the inverse
+dynamics' right-hand side, the dynamics' states) call `check` and stop with
+`BudgetExceeded` once their deadline has passed; an Ipopt solve inside them stops at its
+next iteration through `ipopt_stop`. Every deadline is optional: None runs unbounded.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from contextvars import ContextVar
+from functools import lru_cache
+
+import casadi as ca
+
+
+class BudgetExceeded(ValueError):
+    """A computation ran past its deadline (a ValueError, as a motion too fast for
+    `planner.inverse.WALL_TIME` always was)."""
+
+
+def check(deadline: float | None, what: str) -> None:
+    """Raise BudgetExceeded("{what} ran past its deadline") once `deadline` has passed."""
+    if deadline is not None and time.monotonic() > deadline:
+        raise BudgetExceeded(f"{what} ran past its deadline")
+
+
+@contextmanager
+def part_of(what: str) -> Iterator[None]:
+    """Name the computation `what` in a BudgetExceeded raised in this block by one of its
+    parts ("the wave design: the inverse dynamics (at t = 0.5 s of 1 s) ran past ...")."""
+    try:
+        yield
+    except BudgetExceeded as exc:
+        if str(exc).startswith(what):
+            raise
+        raise BudgetExceeded(f"{what}: {exc}") from None
+
+
+_solve_deadline: ContextVar[float | None] = ContextVar("solve_deadline", default=None)
+
+
+@contextmanager
+def solving(deadline: float | None) -> Iterator[None]:
+    """Let the Ipopt solves run in this block (in this thread) stop at `deadline`."""
+    token = _solve_deadline.set(deadline)
+    try:
+        yield
+    finally:
+        _solve_deadline.reset(token)
+
+
+class IterationCallback(ca.Callback):
+    """The plumbing of an Ipopt iteration callback (nlpsol's `iteration_callback`): the
+    solver's outputs x, f, g and their multipliers in, one flag out, non-zero to stop.
+    A subclass sets its state, calls this constructor last, and gives `eval`."""
+
+    def __init__(self, name: str, nx: int, ng: int, np_: int):
+        ca.Callback.__init__(self)
+        self.sizes = {"x": nx, "lam_x": nx, "g": ng, "lam_g": ng, "p": np_, "lam_p": np_,
+                      "f": 1}
+        self.construct(name, {})
+
+    def get_n_in(self) -> int:
+        return ca.nlpsol_n_out()
+
+    def get_n_out(self) -> int:
+        return 1
+
+    def get_name_in(self, i: int) -> str:
+        return ca.nlpsol_out(i)
+
+    def get_name_out(self, i: int) -> str:
+        return "stop"
+
+    def get_sparsity_in(self, i: int) -> ca.Sparsity:
+        return ca.Sparsity.dense(self.sizes[ca.nlpsol_out(i)], 1)
+
+
+class _Stop(IterationCallback):
+    """Stop Ipopt (status User_Requested_Stop) once the deadline of the thread's current
+    `solving` block has passed."""
+
+    def __init__(self, nx: int, ng: int, np_: int):
+        super().__init__(f"stop_{nx}_{ng}_{np_}", nx, ng, np_)
+
+    def eval(self, arg) -> list[int]:
+        deadline = _solve_deadline.get()
+        return [int(deadline is not None and time.monotonic() > deadline)]
+
+
+@lru_cache(maxsize=64)
+def _stop(nx: int, ng: int, np_: int) -> _Stop:
+    return _Stop(nx, ng, np_)  # cached: a callback must outlive the solvers using it
+
+
+def ipopt_stop(nlp: dict) -> dict:
+    """nlpsol options that make a solve of `nlp` ({x, p, g, ...}) stop at the deadline
+    of its `solving` block."""
+    sizes = (nlp["x"].numel(), nlp["g"].numel() if "g" in nlp else 0,
+             nlp["p"].numel() if "p" in nlp else 0)
+    return {"iteration_callback": _stop(*sizes)}
