@@ -30,7 +30,7 @@ def nodes(transcription: Transcription) -> int:
 def _sized(body: BaseModel) -> list[tuple[list[str], int]]:
     """How many points each sized field of a request asks for: top-level lists (states,
     configurations, sample times), `samples` and `certification_points` counts, a grid's
-    size."""
+    size, a torque polynomial's breaks."""
     sizes = []
     for name in type(body).model_fields:
         value = getattr(body, name)
@@ -40,6 +40,8 @@ def _sized(body: BaseModel) -> list[tuple[list[str], int]]:
             sizes.append(([name], value))
         elif name == "grid" and value is not None and hasattr(value, "size"):
             sizes.append(([name, "points"], value.size))
+        elif name == "torque" and value is not None:
+            sizes.append(([name, "breaks"], len(value.breaks)))
     return sizes
 
 
@@ -72,7 +74,7 @@ def _request_errors(body: BaseModel, settings: Settings) -> list[FieldError]:
     samples = getattr(body, "output_samples", None)
     if samples is not None and samples > settings.max_points:
         errors.append(field_error(["body", "samples_per_interval"],
-                                  f"{samples} samples ((len(t) - 1) x samples_per_interval + 1) "
+                                  f"{samples} samples (intervals x samples_per_interval + 1) "
                                   f"exceed this server's limit of {settings.max_points} "
                                   "(UNDERTOW_MAX_POINTS)", "limit"))
     screening = getattr(body, "screening", None)

@@ -10,14 +10,17 @@ the waves. The times where the waveless arm is singular (the plan's
 Inverse-dynamics figure: angles, torques and sigma_min over time, the singular stop
 marked by a vertical line.
 
-Figures are built with `matplotlib.figure.Figure` directly (no pyplot state), so they can
-be rendered from several threads at once. Drawing convention: the model's x axis points
-along gravity, drawn downwards; y to the right.
+Figures are built with `matplotlib.figure.Figure` directly (no pyplot state). Drawing text
+goes through FreeType and the rc parameters, which matplotlib shares between threads, so
+one figure is rendered at a time (`_RENDERING`); callers may run in several threads.
+Drawing convention: the model's x axis points along gravity, drawn downwards; y to the
+right.
 """
 
 from __future__ import annotations
 
 import io
+import threading
 from pathlib import Path
 from typing import Literal
 
@@ -37,6 +40,7 @@ from planner.ocp.verify import coupling_along
 Format = Literal["png", "svg"]
 FORMATS: tuple[Format, ...] = ("png", "svg")
 MEDIA_TYPES = {"png": "image/png", "svg": "image/svg+xml"}
+_RENDERING = threading.Lock()  # FreeType's glyph cache and rcParams are process-wide
 
 CROSSING_GID = "waveless-crossing"
 """gid prefix of the vertical lines marking waveless singular crossings."""
@@ -140,7 +144,7 @@ def render(fig: Figure, fmt: Format = "png", dpi: int = 110) -> bytes:
     FigureCanvasAgg(fig)
     buffer = io.BytesIO()
     metadata = {"Date": None} if fmt == "svg" else {"Software": None}
-    with rc_context({"svg.hashsalt": "undertow"}):  # stable element ids
+    with _RENDERING, rc_context({"svg.hashsalt": "undertow"}):  # stable element ids
         fig.savefig(buffer, format=fmt, dpi=dpi, metadata=metadata)
     return buffer.getvalue()
 

@@ -21,7 +21,7 @@ from typing import Literal
 
 import casadi as ca
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 from scipy.interpolate import CubicSpline
 
 from planner import budget
@@ -29,6 +29,7 @@ from planner.dynamics import functions
 from planner.exclusive import Exclusive
 from planner.model import Robot, Structure, parameters
 from planner.schema import REQUEST as _STRICT
+from planner.torque import TorquePolynomial
 
 Interpolation = Literal["zoh", "linear", "cubic"]
 Method = Literal["adams", "bdf"]
@@ -186,37 +187,52 @@ class InitialState(BaseModel):
 
 
 class SimulationRequest(BaseModel):
-    """Torque samples of the active joints, their interpolation, and the initial state."""
+    """The torques of the active joints, as samples with their interpolation or as a
+    piecewise polynomial, and the initial state."""
 
     # Rules that read other fields (tau against t and the robot, initial against the robot)
     # run only when those fields are valid, and report at the field they check.
     model_config = _STRICT
 
     robot: Robot
-    t: list[float] = Field(min_length=2, description="strictly increasing sample times [s]")
-    tau: list[list[float]] = Field(description="active torques at each time [N m]")
+    t: list[float] | None = Field(
+        default=None, min_length=2,
+        description="strictly increasing sample times [s] of `tau` (or give `torque`)")
+    tau: list[list[float]] | None = Field(
+        default=None, description="active torques at each time of `t` [N m]")
     interpolation: Interpolation = "linear"
+    torque: TorquePolynomial | None = Field(
+        default=None, description="the torques as a piecewise polynomial, simulated as they "
+                                  "are (a plan's `torque`), instead of `t` and `tau`")
     initial: InitialState
     samples_per_interval: int = Field(default=1, ge=1, le=100)
     rtol: float = Field(default=1e-10, ge=1e-14, le=1e-2)
     atol: float = Field(default=1e-10, ge=1e-14, le=1e-2)
 
     @property
+    def breaks(self) -> list[float]:
+        """The interval boundaries [s]: the sample times, or the polynomial's breaks."""
+        return self.torque.breaks if self.torque is not None else self.t
+
+    @property
     def output_samples(self) -> int:
-        """Samples of the trajectory `run` returns: (len(t) - 1) * samples_per_interval + 1."""
-        return (len(self.t) - 1) * self.samples_per_interval + 1
+        """Samples of the trajectory `run` returns: (intervals) * samples_per_interval + 1."""
+        return (len(self.breaks) - 1) * self.samples_per_interval + 1
 
     @field_validator("t")
     @classmethod
-    def _increasing(cls, t: list[float]) -> list[float]:
-        if any(b <= a for a, b in itertools.pairwise(t)):
+    def _increasing(cls, t: list[float] | None) -> list[float] | None:
+        if t is not None and any(b <= a for a, b in itertools.pairwise(t)):
             raise ValueError("must be strictly increasing")
         return t
 
     @field_validator("tau")
     @classmethod
-    def _one_row_per_time(cls, tau: list[list[float]], info: ValidationInfo) -> list[list[float]]:
+    def _one_row_per_time(cls, tau: list[list[float]] | None,
+                          info: ValidationInfo) -> list[list[float]] | None:
         t, robot = info.data.get("t"), info.data.get("robot")
+        if tau is None:
+            return tau
         if t is not None and len(tau) != len(t):
             raise ValueError(f"needs {len(t)} rows, one per time in t (got {len(tau)})")
         if robot is not None:
@@ -226,6 +242,23 @@ class SimulationRequest(BaseModel):
                     raise ValueError(f"every row needs {na} {'entry' if na == 1 else 'entries'}, "
                                      f"one per active joint (row {k} has {len(row)})")
         return tau
+
+    @field_validator("torque")
+    @classmethod
+    def _one_column_per_active_joint(cls, torque: TorquePolynomial | None,
+                                     info: ValidationInfo) -> TorquePolynomial | None:
+        robot = info.data.get("robot")
+        if torque is not None and robot is not None and torque.joints != len(robot.active):
+            raise ValueError(f"coefficients: every power needs {len(robot.active)} entries, one "
+                             f"per active joint (got {torque.joints})")
+        return torque
+
+    @model_validator(mode="after")
+    def _one_torque(self) -> SimulationRequest:
+        given = [name for name in ("t", "tau", "torque") if getattr(self, name) is not None]
+        if given not in (["t", "tau"], ["torque"]):
+            raise ValueError(f"give either t and tau, or torque (got {', '.join(given) or 'none'})")
+        return self
 
     @field_validator("initial")
     @classmethod
@@ -241,7 +274,11 @@ class SimulationRequest(BaseModel):
 def run(request: SimulationRequest, *, deadline: float | None = None) -> Trajectory:
     """Simulate a request: interpolate its torques and integrate from its initial state
     (BudgetExceeded past `deadline`, a `time.monotonic()` value)."""
-    coeffs = torque_coefficients(np.asarray(request.t), np.asarray(request.tau), request.interpolation)
+    if request.torque is not None:
+        coeffs = request.torque.array()
+    else:
+        coeffs = torque_coefficients(np.asarray(request.t), np.asarray(request.tau),
+                                     request.interpolation)
     x0 = np.concatenate([request.initial.q, request.initial.dq])
-    return simulate(request.robot, request.t, coeffs, x0, request.samples_per_interval,
+    return simulate(request.robot, request.breaks, coeffs, x0, request.samples_per_interval,
                     request.rtol, request.atol, deadline=deadline)

@@ -51,6 +51,9 @@ from planner.schema import REQUEST as _STRICT
 
 AMPLITUDE_FRACTION = 0.95
 """Largest amplitude as a fraction of the link length (r stays >= 5 % of l)."""
+CERTIFY_FLOOR = 1e-3
+"""sigma_min [kg m^2] down to which the certificate of a motion follows it: a design short
+of the margin still reports what it certifies."""
 EXCHANGE_ROUNDS = 6
 """Largest number of NLP solves per starting point (exchange iterations)."""
 EXCHANGE_TOL = 0.01
@@ -514,11 +517,15 @@ class _MotionProblem:
         return [float(sigma[:, k].min()) if reached[k] == 1.0 else float(reached[k] - 1.0)
                 for k in range(C)]
 
-    def inverse(self, c: Candidate, samples: int, rtol: float = 1e-10) -> InverseDynamicsResult:
+    def inverse(self, c: Candidate, samples: int, rtol: float = 1e-10,
+                threshold: float | None = None) -> InverseDynamicsResult:
+        """The inverse dynamics with c's waves, stopping where sigma_min falls below
+        `threshold` (default margin / 2)."""
         m = self.motion
         return solve(InverseDynamicsRequest(
             robot=c.robot(self.base), passive_motion=m.passive_motion, duration=m.duration,
-            active_initial=m.active_initial, samples=samples, sigma_threshold=self.threshold,
+            active_initial=m.active_initial, samples=samples,
+            sigma_threshold=self.threshold if threshold is None else threshold,
             rtol=rtol, atol=rtol), deadline=self.deadline)
 
     def _guess(self, c: Candidate, nz: int) -> np.ndarray:
@@ -572,16 +579,18 @@ class _MotionProblem:
         return _candidate_from(stats, x, c, upper, Z)
 
     def certify(self, c: Candidate) -> Certificate:
-        """Dense inverse-dynamics samples: their minimum minus the bound between samples."""
-        result = self.inverse(c, self.dense)
+        """Dense inverse-dynamics samples: their minimum minus the bound between samples.
+        The inverse dynamics runs on below the margin, down to CERTIFY_FLOOR, so that a
+        design short of the margin still certifies what it reaches."""
+        result = self.inverse(c, self.dense, threshold=min(self.threshold, CERTIFY_FLOOR))
         sigma = np.array(result.sigma_min)
         if result.status != "completed" or len(sigma) == 0:
             stop = result.singularity.time if result.singularity else 0.0
             return Certificate(0.0, False,
                                f"the inverse dynamics with these waves stopped at t = "
                                f"{stop:.4g} s of {self.motion.duration:g} s, where sigma_min "
-                               f"fell to margin / 2", np.array([stop]),
-                               reached=stop / self.motion.duration)
+                               f"fell to {min(self.threshold, CERTIFY_FLOOR):g}",
+                               np.array([stop]), reached=stop / self.motion.duration)
         q, dq = np.array(result.q), np.array(result.dq)
         p = _params(self.s, self.p, [c])[0]
         jac = evaluate(self.s, "dMpa", q, p, self.deadline)  # (K, r*c, n)

@@ -32,7 +32,7 @@ def test_the_simulation_output_is_limited_up_front(tmp_path):
     with client(tmp_path) as api:
         r = api.post("/v1/simulate", json=simulation(19_999, samples=100))
         assert fields(r) == [(["body", "samples_per_interval"],
-                              "1999901 samples ((len(t) - 1) x samples_per_interval + 1) exceed "
+                              "1999901 samples (intervals x samples_per_interval + 1) exceed "
                               "this server's limit of 20000 (UNDERTOW_MAX_POINTS)")]
         assert api.post("/v1/simulate", json=simulation(199, samples=100)).status_code == 200
 

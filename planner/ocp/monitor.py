@@ -9,12 +9,13 @@ from collections.abc import Callable
 import casadi as ca
 import numpy as np
 
+from planner.budget import IterationCallback
 from planner.ocp.result import Progress
 
 Handler = Callable[[Progress], bool]
 
 
-class IterationMonitor(ca.Callback):
+class IterationMonitor(IterationCallback):
     """Called by Ipopt once per iteration (iteration 0 is the starting point).
 
     Iterations are numbered across the solves of one plan: a solve starts at `first`, the
@@ -24,10 +25,8 @@ class IterationMonitor(ca.Callback):
     """
 
     def __init__(self, nx: int, ng: int, np_: int):
-        ca.Callback.__init__(self)
-        self.sizes = {"x": nx, "lam_x": nx, "g": ng, "lam_g": ng, "p": np_, "lam_p": np_, "f": 1}
         self.reset(None, 0, 0, np.inf, np.zeros(ng), np.zeros(ng), None, 0, time.perf_counter())
-        self.construct("iteration_monitor", {})
+        super().__init__("iteration_monitor", nx, ng, np_)
 
     def reset(self, handler: Handler | None, first: int, max_iter: int, deadline: float,
               lbg: np.ndarray, ubg: np.ndarray, solver: ca.Function | None, mesh_pass: int,
@@ -43,21 +42,6 @@ class IterationMonitor(ca.Callback):
     def iteration(self) -> int:
         """The plan's iteration count at the latest call."""
         return self.first + self.calls - 1
-
-    def get_n_in(self) -> int:
-        return ca.nlpsol_n_out()
-
-    def get_n_out(self) -> int:
-        return 1
-
-    def get_name_in(self, i: int) -> str:
-        return ca.nlpsol_out(i)
-
-    def get_name_out(self, i: int) -> str:
-        return "stop"
-
-    def get_sparsity_in(self, i: int) -> ca.Sparsity:
-        return ca.Sparsity.dense(self.sizes[ca.nlpsol_out(i)], 1)
 
     def _dual_infeasibility(self) -> float | None:
         if self.solver is None:

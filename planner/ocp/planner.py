@@ -21,6 +21,7 @@ import numpy as np
 from planner.dynamics import Dynamics
 from planner.model import Robot, Wave
 from planner.ocp.accuracy import interval_errors
+from planner.ocp.feedback import REPLAY_SAMPLES
 from planner.ocp.guess import (
     Guess,
     hermite_guess,
@@ -37,7 +38,6 @@ from planner.ocp.result import (
     MeshPass,
     Plan,
     SolverReport,
-    TorquePolynomial,
     Verification,
     WaveOut,
 )
@@ -45,8 +45,10 @@ from planner.ocp.solve import Budget, Solution, solve
 from planner.ocp.transcription import Interpolant
 from planner.ocp.verify import open_loop, verify
 from planner.scene import DurationRange, Scene
+from planner.torque import TorquePolynomial
 
-DENSE_POINTS = 2000  # about this many dense samples per plan
+DENSE_POINTS = 2000  # about this many dense samples per plan, at least REPLAY_SAMPLES per
+# interval and a multiple of them, so that the replays' samples are among the dense ones
 NOT_FINITE = "not run: non-finite solution"
 
 
@@ -277,7 +279,7 @@ def _result(scene: Scene, attempts: list[Attempt], budget: Budget) -> Plan:
     success, note = sol.success, sol.message
     if not best.finite:
         success, note = False, note or "the solve produced non-finite values"
-    per = max(1, math.ceil(DENSE_POINTS / best.inst.mesh.intervals))
+    per = REPLAY_SAMPLES * max(1, math.ceil(DENSE_POINTS / (REPLAY_SAMPLES * len(breaks))))
     t_dense = np.concatenate([np.linspace(a, b, per, endpoint=False)
                               for a, b in zip(breaks[:-1], breaks[1:])] + [breaks[-1:]])
     verification, feedback = (verify(robot, interp, t_dense, best.errors, best.errors_status,

@@ -5,8 +5,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
+
+from planner.torque import TorquePolynomial
 
 
 @dataclass(frozen=True)
@@ -34,30 +35,6 @@ class DenseTrajectory(_Out):
     t: list[float]
     q: list[list[float]]
     tau: list[list[float]]
-
-
-class TorquePolynomial(_Out):
-    """The delivered feed-forward torque, exactly as the verification simulated it.
-
-    On interval k, t in [breaks[k], breaks[k + 1]], with s = (t - breaks[k]) /
-    (breaks[k + 1] - breaks[k]) in [0, 1]:
-        tau_j(t) = sum_m coefficients[k][m][j] * s**m   [N m]
-    (ascending powers of s, one column j per active joint in joint order). The torque may
-    jump at a breakpoint; at t = breaks[k] the interval starting there applies.
-    """
-
-    breaks: list[float] = Field(description="interval boundaries [s], K + 1 values")
-    coefficients: list[list[list[float]]] = Field(
-        description="K x (degree + 1) x n_active: coefficients of ascending powers of s")
-
-    def evaluate(self, t) -> np.ndarray:
-        """tau (len(t), n_active) [N m] at times t [s]."""
-        breaks, coeffs = np.asarray(self.breaks), np.asarray(self.coefficients)
-        k = np.clip(np.searchsorted(breaks, np.asarray(t, float), side="right") - 1, 0,
-                    len(breaks) - 2)
-        s = (np.asarray(t, float) - breaks[k]) / (breaks[k + 1] - breaks[k])
-        powers = s[:, None] ** np.arange(coeffs.shape[1])[None, :]
-        return np.einsum("tm,tmj->tj", powers, coeffs[k])
 
 
 class SolverReport(_Out):
