@@ -22,7 +22,7 @@ build time, median wall time of the solves (3; 1 when the first took over 30 s),
 iterations, status, objective; re-simulation of opty's torques by CVODES
 (`planner.simulate.run`), error against the reference. The planner is measured on the same
 scenes with Legendre 5 and Legendre 3 at N = 40 (fresh process each: cold build, then 3
-solves with the NLP cached), and so is the Opti baseline of bench/baseline_opti.py (explicit
+solves with the NLP cached), and so is the Opti baseline of bench/peers/opti.py (explicit
 forward dynamics, same collocation and guess; fresh process, built once, 3 solves). The reference is the planner's plan at Legendre 5, N = 80,
 from its default guess.
 
@@ -84,7 +84,7 @@ if importlib.util.find_spec("casadi") is not None:  # the driver's side (project
     sys.path.insert(0, str(ROOT))
     from scipy.interpolate import CubicSpline
 
-    from bench import baseline_opti
+    from bench.peers import opti as baseline_opti
     from bench.common import (
         DOCS,
         RESULTS,
@@ -349,7 +349,7 @@ def planner_point(scene_name: str, degree: int, N: int, reference_path: str,
 
 def baseline_point(scene_name: str, degree: int, N: int, reference_path: str,
                    repeats: int = 3) -> dict:
-    """The Opti baseline (bench/baseline_opti.py) on a scene in a fresh process: built once,
+    """The Opti baseline (bench/peers/opti.py) on a scene in a fresh process: built once,
     solved `repeats` times from the planner's guess; the error of its first solution's
     interpolant against the reference (run by `isolated`)."""
     scene = make_scene(scene_name, "legendre", N, degree)
@@ -494,7 +494,7 @@ def report(rows, refs, install, versions, note, command, minutes, nodes) -> str:
         "The script's project-venv side defines the scenes, runs the planner and verifies; "
         "for each opty point it starts `.venv-opty/bin/python bench/peer_opty.py --worker` "
         "and exchanges JSON (nodes, t, q, dq, tau, timings, status). The Opti baseline "
-        "(`bench/baseline_opti.py`: the script a CasADi user would write, explicit forward "
+        "(`bench/peers/opti.py`: the script a CasADi user would write, explicit forward "
         "dynamics solve(M, Bτ − h), the planner's Legendre collocation and guess, Ipopt's "
         "default options) runs at the planner's points, each in a fresh process: built once, "
         "3 solves; its errors are those of its collocation interpolant.",

@@ -1,4 +1,4 @@
-"""The planner against a plain CasADi Opti script (bench/baseline_opti.py), in one run.
+"""The planner against a plain CasADi Opti script (bench/peers/opti.py), in one run.
 
 Scene (`--scene`): "seed-hang", the seed's 4-link arm hanging in gravity, rest to rest in
 1.6 s across the waveless singularity with coupling margin 0.005 (the default), or
@@ -36,7 +36,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench import baseline_opti
+from bench.peers import opti as baseline_opti
 from bench.common import (
     DOCS,
     RESULTS,

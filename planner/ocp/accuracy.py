@@ -29,7 +29,7 @@ def interval_errors(robot: Robot, interp: Interpolant) -> tuple[np.ndarray, str]
     N, degree = coeffs.shape[0], coeffs.shape[1] - 1
     flow = integrator(s, degree, SAMPLES)
     starts, params = inputs(robot, interp)
-    zero = np.zeros((len(s.active_idx), N))
+    zero = np.zeros((len(s.active_idx), SAMPLES * N))  # u is held per output interval
     try:
         ends = np.array(flow.map(N)(x0=starts, p=params, u=zero)["xf"])  # 2n x (SAMPLES N)
         status = "completed"
@@ -51,7 +51,7 @@ def _one_by_one(flow, starts: np.ndarray, params: np.ndarray, n: int) -> tuple[n
     failed = []
     for k in range(N):
         try:
-            out = flow(x0=starts[:, k], p=params[:, k], u=np.zeros(flow.size1_in("u")))
+            out = flow(x0=starts[:, k], p=params[:, k], u=np.zeros(flow.size_in("u")))
             ends[:, k * SAMPLES:(k + 1) * SAMPLES] = np.array(out["xf"])
         except RuntimeError:
             failed.append(k)

@@ -120,29 +120,37 @@ def gains(lin: Linearisation, h: np.ndarray, tau_scale: float) -> Feedback:
                     torque_weights=r_weights.tolist())
 
 
-def replay(robot: Robot, interp: Interpolant, start: np.ndarray, K: np.ndarray | None,
-           tol: float = REPLAY_TOL) -> tuple[float | None, str]:
-    """max |q_sim - q_plan| [rad] over REPLAY_SAMPLES points per interval of a replay from
-    `start` (2n) under the plan's torque and, with gains K (N, na, 2n), the feedback; and
-    "completed" or where CVODES failed (the error is then None)."""
+def replay(robot: Robot, interp: Interpolant, starts: np.ndarray, K: np.ndarray | None,
+           tol: float = REPLAY_TOL) -> list[tuple[float | None, str]]:
+    """Replays from each of `starts` (R, 2n) at once under the plan's torque and, with gains
+    K (N, na, 2n), the feedback: per start, max |q_sim - q_plan| [rad] over REPLAY_SAMPLES
+    points per interval and "completed", or None and where CVODES failed."""
     s = Structure.of(robot)
     coeffs = interp.tau.coeffs
     N, degree = coeffs.shape[0], coeffs.shape[1] - 1
-    flow = integrator(s, degree, REPLAY_SAMPLES, tol)
+    R = len(starts)
+    flow = integrator(s, degree, REPLAY_SAMPLES, tol).map(R)
     _, params = inputs(robot, interp)
     breaks = interp.q.breaks
-    x, worst = np.asarray(start, float), 0.0
+    planned = np.hstack([interp.q(breaks), interp.dq(breaks)])  # (N + 1, 2n)
+    fractions = np.arange(1, REPLAY_SAMPLES + 1) / REPLAY_SAMPLES
+    t = (breaks[:-1, None] + np.diff(breaks)[:, None] * fractions[None, :]).ravel()
+    q_plan = interp.q(t).reshape(N, REPLAY_SAMPLES, -1)
+    x = np.asarray(starts, float).T.copy()  # 2n x R
+    worst = np.zeros(R)
+    failed: list[str | None] = [None] * R
     for k in range(N):
-        planned = np.concatenate([interp.q(breaks[k:k + 1])[0], interp.dq(breaks[k:k + 1])[0]])
-        u = np.zeros(len(s.active_idx)) if K is None else -K[k] @ (x - planned)
+        u = np.zeros((len(s.active_idx), R)) if K is None else -K[k] @ (x - planned[k][:, None])
         where = f"between t = {breaks[k]:.6g} s and t = {breaks[k + 1]:.6g} s"
         try:
-            states = np.array(flow(x0=x, p=params[:, k], u=u)["xf"])
+            states = np.array(flow(x0=x, p=np.repeat(params[:, k:k + 1], R, axis=1),
+                                   u=np.repeat(u, REPLAY_SAMPLES, axis=1))["xf"])
+            states = states.reshape(2 * s.n, R, REPLAY_SAMPLES)
         except RuntimeError:
-            return None, f"CVODES failed {where}"
-        t = breaks[k] + (breaks[k + 1] - breaks[k]) * np.arange(1, REPLAY_SAMPLES + 1) / REPLAY_SAMPLES
-        error = np.abs(states[:s.n].T - interp.q(t)).max()
-        if not np.isfinite(error):
-            return None, f"the state became non-finite {where}"
-        worst, x = max(worst, float(error)), states[:, -1]
-    return worst, "completed"
+            return [(None, f"CVODES failed {where}") if f is None else (None, f) for f in failed]
+        errors = np.abs(states[:s.n].transpose(1, 2, 0) - q_plan[k][None]).max(axis=(1, 2))
+        for r in np.flatnonzero(~np.isfinite(errors)):
+            failed[r] = failed[r] or f"the state became non-finite {where}"
+        worst = np.maximum(worst, np.where(np.isfinite(errors), errors, 0.0))
+        x = np.where(np.isfinite(states[:, :, -1]), states[:, :, -1], 0.0)
+    return [(float(w), "completed") if f is None else (None, f) for w, f in zip(worst, failed)]

@@ -23,8 +23,9 @@ TOL = 1e-10  # CVODES rtol = atol of the states
 
 @lru_cache(maxsize=64)
 def integrator(s: Structure, degree: int, outputs: int, tol: float = TOL) -> ca.Function:
-    """(x0 (2n), p, u (na)) -> xf (2n x outputs) at s = 1/outputs, 2/outputs, ..., 1;
-    p = [robot parameters, torque coefficients (degree + 1 by na, power-major), h]."""
+    """(x0 (2n), p, u) -> xf (2n x outputs) at s = 1/outputs, 2/outputs, ..., 1;
+    p = [robot parameters, torque coefficients (degree + 1 by na, power-major), h]; u the
+    torque offset, na x outputs (one per output interval; an na vector holds for all)."""
     f = functions(s)["ode"]
     na = len(s.active_idx)
     x, u = ca.SX.sym("x", 2 * s.n), ca.SX.sym("u", na)

@@ -46,7 +46,7 @@ def open_loop(robot: Robot, interp: Interpolant) -> tuple[float | None, str]:
     max |q_sim - q_plan| [rad] and "completed", or None and where CVODES failed."""
     breaks = interp.q.breaks
     start = np.concatenate([interp.q(breaks[:1])[0], interp.dq(breaks[:1])[0]])
-    return replay(robot, interp, start, None, RESIM_TOL)
+    return replay(robot, interp, start[None, :], None, RESIM_TOL)[0]
 
 
 def defect(robot: Robot, interp: Interpolant) -> float:
@@ -109,10 +109,10 @@ def _feedback(robot: Robot, interp: Interpolant,
     K = np.asarray(fb.gains)
     breaks = interp.q.breaks
     start = np.concatenate([interp.q(breaks[:1])[0], interp.dq(breaks[:1])[0]])
-    return fb, {"growth_factor": growth_factor(lin),
-                "closed_loop_error": replay(robot, interp, start, K)[0],
-                "perturbed_closed_loop_error": replay(robot, interp, start + PERTURBATION, K)[0],
-                "perturbation": PERTURBATION}
+    (closed, _), (perturbed, _) = replay(robot, interp,
+                                         np.stack([start, start + PERTURBATION]), K)
+    return fb, {"growth_factor": growth_factor(lin), "closed_loop_error": closed,
+                "perturbed_closed_loop_error": perturbed, "perturbation": PERTURBATION}
 
 
 def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.ndarray,

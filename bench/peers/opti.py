@@ -8,7 +8,7 @@ collocation point (degree d - 1 per interval, the planner's own torque space), s
 solve the same continuous problem with the same discretization error.
 
 Same as the planner: objective effort * int |tau|^2 dt by the collocation quadrature;
-boundary states; the coupling margin sigma_min(M_pa) >= delta at the nodes and the
+boundary states; the torque limit at the collocation points; the coupling margin sigma_min(M_pa) >= delta at the nodes and the
 collocation points, written as the leading principal minors of G / delta^2 - I >= 0,
 G = M_pa M_pa^T, and for a square M_pa also sign * det(M_pa) / delta^p - 1 >= 0 with the
 sign det M_pa has at the start, alone for a 1 x 1 block (the form of planner/ocp/problem.py
@@ -18,34 +18,29 @@ guess of `planner.ocp.guess.hermite_guess`. Different on purpose: Ipopt with its
 options (monotone barrier update, tol 1e-8), no `expand`, boundary conditions as equality
 constraints, one Opti variable block per quantity indexed interval by interval.
 
-Supports the scenes of bench/common.py: fixed duration, state-to-state, effort objective,
-optional coupling margin.
-
-    .venv/bin/python bench/baseline_opti.py [--N 20] [--degree 3]
+Supports fixed-duration, state-to-state scenes with an effort objective, an optional torque
+limit and an optional coupling margin. Its plans are checked by the planner's own code:
+every interval re-integrated from the plan's state (`planner.ocp.accuracy`), the
+whole-horizon replay (`planner.ocp.verify.open_loop`), the dynamics defect.
 """
 
 from __future__ import annotations
 
-import argparse
 import math
-import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 
 import casadi as ca
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
 from planner.dynamics import functions, selection
 from planner.model import Structure, parameters
+from planner.ocp.accuracy import interval_errors
 from planner.ocp.guess import hermite_guess
-from planner.ocp.planner import DENSE_POINTS
 from planner.ocp.methods import Collocation
 from planner.ocp.transcription import Interpolant
-from planner.ocp.verify import defect, resimulation_error
+from planner.ocp.verify import defect, open_loop
 from planner.scene import Scene
 
 WALL_CAP = 600.0  # [s] Ipopt max_wall_time, a safety cap (not an Ipopt default)
@@ -136,6 +131,10 @@ def build(scene: Scene) -> Baseline:
     if margin is not None:
         for k in range(N + 1):
             keep_margin(X[:n, k])
+    if task.torque_limit is not None:
+        limit = np.broadcast_to(np.asarray(task.torque_limit, float), (na,))[:, None]
+        for k in range(N):
+            opti.subject_to(opti.bounded(-limit, U[k], limit))
     opti.subject_to(X[:, 0] == np.concatenate([task.initial.q, task.initial.dq]))
     opti.subject_to(X[:, N] == np.concatenate([task.final.q, task.final.dq]))
     opti.minimize(cost)
@@ -206,29 +205,15 @@ def interpolant(scene: Scene, built: Baseline, value) -> Interpolant | None:
 
 
 def verification(scene: Scene, built: Baseline, value) -> dict:
-    """Re-simulation error [rad] and defect [N m s] of the solution's interpolant, computed by
-    the planner's verification code (same interpolant, same CVODES tolerances)."""
-    N = scene.transcription.intervals
+    """The planner's checks of the solution's interpolant: the largest interval error
+    [rad] (what `verification.local_error` is for a plan), the whole-horizon replay error
+    [rad] and the defect [N m s]."""
     interp = interpolant(scene, built, value)
     if interp is None:
-        return {"resimulation_error": math.nan, "defect": math.nan}
-    error, _ = resimulation_error(scene.robot, interp, max(1, math.ceil(DENSE_POINTS / N)))
-    return {"resimulation_error": math.nan if error is None else error,
+        return {"local_error": math.nan, "resimulation_error": math.nan, "defect": math.nan}
+    errors, _ = interval_errors(scene.robot, interp)
+    error, _ = open_loop(scene.robot, interp)
+    local = float(errors.max())
+    return {"local_error": local if math.isfinite(local) else math.nan,
+            "resimulation_error": math.nan if error is None else error,
             "defect": defect(scene.robot, interp)}
-
-
-def main() -> None:
-    from bench.common import seed_scene
-
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--N", type=int, default=20)
-    parser.add_argument("--degree", type=int, default=3)
-    args = parser.parse_args()
-    result = solve(seed_scene(N=args.N, degree=args.degree))
-    for key, value in result.items():
-        if key != "stats":
-            print(f"{key}: {value}")
-
-
-if __name__ == "__main__":
-    main()

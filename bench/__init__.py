@@ -1,0 +1,1 @@
+"""Benchmarks of undertow: `python -m bench NAME [options]`, `python -m bench list`."""

@@ -1,0 +1,169 @@
+"""What every benchmark shares: the run manifest, timing, isolation, and writers.
+
+A benchmark is a module of this package with `main(argv)`, registered in
+`bench.__main__.BENCHES` and run as `python -m bench NAME [options]`. It writes its rows
+as CSV under bench/results/ and its table (and plot) into a section of a document under
+docs/, which ends with the manifest: the command that regenerates it, the commit of the
+code measured and the machine.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import platform
+import re
+import shlex
+import statistics
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterable, Sequence
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "bench" / "results"
+DOCS = ROOT / "docs"
+PYTHON = sys.executable
+
+
+class CpuTimed:
+    """Wraps a cached NLP's solver Function to record the CPU time [s] of its last call
+    (CPU time is what other load on a shared machine disturbs least)."""
+
+    def __init__(self, solver: ca.Function):
+        self.solver, self.cpu = solver, math.nan
+
+    def __call__(self, **kwargs):
+        start = time.process_time()
+        try:
+            return self.solver(**kwargs)
+        finally:
+            self.cpu = time.process_time() - start
+
+    def stats(self) -> dict:
+        return self.solver.stats()
+
+
+def load() -> str:
+    """The 1, 5 and 15 minute load averages, as `uptime` prints them."""
+    one, five, fifteen = os.getloadavg()
+    return f"{one:.2f}, {five:.2f}, {fifteen:.2f}"
+
+
+def machine_note() -> str:
+    """CPU, core count, load, and versions: the line every benchmark output starts with."""
+    cpu = platform.processor() or platform.machine()
+    with open("/proc/cpuinfo") as f:
+        names = [line.split(":", 1)[1].strip() for line in f if line.startswith("model name")]
+    if names:
+        cpu = names[0]
+    return (f"{cpu}, {os.cpu_count()} cores shared with other work (load average {load()} "
+            f"at the start); Python {platform.python_version()}, CasADi {ca.__version__}, "
+            f"NumPy {np.__version__}; planner/ at commit {planner_commit()}")
+
+
+def last_commit(path: Path) -> str:
+    """The last commit (short hash) that changed a file or folder, 'unknown' outside a checkout."""
+    return subprocess.run(["git", "-C", str(ROOT), "log", "-1", "--format=%h", "--", str(path)],
+                          check=False, capture_output=True, text=True).stdout.strip() or "unknown"
+
+
+def planner_commit() -> str:
+    """The last commit that touched planner/ (the code measured), '+ local changes' if any."""
+    dirty = subprocess.run(["git", "-C", str(ROOT), "status", "--porcelain", "--", "planner"],
+                           check=False, capture_output=True, text=True).stdout.strip()
+    return last_commit(ROOT / "planner") + (" + local changes" if dirty else "")
+
+
+def timed(fn: Callable[[], object]) -> tuple[object, float, float]:
+    """fn(), its wall time [s] and the CPU time [s] of this process."""
+    wall, cpu = time.perf_counter(), time.process_time()
+    out = fn()
+    return out, time.perf_counter() - wall, time.process_time() - cpu
+
+
+def median(values: Iterable[float]) -> float:
+    values = [v for v in values if v is not None and math.isfinite(v)]
+    return statistics.median(values) if values else math.nan
+
+
+def isolated(module: str, function: str, kwargs: dict, timeout: float) -> dict:
+    """Run bench.<module>.<function>(**kwargs) -> dict in a fresh Python process (module
+    may be dotted: "peers.opti").
+
+    Returns its dict, or {"failure": "timeout after ... s" | "exit ...: ..."}: a point that
+    hangs or crashes is recorded as such instead of ending the run.
+    """
+    code = (f"import json, sys; sys.path.insert(0, {str(ROOT)!r}); "
+            f"from bench.{module} import {function} as f; "
+            f"out = f(**json.loads(sys.argv[1])); print('RESULT ' + json.dumps(out))")
+    try:
+        run = subprocess.run([PYTHON, "-c", code, json.dumps(kwargs)], cwd=ROOT, check=False,
+                             capture_output=True, text=True, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return {"failure": f"timeout after {timeout:g} s"}
+    for line in run.stdout.splitlines()[::-1]:
+        if line.startswith("RESULT "):
+            return json.loads(line[len("RESULT "):])
+    tail = (run.stderr.strip().splitlines() or ["no output"])[-1]
+    return {"failure": f"exit {run.returncode}: {tail[:200]}"}
+
+
+def write_csv(path: Path, rows: Sequence[dict]) -> None:
+    """Rows (dicts with the same keys) as CSV; floats with 6 significant digits."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        for row in rows:
+            writer.writerow({k: f"{v:.6g}" if isinstance(v, float) else v for k, v in row.items()})
+
+
+def fmt(value: object, digits: int = 3) -> str:
+    """A table cell: floats with `digits` significant digits, None and NaN as a dash."""
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "–"
+    if isinstance(value, float):
+        return f"{value:.{digits}g}"
+    return str(value)
+
+
+def table(rows: Sequence[dict], columns: Sequence[tuple[str, str]]) -> str:
+    """A Markdown table of rows; columns are (key, heading)."""
+    head = "| " + " | ".join(h for _, h in columns) + " |"
+    rule = "|" + "|".join("---" if i == 0 else "---:" for i in range(len(columns))) + "|"
+    body = ["| " + " | ".join(fmt(row.get(k)) for k, _ in columns) + " |" for row in rows]
+    return "\n".join([head, rule, *body])
+
+
+def write_section(path: Path, heading: str, text: str) -> None:
+    """Replace (or append) the `## heading` section of a Markdown file with text."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    doc = path.read_text() if path.exists() else ""
+    block = f"## {heading}\n\n{text.strip()}\n"
+    pattern = re.compile(rf"^## {re.escape(heading)}\n.*?(?=^## |\Z)", re.DOTALL | re.MULTILINE)
+    if pattern.search(doc):
+        doc = pattern.sub(lambda _: block + "\n", doc).rstrip() + "\n"
+    else:
+        doc = doc.rstrip() + ("\n\n" if doc else "") + block
+    path.write_text(doc)
+
+
+def loglog_slope(x: Sequence[float], y: Sequence[float]) -> float:
+    """Least-squares slope of log y against log x (the growth exponent)."""
+    lx, ly = np.log(np.asarray(x, float)), np.log(np.asarray(y, float))
+    return float(np.polyfit(lx, ly, 1)[0])
+
+
+def manifest(name: str, argv: Sequence[str], started: float, machine: str) -> str:
+    """The closing line of a benchmark's doc section: how to regenerate it, how long it ran,
+    and `machine` (its `machine_note()` taken at the start)."""
+    command = " ".join(["python -m bench", name, *map(shlex.quote, argv)])
+    return (f"Regenerate: `{command}` ({time.perf_counter() - started:.0f} s). "
+            f"Measured on {machine}.")

@@ -1,0 +1,112 @@
+"""Accuracy, open-loop sensitivity and the tracking feedback of a plan, each against an
+independent computation."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from planner.dynamics import Dynamics
+from planner.examples import example
+from planner.model import Structure
+from planner.ocp import planner as planner_module
+from planner.ocp.accuracy import SAMPLES, interval_errors
+from planner.ocp.feedback import PERTURBATION, growth_factor, linearise, replay
+from planner.ocp.flow import inputs, integrator
+from planner.scene import Scene
+from planner.suite import tasks
+
+
+def planned(sc: Scene):
+    """The plan of a scene and the interpolant it was built from."""
+    seen = {}
+    original = planner_module._interpolant
+
+    def keep(*args):
+        seen["interp"] = original(*args)
+        return seen["interp"]
+
+    planner_module._interpolant = keep
+    try:
+        result = planner_module.plan(sc)
+    finally:
+        planner_module._interpolant = original
+    return result, seen["interp"]
+
+
+@pytest.fixture(scope="module")
+def unstable():
+    """A suite task whose plan is strongly unstable open loop (2 links, passive elbow,
+    hanging in gravity)."""
+    sc = dict(tasks())["2-AP-g9.81-x01"]
+    return (sc, *planned(sc))
+
+
+@pytest.fixture(scope="module")
+def seed_arm():
+    sc = Scene.model_validate(example("seed-arm-plan").request)
+    return (sc, *planned(sc))
+
+
+def test_interval_errors_agree_with_an_independent_integrator(seed_arm):
+    sc, result, interp = seed_arm
+    errors, status = interval_errors(sc.robot, interp)
+    assert status == "completed" and result.verification.local_error == errors.max()
+    dyn = Dynamics(sc.robot)
+    breaks = interp.q.breaks
+    for k in (0, 17, len(breaks) - 2):
+        a, b = breaks[k], breaks[k + 1]
+        x0 = np.concatenate([interp.q([a])[0], interp.dq([a])[0]])
+        n = sc.robot.n
+
+        def rhs(t, x):
+            return np.concatenate([x[n:], dyn.forward(x[:n], x[n:], interp.tau([t])[0])])
+
+        t = a + (b - a) * np.arange(1, SAMPLES + 1) / SAMPLES
+        sol = solve_ivp(rhs, (a, b), x0, method="DOP853", t_eval=t, rtol=1e-12, atol=1e-12)
+        q_err = np.abs(sol.y[:n].T - interp.q(t)).max()
+        dq_err = (b - a) * np.abs(sol.y[n:].T - interp.dq(t)).max()
+        assert errors[k] == pytest.approx(max(q_err, dq_err), rel=1e-3, abs=1e-9)
+
+
+def test_the_growth_factor_agrees_with_cvodes_sensitivities(unstable):
+    sc, result, interp = unstable
+    s = Structure.of(sc.robot)
+    degree = interp.tau.coeffs.shape[1] - 1
+    flow = integrator(s, degree, 1, 1e-10)
+    jac = flow.factory("flow_jacobian", ["x0", "p", "u"], ["jac:xf:x0"])
+    starts, params = inputs(sc.robot, interp)
+    phi, worst = np.eye(2 * s.n), 1.0
+    for k in range(starts.shape[1]):
+        A = np.array(jac(x0=starts[:, k], p=params[:, k], u=np.zeros(len(s.active_idx)))[
+            "jac_xf_x0"])
+        phi = A @ phi
+        worst = max(worst, np.linalg.norm(phi, 2))
+    assert result.verification.growth_factor == pytest.approx(worst, rel=1e-3)
+    assert growth_factor(linearise(sc.robot, interp)) == result.verification.growth_factor
+    assert worst > 1e3  # strongly unstable: an initial error grows a thousandfold
+
+
+def test_the_feedback_holds_a_perturbed_start_near_the_plan_where_open_loop_departs(unstable):
+    sc, result, interp = unstable
+    v = result.verification
+    start = np.concatenate([result.q[0], result.dq[0]])
+    (open_loop, status), = replay(sc.robot, interp, (start + PERTURBATION)[None, :], None)
+    assert status == "completed" and open_loop > 30 * PERTURBATION
+    assert v.perturbed_closed_loop_error < 3 * PERTURBATION < open_loop / 10
+    assert v.closed_loop_error <= v.resimulation_error + 1e-6
+    gains = np.asarray(result.feedback.gains)
+    assert gains.shape == (len(result.t) - 1, len(sc.robot.active), 2 * sc.robot.n)
+
+
+def test_replays_from_several_starts_at_once_equal_each_alone(seed_arm):
+    sc, result, interp = seed_arm
+    K = np.asarray(result.feedback.gains)
+    start = np.concatenate([result.q[0], result.dq[0]])
+    starts = np.stack([start, start + PERTURBATION, start - PERTURBATION])
+    together = replay(sc.robot, interp, starts, K)
+    alone = [replay(sc.robot, interp, x[None, :], K)[0] for x in starts]
+    assert [status for _, status in together] == ["completed"] * 3
+    assert np.allclose([e for e, _ in together], [e for e, _ in alone], rtol=1e-9, atol=0.0)
+    assert together[0][0] == result.verification.closed_loop_error
