@@ -1,5 +1,5 @@
-"""Shared test helpers: seeded randomness, random robots, the seed paper's 4-link arm,
-and an independent point-mass reference of M and h.
+"""Shared test helpers: seeded randomness, the seed paper's 4-link arm, and an independent
+point-mass reference of M and h (random robots: `testbed.robots`).
 
 Plain functions (importable from a test module as `from conftest import ...`) with thin
 fixtures around them. Every random draw goes through a `numpy.random.Generator` seeded
@@ -13,53 +13,17 @@ from collections.abc import Callable
 
 import numpy as np
 import pytest
-from seed_printed import SEED_ARM
 
+from planner.examples import VERTICAL_SEED_ARM
 from planner.model import Robot
+from testbed.robots import random_robot
 
 
 def seed_arm(gravity: float = 9.81, waves: bool = True,
              rotational: str = "cumulative") -> Robot:
     """The seed's 4-link arm, optionally without gravity or without its waves."""
-    robot = Robot.model_validate({**SEED_ARM, "gravity": gravity, "rotational_inertia": rotational})
+    robot = Robot.model_validate({**VERTICAL_SEED_ARM, "gravity": gravity, "rotational_inertia": rotational})
     return robot if waves else robot.without_waves()
-
-
-def random_robot(rng: np.random.Generator, n: int, *, waves: bool = True,
-                 gravity: float | None = None, rotational: str | None = None,
-                 inertia: bool = True) -> Robot:
-    """A random n-link robot.
-
-    Lengths 0.2..1 m, masses 0.2..2 kg, inertias 0..0.05 kg m^2 (all zero if not
-    `inertia`); each joint active with probability 1/2, at least one active; with
-    `waves`, every active joint carries a wave of amplitude 0.01..0.3 of its length,
-    frequency 1..5 and phase -pi..pi. gravity None draws 0 or 9.81; rotational None
-    draws the convention.
-    """
-    active = rng.random(n) < 0.5
-    active[rng.integers(n)] = True
-    links = []
-    for k in range(n):
-        length = float(rng.uniform(0.2, 1.0))
-        link = {"length": length, "mass": float(rng.uniform(0.2, 2.0)),
-                "inertia": float(rng.uniform(0.0, 0.05)) if inertia else 0.0,
-                "joint": "active" if active[k] else "passive"}
-        if waves and active[k]:
-            link["wave"] = {"amplitude": float(rng.uniform(0.01, 0.3)) * length,
-                            "frequency": float(rng.uniform(1.0, 5.0)),
-                            "phase": float(rng.uniform(-np.pi, np.pi))}
-        links.append(link)
-    if gravity is None:
-        gravity = float(rng.choice([0.0, 9.81]))
-    if rotational is None:
-        rotational = str(rng.choice(["cumulative", "absolute"]))
-    return Robot.model_validate({"links": links, "gravity": gravity,
-                                 "rotational_inertia": rotational})
-
-
-def random_state(rng: np.random.Generator, n: int, speed: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
-    """Angles uniform in [-pi, pi] rad and rates uniform in [-speed, speed] rad/s."""
-    return rng.uniform(-np.pi, np.pi, n), rng.uniform(-speed, speed, n)
 
 
 def point_mass_dynamics(robot: Robot, q, dq) -> tuple[np.ndarray, np.ndarray]:

@@ -6,7 +6,9 @@ import time
 
 import pytest
 from fake_solvers import fake_plan
-from service_fixtures import client, two_link_scene, wait_final
+from service_fixtures import client, two_link_scene
+
+from testbed.service import wait_final
 
 
 @pytest.fixture(scope="module")

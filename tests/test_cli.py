@@ -14,7 +14,6 @@ from pathlib import Path
 import httpx
 import numpy as np
 import pytest
-from service_fixtures import free_port
 from test_plots import CROSSING_SCENE
 
 from planner import cli
@@ -24,6 +23,7 @@ from planner.ocp import Plan, plan
 from planner.ocp.result import Progress
 from planner.scene import Scene
 from planner.waves import WaveDesignResult
+from testbed.service import free_port
 
 UNDERTOW = Path(sys.executable).with_name("undertow")
 PNG = b"\x89PNG\r\n\x1a\n"

@@ -16,7 +16,7 @@ from functools import cache
 import casadi as ca
 import numpy as np
 import pytest
-from conftest import point_mass_dynamics, random_robot, random_state, seed_arm
+from conftest import point_mass_dynamics, seed_arm
 
 from planner.dynamics import Coupling, Dynamics, coupling_measures, functions
 from planner.model import (
@@ -32,6 +32,7 @@ from planner.model import (
     Structure,
     parameters,
 )
+from testbed.robots import random_robot, random_state
 
 RTOL = 1e-12
 SIZES = [1, 2, 3, 5, 8]

@@ -12,9 +12,10 @@ import time
 
 import httpx
 import pytest
-from service_fixtures import TWO_LINK, LiveServer, wait_final
+from service_fixtures import TWO_LINK
 
 from app.routes.examples import ENDPOINTS
+from testbed.service import LiveServer, wait_final
 
 QUICK = {"robot": TWO_LINK,
          "task": {"duration": 2.0, "initial": {"q": [0.0, 0.0], "dq": [0.0, 0.0]},

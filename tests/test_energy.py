@@ -14,11 +14,12 @@ from functools import cache
 import casadi as ca
 import numpy as np
 import pytest
-from conftest import random_robot, random_state, seed_arm
+from conftest import seed_arm
 
 from planner.dynamics import Dynamics, functions
 from planner.model import Robot, Structure, parameters
 from planner.simulate import simulate
+from testbed.robots import random_robot, random_state
 
 DURATION = 5.0
 TOL = 1e-12

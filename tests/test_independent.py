@@ -16,10 +16,11 @@ from functools import cache
 import numpy as np
 import pytest
 import sympy as sp
-from conftest import point_mass_dynamics, random_robot, random_state, rotational_mass
+from conftest import point_mass_dynamics, rotational_mass
 
 from planner.dynamics import Dynamics
 from planner.model import Robot
+from testbed.robots import random_robot, random_state
 
 RTOL = 1e-12
 

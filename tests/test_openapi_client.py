@@ -10,8 +10,10 @@ import sys
 import time
 
 import pytest
-from service_fixtures import ROOT, LiveServer
+from service_fixtures import ROOT
 from test_e2e_server import QUICK
+
+from testbed.service import LiveServer
 
 pytest.importorskip("openapi_python_client", reason="openapi-python-client is a test dependency")
 

@@ -19,7 +19,9 @@ import subprocess
 import sys
 
 import pytest
-from service_fixtures import ROOT, LiveServer
+from service_fixtures import ROOT
+
+from testbed.service import LiveServer
 
 pytest.importorskip("schemathesis", reason="schemathesis is a test dependency")
 

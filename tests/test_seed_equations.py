@@ -15,7 +15,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import seed_arm
-from seed_printed import (
+
+from planner.dynamics import Dynamics
+from planner.model import Robot
+from testbed.seed_printed import (
     CORRECTED,
     Arm,
     arm_of,
@@ -24,9 +27,6 @@ from seed_printed import (
     printed_mass,
     printed_potential,
 )
-
-from planner.dynamics import Dynamics
-from planner.model import Robot
 
 RTOL = 1e-12
 SAMPLES = 40

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import point_mass_dynamics, random_robot, random_state
+from conftest import point_mass_dynamics
 from pydantic import ValidationError
 from scipy.integrate import solve_ivp
 from scipy.interpolate import CubicSpline, interp1d
@@ -22,6 +22,7 @@ from scipy.interpolate import CubicSpline, interp1d
 from planner.dynamics import Dynamics
 from planner.model import Robot
 from planner.simulate import SimulationRequest, run, simulate, torque_coefficients
+from testbed.robots import random_robot, random_state
 
 DURATION, OUTPUTS, TOL, DRIFT = 5.0, 100, 1e-12, 1e-8
 

@@ -1,5 +1,5 @@
 """Stress: near-singular configurations, badly scaled and random robots, the service under
-faults (bench/stress.py runs the full sweeps and writes docs/stability.md).
+faults (`python -m bench stress` runs the full sweeps and writes docs/stability.md).
 
 Fast checks run by default; the sweeps, the 1000 random robots and the live-server faults
 are slow-marked.
@@ -8,21 +8,21 @@ are slow-marked.
 from __future__ import annotations
 
 import math
-import sys
 
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from service_fixtures import ROOT, client
+from service_fixtures import client
 
-sys.path.insert(0, str(ROOT))
-
-from bench.stress import (
+from planner.dynamics import Dynamics
+from planner.examples import seed_crossing
+from planner.inverse import RESOLUTION
+from planner.model import Robot
+from testbed.edges import (
     SIGMAS,
     invariants,
     inverse_case,
-    malformed_bodies,
     non_finite,
     plan_case,
     scaled_case,
@@ -32,9 +32,7 @@ from bench.stress import (
     waveless_seed,
     waveless_two_link,
 )
-from planner.dynamics import Dynamics
-from planner.inverse import RESOLUTION
-from planner.model import Robot
+from testbed.probes import malformed_bodies
 
 STRUCTURED = {"Infeasible_Problem_Detected", "Restoration_Failed", "Local_Infeasibility",
               "Maximum_Iterations_Exceeded", "Maximum_WallTime_Exceeded",
@@ -47,7 +45,16 @@ def test_non_finite_names_the_path_of_every_nan_and_inf():
     assert found == [".a[1]", ".a[2].b[0]", ".a[2].b[1]"]
 
 
-@pytest.mark.parametrize("arm, at", [("2-link", two_link_at), ("seed 4-link", seed_at)])
+def seed_near(sigma: float) -> np.ndarray:
+    """A configuration of the waveless seed arm with sigma_min(M_pa) = sigma, on the
+    segment of `planner.examples.seed_crossing` stretched threefold about its middle (so
+    that it reaches sigma_min = 1e-2)."""
+    a, b = (np.array(q) for q in seed_crossing())
+    middle = (a + b) / 2
+    return seed_at(sigma, (middle + 3 * (a - middle)).tolist(), (middle + 3 * (b - middle)).tolist())
+
+
+@pytest.mark.parametrize("arm, at", [("2-link", two_link_at), ("seed 4-link", seed_near)])
 def test_near_singular_configurations_have_the_asked_sigma_min(arm, at):
     robot = waveless_two_link() if arm == "2-link" else waveless_seed()
     dyn = Dynamics(robot)
@@ -188,7 +195,7 @@ def test_malformed_bodies_get_a_problem_answer_not_a_server_error(tmp_path):
 def test_seed_arm_inverse_dynamics_near_its_singularity_stops_with_a_report():
     robot = waveless_seed()
     for sigma in SIGMAS:
-        out = inverse_case(robot, seed_at(sigma), threshold=1e-3)
+        out = inverse_case(robot, seed_near(sigma), threshold=1e-3)
         assert out["status"] == "singular" and out["non_finite"] == 0, (sigma, out)
 
 
@@ -205,9 +212,9 @@ def test_every_badly_scaled_robot_plans_to_finite_numbers(case):
 @pytest.mark.slow
 def test_a_killed_worker_fails_its_job_and_the_server_recovers(tmp_path):
     import httpx
-    from service_fixtures import LiveServer
 
-    from bench.stress import kill_worker_case
+    from testbed.probes import kill_worker_case
+    from testbed.service import LiveServer
 
     with LiveServer(tmp_path / "jobs.sqlite3") as live, \
             httpx.Client(base_url=live.url, timeout=60) as http:
@@ -220,9 +227,9 @@ def test_a_killed_worker_fails_its_job_and_the_server_recovers(tmp_path):
 @pytest.mark.slow
 def test_clients_that_disconnect_leave_the_server_healthy(tmp_path):
     import httpx
-    from service_fixtures import LiveServer
 
-    from bench.stress import disconnect_cases
+    from testbed.probes import disconnect_cases
+    from testbed.service import LiveServer
 
     with LiveServer(tmp_path / "jobs.sqlite3") as live, \
             httpx.Client(base_url=live.url, timeout=60) as http:

@@ -22,8 +22,10 @@ from pathlib import Path
 
 import httpx
 import pytest
-from service_fixtures import ROOT, LiveServer
+from service_fixtures import ROOT
 from test_plots import CROSSING_SCENE
+
+from testbed.service import LiveServer
 
 CHROMIUM = Path("/usr/bin/chromium")
 ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",

@@ -19,12 +19,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planner.examples import VERTICAL_SEED_ARM
-
-SEED_ARM = VERTICAL_SEED_ARM
-"""The numbers used for the seed's 4-link arm in tests and benches (the excerpt gives none),
-as a `planner.model.Robot` document: 0-based, passive joints 0 and 2, waves on 1 and 3."""
-
 
 @dataclass(frozen=True)
 class Arm:

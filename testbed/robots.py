@@ -1,0 +1,63 @@
+"""Robots for tests and benchmarks: random robots and states (seeded by the caller's
+generator), and chains of links."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from planner.model import Robot
+
+
+def random_robot(rng: np.random.Generator, n: int, *, waves: bool = True,
+                 gravity: float | None = None, rotational: str | None = None,
+                 inertia: bool = True) -> Robot:
+    """A random n-link robot.
+
+    Lengths 0.2..1 m, masses 0.2..2 kg, inertias 0..0.05 kg m^2 (all zero if not
+    `inertia`); each joint active with probability 1/2, at least one active; with
+    `waves`, every active joint carries a wave of amplitude 0.01..0.3 of its length,
+    frequency 1..5 and phase -pi..pi. gravity None draws 0 or 9.81; rotational None
+    draws the convention.
+    """
+    active = rng.random(n) < 0.5
+    active[rng.integers(n)] = True
+    links = []
+    for k in range(n):
+        length = float(rng.uniform(0.2, 1.0))
+        link = {"length": length, "mass": float(rng.uniform(0.2, 2.0)),
+                "inertia": float(rng.uniform(0.0, 0.05)) if inertia else 0.0,
+                "joint": "active" if active[k] else "passive"}
+        if waves and active[k]:
+            link["wave"] = {"amplitude": float(rng.uniform(0.01, 0.3)) * length,
+                            "frequency": float(rng.uniform(1.0, 5.0)),
+                            "phase": float(rng.uniform(-np.pi, np.pi))}
+        links.append(link)
+    if gravity is None:
+        gravity = float(rng.choice([0.0, 9.81]))
+    if rotational is None:
+        rotational = str(rng.choice(["cumulative", "absolute"]))
+    return Robot.model_validate({"links": links, "gravity": gravity,
+                                 "rotational_inertia": rotational})
+
+
+def random_state(rng: np.random.Generator, n: int, speed: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+    """Angles uniform in [-pi, pi] rad and rates uniform in [-speed, speed] rad/s."""
+    return rng.uniform(-np.pi, np.pi, n), rng.uniform(-speed, speed, n)
+
+
+def chain(n: int, under: bool, masses: list[float] | None = None,
+          lengths: list[float] | None = None, frequency: float = 3.0,
+          gravity: float = 9.81) -> dict:
+    """n links (0.4 m, 1 kg, I = m l^2 / 50 [kg m^2] unless given); under: even joints
+    passive; active odd joints carry a wave of amplitude 0.1 l, `frequency`, phase 0.3."""
+    masses = masses or [1.0] * n
+    lengths = lengths or [0.4] * n
+    links = []
+    for k in range(n):
+        active = (k % 2 == 1) or not under or n == 1
+        link = {"length": lengths[k], "mass": masses[k],
+                "inertia": masses[k] * lengths[k] ** 2 / 50, "joint": "active" if active else "passive"}
+        if active and k % 2 == 1:
+            link["wave"] = {"amplitude": 0.1 * lengths[k], "frequency": frequency, "phase": 0.3}
+        links.append(link)
+    return {"links": links, "gravity": gravity}

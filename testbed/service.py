@@ -1,0 +1,89 @@
+"""The service in a process of its own: uvicorn serving app.main:app on a free loopback
+port with its own store, as `make serve` runs it; and waiting for a plan job to end."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Self
+
+import httpx
+
+from app.server import PROTOCOL
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+
+class LiveServer:
+    """uvicorn serving app.main:app on 127.0.0.1 in a subprocess, with its own store."""
+
+    def __init__(self, db_path: Path, port: int | None = None, **env: str):
+        self.db_path, self.port = db_path, port or free_port()
+        self.env = {**os.environ, "UNDERTOW_DB_PATH": str(db_path),
+                    "UNDERTOW_INSTANCE": "e2e", "UNDERTOW_LOG_LEVEL": "WARNING", **env}
+        self.proc: subprocess.Popen | None = None
+        self.log = db_path.with_suffix(".log")
+
+    @property
+    def url(self) -> str:
+        return f"http://127.0.0.1:{self.port}"
+
+    def start(self, timeout: float = 60.0) -> Self:
+        with open(self.log, "ab") as log:
+            self.proc = subprocess.Popen(
+                [sys.executable, "-m", "uvicorn", "app.main:app", "--host", "127.0.0.1",
+                 "--port", str(self.port), "--no-access-log", "--http", PROTOCOL],
+                cwd=ROOT, env=self.env, stdout=log, stderr=subprocess.STDOUT,
+                start_new_session=True)
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            assert self.proc.poll() is None, f"server exited: {self.log.read_text()[-3000:]}"
+            with contextlib.suppress(httpx.HTTPError):
+                if httpx.get(self.url + "/healthz", timeout=1).status_code == 200:
+                    return self
+            time.sleep(0.1)
+        raise AssertionError(f"server did not come up: {self.log.read_text()[-3000:]}")
+
+    def stop(self, sig: int = signal.SIGTERM, timeout: float = 30.0) -> None:
+        """Send `sig` to the server process only (its workers are left to notice)."""
+        if self.proc is None or self.proc.poll() is not None:
+            return
+        self.proc.send_signal(sig)
+        try:
+            self.proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            os.killpg(self.proc.pid, signal.SIGKILL)
+            self.proc.wait(timeout)
+
+    def __enter__(self) -> Self:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+        if self.proc is not None:  # leave no worker behind
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(self.proc.pid, signal.SIGKILL)
+
+
+def wait_final(http: httpx.Client, job_id: str, timeout: float = 120.0) -> dict:
+    """Poll GET /v1/plans/{id} until the job ends."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        job = http.get(f"/v1/plans/{job_id}").json()
+        if job["status"] in ("succeeded", "failed", "cancelled"):
+            return job
+        time.sleep(0.1)
+    raise AssertionError(f"job {job_id} did not end in {timeout} s")
