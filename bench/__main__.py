@@ -6,9 +6,44 @@ import importlib
 import sys
 
 BENCHES = {
+    "container": ("bench.container", "the container image: its size and a running container's "
+                                     "memory, idle and after plans"),
+    "dynamics_size": ("bench.dynamics_size", "the derived dynamics: expression size, build time "
+                                             "and evaluation cost"),
     "examples": ("bench.examples", "the built-in plan examples, now and at an earlier commit"),
+    "initial_guess": ("bench.initial_guess", "interpolation against inverse-dynamics initial "
+                                             "guesses on the underactuated scenes"),
+    "ipopt_settings": ("bench.ipopt_settings", "MUMPS ordering and scaling and the barrier "
+                                               "update: cost per iteration and where Ipopt ends"),
+    "passive_margin": ("bench.passive_margin", "the two-link example with its end state and "
+                                               "duration moved: how many plans verify"),
+    "peer_opty": ("bench.peer_opty", "the planner against the Opti script and opty on the "
+                                     "two-link scenes"),
+    "planner_internals": ("bench.planner_internals", "the residual form, compiled against "
+                                                     "interpreted NLPs, the seed arm's accuracy"),
+    "planner_speed": ("bench.planner_speed", "the planner against a plain Opti script on a seed "
+                                             "scene, and where a solve's time goes"),
+    "reliability": ("bench.reliability", "a live server under bad input, slow clients and long "
+                                         "synchronous requests"),
+    "scaling": ("bench.scaling", "build time, solve time and memory against intervals and "
+                                 "links"),
+    "seed_errata": ("bench.seed_errata", "energy drift of the seed's printed equations and "
+                                         "their misprinted terms"),
+    "seed_iterations": ("bench.seed_iterations", "where the horizontal seed arm's Ipopt "
+                                                 "iterations go (restoration)"),
+    "seed_variants": ("bench.seed_variants", "a seed scene with its end states moved: how many "
+                                             "plans verify"),
+    "service_load": ("bench.service_load", "concurrent plan requests against a live server"),
+    "simulate_integrator": ("bench.simulate_integrator", "CVODES methods for free motions: "
+                                                         "energy drift and CPU time"),
+    "singularities": ("bench.singularities", "the examples' inverse dynamics with and without "
+                                             "waves, wave design, coupling analysis"),
+    "stress": ("bench.stress", "near-singular starts, badly scaled and random robots, the "
+                               "service under faults"),
     "suite": ("bench.suite", "the task suite: verified plans and time to a verified plan, "
                              "against refinement off, retries off and a plain Opti script"),
+    "time_vs_error": ("bench.time_vs_error", "run time against error of every transcription "
+                                             "on the reference scenes"),
 }
 """Every benchmark: its module (with main(argv)) and what it measures."""
 

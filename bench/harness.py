@@ -9,6 +9,7 @@ code measured and the machine.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import math
@@ -20,11 +21,14 @@ import statistics
 import subprocess
 import sys
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 
 import casadi as ca
 import numpy as np
+
+from planner.ocp.problem import IPOPT_OPTIONS, ProblemKey, problem
+from planner.scene import Scene
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results"
@@ -48,6 +52,30 @@ class CpuTimed:
 
     def stats(self) -> dict:
         return self.solver.stats()
+
+
+def build_instrumented(scene: Scene) -> tuple[float, CpuTimed]:
+    """Build (or fetch) the NLP of the scene's first mesh; its build time [s] and its
+    solver, wrapped to record the CPU time of each solve."""
+    prob = problem(ProblemKey.of(scene))
+    if not isinstance(prob.solver, CpuTimed):
+        prob.solver = CpuTimed(prob.solver)
+    return prob.build_time, prob.solver
+
+
+@contextlib.contextmanager
+def ipopt_options(options: dict) -> Iterator[None]:
+    """NLPs built within use `planner.ocp.problem.IPOPT_OPTIONS` updated with `options`; the
+    cache of built NLPs is cleared on entry and on exit (a solver holds its options)."""
+    saved = dict(IPOPT_OPTIONS)
+    IPOPT_OPTIONS.update(options)
+    problem.cache_clear()
+    try:
+        yield
+    finally:
+        IPOPT_OPTIONS.clear()
+        IPOPT_OPTIONS.update(saved)
+        problem.cache_clear()
 
 
 def load() -> str:

@@ -1,52 +1,49 @@
-"""Measures behind the planner's design choices; writes docs/bench-planner-internals.md.
+"""Measures behind the planner's design choices, each a section of
+docs/bench-planner-internals.md (`--parts` picks them):
 
-1. The dynamics residual formed as d/dt(dT/ddq) by one directional derivative against
-   M ddq + h: expression nodes and the cost of the Hessian of lambda' r per knot.
-2. Interpreted (expanded SX) against compiled (C, solver.jit) NLPs on the same scenes:
-   code size, compile time, median solve time, Ipopt iterations.
-3. The seed arm's rest-to-rest task through waveless singularities: re-simulation error
-   against N for Legendre degree 3.
+- residual: the dynamics residual formed as d/dt(dT/ddq) by one directional derivative
+  against M ddq + h: expression nodes and the CPU cost of the Hessian of lambda' r over
+  the 300 knots of the seed task at N = 100;
+- compiled: interpreted against compiled (solver.jit: the stages' derivative kernels in
+  C) NLPs on the same scenes, one solve per plan: build and compile time, library size,
+  median solve time of `--repeats` solves, Ipopt iterations;
+- seed: the seed arm's rest-to-rest task through waveless singularities (bench/scenes.py
+  "seed-4"), one compiled solve per N, Legendre degree 3: interval error, open-loop
+  replay error, defect, crossings.
 
-Run: .venv/bin/python bench/planner_internals.py
+    python -m bench planner_internals [--parts residual,compiled,seed] [--repeats 3]
+        [--seed-N 50,100]
 """
 
 from __future__ import annotations
 
+import argparse
 import os
 import statistics
-import subprocess
-import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import casadi as ca
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
+from bench import harness
+from bench.scenes import ROBOTS, make_scene
+from planner.dynamics import derive, functions, selection
+from planner.model import Robot, Structure, parameters
+from planner.ocp import plan
 
-from seed_printed import SEED_ARM  # noqa: E402
-
-from planner.dynamics import derive, functions, selection  # noqa: E402
-from planner.model import Robot, Structure, parameters  # noqa: E402
-from planner.ocp import plan  # noqa: E402
-from planner.scene import Scene  # noqa: E402
-
-SEED = {**SEED_ARM, "gravity": 0.0}
-SEED_TASK = {"duration": 4.0,
-             "initial": {"q": [0.766, -1.157, -1.148, -1.287], "dq": [0.0] * 4},
-             "final": {"q": [0.676, -0.67, -1.306, -1.202], "dq": [0.0] * 4},
-             "coupling_margin": 0.02}
-TWO_LINK = {"links": [
-    {"length": 0.5, "mass": 1.0, "inertia": 0.01, "joint": "active"},
-    {"length": 0.4, "mass": 0.8, "inertia": 0.008, "joint": "active",
-     "wave": {"amplitude": 0.05, "frequency": 3, "phase": 0.3}}], "gravity": 9.81}
-TWO_LINK_TASK = {"duration": 1.0, "initial": {"q": [0.0, 0.5], "dq": [0.0, 0.0]},
-                 "final": {"q": [0.6, 1.2], "dq": [0.0, 0.0]}}
+DOC = harness.DOCS / "bench-planner-internals.md"
+SECTIONS = {"residual": "The residual form",
+            "compiled": "Compiled (solver.jit) against interpreted NLPs, Legendre degree 3",
+            "seed": "The seed arm through waveless singularities, Legendre degree 3"}
+KNOTS = 300  # knots of the seed task at N = 100, Legendre degree 3
+CASES = [("2-link, fully actuated", "arm-2", 100), ("seed 4-link, margin 0.02", "seed-4", 50)]
 
 
-def median_time(fn, repeats: int) -> float:
+def median_cpu(fn: Callable[[], object], repeats: int) -> float:
+    """Median CPU time [s] of fn() over `repeats` calls."""
     times = []
     for _ in range(repeats):
         start = time.process_time()
@@ -55,8 +52,8 @@ def median_time(fn, repeats: int) -> float:
     return statistics.median(times)
 
 
-def residual_forms() -> list[str]:
-    robot = Robot.model_validate(SEED)
+def residual_forms() -> tuple[str, list[dict]]:
+    robot = Robot.model_validate(ROBOTS["seed-4"])
     s = Structure.of(robot)
     sym = derive(s)
     ddq, tau = ca.SX.sym("ddq", s.n), ca.SX.sym("tau", len(s.active_idx))
@@ -69,88 +66,94 @@ def residual_forms() -> list[str]:
     }
     x = ca.vertcat(sym.q, sym.dq, ddq, tau)
     rng = np.random.default_rng(0)
-    K = 300  # knots of the seed task at N = 100, Legendre degree 3
-    args = [rng.normal(size=(x.numel(), K)), rng.normal(size=(s.n, K)), parameters(robot, s)]
-    rows = ["| residual form | nodes | Hessian nodes | Hessian of 300 knots [ms CPU] |",
-            "|---|---|---|---|"]
+    args = [rng.normal(size=(x.numel(), KNOTS)), rng.normal(size=(s.n, KNOTS)),
+            parameters(robot, s)]
+    rows = []
     for name, expr in forms.items():
         f = ca.Function("r", [x, sym.p], [expr])
         H = ca.Function("H", [x, lam, sym.p], [ca.hessian(ca.dot(lam, expr), x)[0]])
-        mapped = H.map(K)
-        t = median_time(lambda: mapped(*args), 21)
-        rows.append(f"| {name} | {f.n_nodes()} | {H.n_nodes()} | {1e3 * t:.2f} |")
-    return rows
+        mapped = H.map(KNOTS)
+        rows.append({"form": name, "nodes": f.n_nodes(), "hessian_nodes": H.n_nodes(),
+                     "cpu_ms": 1e3 * median_cpu(lambda: mapped(*args), 21)})
+    text = harness.table(rows, [("form", "residual form"), ("nodes", "nodes"),
+                                ("hessian_nodes", "Hessian nodes"),
+                                ("cpu_ms", f"Hessian of {KNOTS} knots [ms CPU, median of 21]")])
+    return text, rows
 
 
-def compiled_against_interpreted() -> list[str]:
-    rows = ["| scene | N | build and compile [s] | library [MB] | iterations | median solve, interpreted [s] "
-            "| median solve, compiled [s] | ratio |", "|---|---|---|---|---|---|---|---|"]
-    cases = [("2-link, fully actuated", TWO_LINK, TWO_LINK_TASK, 100),
-             ("seed 4-link, margin 0.02", SEED, SEED_TASK, 50)]
+def compiled_against_interpreted(repeats: int) -> tuple[str, list[dict]]:
+    rows = []
+    previous = os.environ.get("UNDERTOW_CACHE_DIR")
     with tempfile.TemporaryDirectory() as cache:
-        os.environ["UNDERTOW_CACHE_DIR"] = cache
-        for label, robot, task, N in cases:
+        os.environ["UNDERTOW_CACHE_DIR"] = cache  # a cold cache of compiled stages
+        for label, name, N in CASES:
             solves = {}
             for jit in (False, True):
-                scene = Scene.model_validate({
-                    "robot": robot, "task": task,
-                    "transcription": {"method": "legendre", "intervals": N, "degree": 3},
-                    "solver": {"jit": jit, "max_wall_time": 600}})
-                start = time.perf_counter()
+                scene = make_scene(name, N=N, one_solve=True,
+                                   solver={"jit": jit, "max_wall_time": 600})
                 first = plan(scene)
-                build = time.perf_counter() - start - first.solver.solve_time
-                times = [plan(scene).solver.solve_time for _ in range(3)]
-                solves[jit] = (build, statistics.median(times), first.solver.iterations)
-            library = next(Path(cache).glob("nlp_*.so"))
-            size = library.stat().st_size / 1e6
-            ratio = solves[False][1] / solves[True][1]
-            rows.append(f"| {label} | {N} | {solves[True][0]:.1f} | {size:.1f} | {solves[True][2]} "
-                        f"| {solves[False][1]:.3f} | {solves[True][1]:.3f} | {ratio:.1f} |")
+                times = [plan(scene).solver.solve_time for _ in range(repeats)]
+                solves[jit] = (first.solver.build_time, statistics.median(times),
+                               first.solver.iterations)
+            library = next(Path(cache).glob("stages_*.so"))
+            rows.append({"scene": label, "N": N, "build": solves[True][0],
+                         "library": library.stat().st_size / 1e6, "iterations": solves[True][2],
+                         "interpreted": solves[False][1], "compiled": solves[True][1],
+                         "ratio": solves[False][1] / solves[True][1]})
             library.unlink()
-    return rows
+    if previous is None:
+        del os.environ["UNDERTOW_CACHE_DIR"]
+    else:
+        os.environ["UNDERTOW_CACHE_DIR"] = previous
+    text = "\n\n".join([
+        (f"One solve per plan (refinement and retries off); solve times are medians of "
+         f"{repeats} solves with the NLP cached; the compiled build includes the C "
+         "compilation of the stages' derivative kernels."),
+        harness.table(rows, [("scene", "scene"), ("N", "N"), ("build", "build and compile [s]"),
+                             ("library", "library [MB]"), ("iterations", "iterations"),
+                             ("interpreted", "median solve, interpreted [s]"),
+                             ("compiled", "median solve, compiled [s]"), ("ratio", "ratio")])])
+    return text, rows
 
 
-def seed_accuracy() -> list[str]:
-    rows = ["| N | status | iterations | objective | re-simulation error [rad] | defect [N m s] "
-            "| waveless crossings | min sigma_min |", "|---|---|---|---|---|---|---|---|"]
-    for N in (50, 100):
-        scene = Scene.model_validate({
-            "robot": SEED, "task": SEED_TASK,
-            "transcription": {"method": "legendre", "intervals": N, "degree": 3},
-            "solver": {"jit": True, "max_wall_time": 600}})
-        result = plan(scene)
+def seed_accuracy(grid: list[int]) -> tuple[str, list[dict]]:
+    rows = []
+    for N in grid:
+        result = plan(make_scene("seed-4", N=N, one_solve=True,
+                                 solver={"jit": True, "max_wall_time": 600}))
         v = result.verification
-        rows.append(f"| {N} | {result.solver.status} | {result.solver.iterations} "
-                    f"| {result.objective:.4f} | {v.resimulation_error:.2e} | {v.defect:.2e} "
-                    f"| {len(v.waveless_singular_crossings)} | {v.min_sigma:.4f} |")
-    return rows
+        rows.append({"N": N, "status": result.solver.status,
+                     "iterations": result.solver.iterations, "objective": result.objective,
+                     "interval_error": v.local_error, "replay_error": v.resimulation_error,
+                     "defect": v.defect, "crossings": len(v.waveless_singular_crossings),
+                     "min_sigma": v.min_sigma})
+    text = "\n\n".join([
+        "One compiled solve per N (refinement and retries off), from the interpolation guess.",
+        harness.table(rows, [("N", "N"), ("status", "status"), ("iterations", "iterations"),
+                             ("objective", "objective"),
+                             ("interval_error", "interval error [rad]"),
+                             ("replay_error", "open-loop replay [rad]"),
+                             ("defect", "defect [N m s]"), ("crossings", "waveless crossings"),
+                             ("min_sigma", "min sigma_min")])])
+    return text, rows
 
 
-def main() -> None:
-    load = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
-    sections = [
-        "# Planner internals (measured)",
-        "",
-        "Produced by `.venv/bin/python bench/planner_internals.py` on a shared 2-core machine "
-        f"(`uptime` at the start: {load}). CPU times are medians; solve times are medians of 3.",
-        "",
-        "## The residual form",
-        "",
-        *residual_forms(),
-        "",
-        "## Compiled (solver.jit) against interpreted NLPs, Legendre degree 3",
-        "",
-        *compiled_against_interpreted(),
-        "",
-        "## The seed arm through waveless singularities, Legendre degree 3",
-        "",
-        *seed_accuracy(),
-        "",
-    ]
-    out = ROOT / "docs" / "bench-planner-internals.md"
-    out.write_text("\n".join(sections))
-    print("\n".join(sections))
-
-
-if __name__ == "__main__":
-    main()
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench planner_internals",
+                                     description=__doc__)
+    parser.add_argument("--parts", default=",".join(SECTIONS))
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--seed-N", default="50,100")
+    args = parser.parse_args(argv)
+    started, note = time.perf_counter(), harness.machine_note()
+    runs = {"residual": residual_forms,
+            "compiled": lambda: compiled_against_interpreted(args.repeats),
+            "seed": lambda: seed_accuracy([int(n) for n in args.seed_N.split(",")])}
+    for part in args.parts.split(","):
+        text, rows = runs[part]()
+        harness.write_csv(harness.RESULTS / f"planner_internals_{part}.csv", rows)
+        harness.write_section(DOC, SECTIONS[part], "\n\n".join([
+            text, f"Rows: `bench/results/planner_internals_{part}.csv`. "
+                  f"{harness.manifest('planner_internals', argv, started, note)}"]))
+        print(text, flush=True)
+    return 0

@@ -19,18 +19,18 @@ came back and how long it took:
 Writes the section "Reliability: bad input and bounded requests" of docs/stability.md and
 bench/results/reliability.csv.
 
-    .venv/bin/python bench/reliability.py
+    python -m bench reliability
 """
 
 from __future__ import annotations
 
+import argparse
 import collections
 import contextlib
 import json
 import select
 import socket
 import statistics
-import sys
 import tempfile
 import threading
 import time
@@ -39,15 +39,13 @@ from pathlib import Path
 
 import httpx
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from bench.common import DOCS, RESULTS, machine_note, table, write_csv, write_section
-from bench.stress import malformed_bodies
-from service_fixtures import TWO_LINK, LiveServer, two_link_scene
-
 from app.server import PROTOCOL
 from app.settings import Settings
+from bench import harness
+from bench.scenes import UNDERACTUATED, request
 from planner.examples import example
+from testbed.probes import malformed_bodies
+from testbed.service import LiveServer
 
 KEY = "bench-key"
 SETTINGS = Settings(db_path="unused", instance="bench")  # the defaults the server runs with
@@ -127,12 +125,12 @@ def bad_input(p: Probes) -> None:
     group = "bad input"
     grids = [10**8, 10**10, 10**12, [10**9, 10**9]]
     p.probe(group, "coupling grid of 1e8 to 1e24 points", "422 at grid.points, at once",
-            [p.post("/v1/coupling", {"robot": TWO_LINK, "grid": {
+            [p.post("/v1/coupling", {"robot": UNDERACTUATED, "grid": {
                 "lower": [0, 0], "upper": [1, 1], "points": n}}) for n in grids],
             lambda r: problem(422, "validation")(r)
             and r.json()["errors"][0]["loc"][-1] == "points")
     p.probe(group, "torques of 1e300, one sample per interval", "200, status failed",
-            [p.post("/v1/simulate", {"robot": TWO_LINK, "t": [0.0, 1.0], "tau": [[v], [v]],
+            [p.post("/v1/simulate", {"robot": UNDERACTUATED, "t": [0.0, 1.0], "tau": [[v], [v]],
                                      "initial": {"q": [0, 0], "dq": [0, 0]},
                                      "samples_per_interval": 1}) for v in (1e300, -1e300, 1.7e308)],
             lambda r: r.status_code == 200 and r.json()["status"] == "failed")
@@ -142,18 +140,18 @@ def bad_input(p: Probes) -> None:
     p.probe(group, "task: duration 0 or -1, negative torque limit, lower > upper",
             "422 at the field", [p.post("/v1/plans", _task(change)) for change in tasks],
             problem(422, "validation"))
-    numbers = [("/v1/dynamics", {"robot": TWO_LINK, "states": [{"q": v, "dq": [0, 0]}]})
+    numbers = [("/v1/dynamics", {"robot": UNDERACTUATED, "states": [{"q": v, "dq": [0, 0]}]})
                for v in (["0.1", "0.2"], [True, False])]
-    numbers += [("/v1/coupling", {"robot": TWO_LINK, "configurations": [["0", "1"]]}),
-                ("/v1/dynamics", {"robot": {**TWO_LINK, "gravity": False},
+    numbers += [("/v1/coupling", {"robot": UNDERACTUATED, "configurations": [["0", "1"]]}),
+                ("/v1/dynamics", {"robot": {**UNDERACTUATED, "gravity": False},
                                   "states": [{"q": [0, 0], "dq": [0, 0]}]}),
-                ("/v1/simulate", {"robot": TWO_LINK, "t": [0, True], "tau": [[0], [0]],
+                ("/v1/simulate", {"robot": UNDERACTUATED, "t": [0, True], "tau": [[0], [0]],
                                   "initial": {"q": [0, 0], "dq": [0, 0]}}),
                 ("/v1/plans", _task({"initial": {"q": ["0", "0"], "dq": [0, 0]}}))]
     p.probe(group, "strings and booleans for numbers", "422 at the field",
             [p.post(path, body) for path, body in numbers], problem(422, "validation"))
     bodies = malformed_bodies()
-    p.probe(group, "hand-made bad bodies (bench/stress.py) on /v1/plans and /v1/dynamics",
+    p.probe(group, "hand-made bad bodies (testbed/probes.py) on /v1/plans and /v1/dynamics",
             "4xx problem", [p.raw("POST", path, body, ctype) for _, body, ctype in bodies
                             for path in ("/v1/plans", "/v1/dynamics")],
             lambda r: 400 <= r.status_code < 500
@@ -174,7 +172,7 @@ def bad_input(p: Probes) -> None:
             [p.raw(method, path, b"") for method, path, _ in methods],
             lambda r: problem(405, "method-not-allowed")(r)
             and r.headers["allow"] == allowed[r.request.url.path])
-    oversize = [("/v1/simulate", {"robot": TWO_LINK, "t": [0.01 * k for k in range(20_000)],
+    oversize = [("/v1/simulate", {"robot": UNDERACTUATED, "t": [0.01 * k for k in range(20_000)],
                                   "tau": [[0.0]] * 20_000, "samples_per_interval": 100,
                                   "initial": {"q": [0, 0], "dq": [0, 0]}}),
                 ("/v1/waves/design", {"robot": EIGHT, "amplitude_max": 0.05, "frequency_max": 6,
@@ -187,7 +185,8 @@ def bad_input(p: Probes) -> None:
 
 
 def _task(change: dict) -> dict:
-    scene = two_link_scene()
+    """The under-2 plan request on 10 intervals with its task changed."""
+    scene = request("under-2", N=10)
     scene["task"].update(change)
     return scene
 
@@ -196,7 +195,7 @@ def read_timeouts(p: Probes, rows: list[dict]) -> None:
     """Connections that are slow to send: seconds until the server closed or answered."""
     timeout = SETTINGS.read_timeout
     head = b"GET /healthz HTTP/1.1\r\nHost: x\r\n"
-    body = json.dumps({"robot": TWO_LINK, "states": [{"q": [0, 0], "dq": [0, 0]}]}).encode()
+    body = json.dumps({"robot": UNDERACTUATED, "states": [{"q": [0, 0], "dq": [0, 0]}]}).encode()
     cases = [("connects and sends nothing", [b""], None),
              ("sends half a request head", [head], None),
              ("sends a head line every 3 s", [b"GET /healthz HTTP/1.1\r\n"] + [b"X-A: 1\r\n"] * 20,
@@ -282,7 +281,7 @@ def concurrent(p: Probes) -> dict:
     time.sleep(1.0)
     fifth = httpx.post(p.url + path, json=body, headers=HEADERS, timeout=300)
     health, dynamics = [], []
-    one = {"robot": TWO_LINK, "states": [{"q": [0.1, 0.2], "dq": [0.0, 0.0]}]}
+    one = {"robot": UNDERACTUATED, "states": [{"q": [0.1, 0.2], "dq": [0.0, 0.0]}]}
     while any(thread.is_alive() for thread in threads):
         start = time.monotonic()
         ok = httpx.get(p.url + "/healthz", timeout=60).status_code == 200
@@ -301,11 +300,11 @@ def concurrent(p: Probes) -> dict:
 
 # ------------------------------------------------------------------ report
 
-DOC = DOCS / "stability.md"
+DOC = harness.DOCS / "stability.md"
 HEADING = "Reliability: bad input and bounded requests"
 
 
-def report(note: str, rows: list[dict], reads: list[dict], load: dict, took: float) -> str:
+def report(rows: list[dict], reads: list[dict], load: dict) -> str:
     bad = [r for r in rows if r["group"] == "bad input"]
     long = [r for r in rows if r["group"] == "bounded"]
     health = [seconds for seconds, _ in load["health"]]
@@ -351,22 +350,22 @@ def report(note: str, rows: list[dict], reads: list[dict], load: dict, took: flo
     reads_columns = [("client", "client"), ("server", "server"), ("after [s]", "after [s]"),
                      ("bound [s]", "bound [s]"), ("within", f"within bound + {SLACK:g} s")]
     return "\n\n".join([
-        f"Generated by `.venv/bin/python bench/reliability.py` on {note}; {took:.0f} s.",
         setup, "\n".join(summary),
         ("Bad input (`as expected` counts the answers that were the expected problem; "
          "`slowest`: the longest time to an answer):"),
-        table(bad, columns),
+        harness.table(bad, columns),
         "Long synchronous computations, each alone:",
-        table(long, columns),
+        harness.table(long, columns),
         ("Slow clients (`after`: seconds from connecting until the server closed the "
          "connection or answered):"),
-        table(reads, reads_columns),
+        harness.table(reads, reads_columns),
     ])
 
 
-def main() -> None:
-    note = machine_note()
-    started = time.monotonic()
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench reliability", description=__doc__)
+    parser.parse_args(argv)
+    started, note = time.perf_counter(), harness.machine_note()
     tmp = Path(tempfile.mkdtemp(prefix="undertow-reliability-"))
     env = {"UNDERTOW_API_KEY": KEY, "UNDERTOW_WORKERS": "1"}
     with LiveServer(tmp / "jobs.sqlite3", **env) as live:
@@ -380,11 +379,10 @@ def main() -> None:
         print("bounded done", flush=True)
         load = concurrent(probes)
         print("concurrency done", flush=True)
-    took = time.monotonic() - started
-    write_csv(RESULTS / "reliability.csv", probes.rows)
-    write_section(DOC, HEADING, report(note, probes.rows, reads, load, took))
-    print(f"wrote {DOC} and {RESULTS / 'reliability.csv'} in {took:.0f} s")
-
-
-if __name__ == "__main__":
-    main()
+    harness.write_csv(harness.RESULTS / "reliability.csv", probes.rows)
+    harness.write_section(DOC, HEADING, "\n\n".join([
+        report(probes.rows, reads, load),
+        f"Rows: `bench/results/reliability.csv`. "
+        f"{harness.manifest('reliability', argv, started, note)}"]))
+    print(f"wrote {DOC} and bench/results/reliability.csv")
+    return 0

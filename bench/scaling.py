@@ -1,47 +1,34 @@
 """How the planner's cost grows: against the number of intervals N and of links.
 
-- N from 10 to 2000, Legendre degree 3, the fully actuated 2-link arm of tests/test_ocp.py
-  with its 1 s task (bench/common.py "arm-2");
+- N from 10 to 2000, Legendre degree 3, the fully actuated 2-link arm with its 1 s task
+  (bench/scenes.py "arm-2");
 - links from 1 to 8 at N = 50, Legendre degree 3: a chain of 0.4 m, 1 kg links, every
-  joint active, g = 9.81, waves on odd joints (bench/stress.py `chain`), each joint moving
+  joint active, g = 9.81, waves on odd joints (`testbed.robots.chain`), each joint moving
   +0.5 rad rest to rest in 1 s.
 
-Each point runs in a fresh process: build time, median Ipopt wall and CPU time of 3 solves,
-iterations, and peak resident memory (getrusage ru_maxrss) of the process, also net of
-the memory after the imports. Growth exponents: least-squares slopes in log-log.
+Each point runs in a fresh process, one solve per plan (mesh refinement and retries off,
+so that N stays what the point says): build time, median Ipopt wall and CPU time of 3
+solves, iterations, and peak resident memory (getrusage ru_maxrss) of the process, also
+net of the memory after the imports. Growth exponents: least-squares slopes in log-log.
 
 Writes bench/results/scaling.csv, docs/img/scaling_N.png, docs/img/scaling_links.png and
 the section "Scaling" of docs/benchmarks.md.
 
-    .venv/bin/python bench/scaling.py [--N 10 20 ...] [--links 1 2 ...]
+    python -m bench scaling [--N 10 20 ...] [--links 1 2 ...]
 """
 
 from __future__ import annotations
 
 import argparse
 import resource
-import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from bench.common import (
-    DOCS,
-    RESULTS,
-    build_instrumented,
-    isolated,
-    load,
-    loglog_slope,
-    machine_note,
-    make_scene,
-    median,
-    table,
-    write_csv,
-    write_section,
-)
+from bench import harness
+from bench.scenes import ONE_SOLVE, make_scene
 from planner.ocp import plan
 from planner.scene import Scene
+from testbed.robots import chain
 
 SECTION = "Scaling"
 N_GRID = [10, 20, 50, 100, 200, 500, 1000, 2000]
@@ -57,12 +44,13 @@ def _maxrss() -> float:
 
 
 def chain_scene(n: int, N: int) -> Scene:
-    from bench.stress import chain
-
-    robot = chain(n, under=False)
+    """The fully actuated n-link chain, every joint +0.5 rad rest to rest in 1 s, one solve
+    on N intervals."""
+    transcription, solver = ONE_SOLVE
     start = [0.1 * k for k in range(n)]
     return Scene.model_validate({
-        "robot": robot, "transcription": {"intervals": N},
+        "robot": chain(n, under=False), "transcription": {"intervals": N, **transcription},
+        "solver": solver,
         "task": {"duration": 1.0, "initial": {"q": start, "dq": [0.0] * n},
                  "final": {"q": [s + 0.5 for s in start], "dq": [0.0] * n}}})
 
@@ -70,8 +58,9 @@ def chain_scene(n: int, N: int) -> Scene:
 def point(kind: str, size: int) -> dict:
     """One point in this (fresh) process: kind "N" (arm-2 at N = size) or "links"."""
     base = _maxrss()
-    scene = make_scene("arm-2", N=size) if kind == "N" else chain_scene(size, LINKS_N)
-    build_time, solver = build_instrumented(scene)
+    scene = (make_scene("arm-2", N=size, one_solve=True) if kind == "N"
+             else chain_scene(size, LINKS_N))
+    build_time, solver = harness.build_instrumented(scene)
     after_build = _maxrss()
     walls, cpus, plans = [], [], []
     for _ in range(REPEATS):
@@ -79,10 +68,11 @@ def point(kind: str, size: int) -> dict:
         walls.append(plans[-1].solver.solve_time)
         cpus.append(solver.cpu)
     p = plans[0]
-    return {"build": build_time, "solve": median(walls), "solve_cpu": median(cpus),
+    return {"build": build_time, "solve": harness.median(walls),
+            "solve_cpu": harness.median(cpus),
             "iterations": p.solver.iterations, "status": p.solver.status,
-            "per_iteration": median(walls) / max(1, p.solver.iterations),
-            "resim_error": p.verification.resimulation_error,
+            "per_iteration": harness.median(walls) / max(1, p.solver.iterations),
+            "interval_error": p.verification.local_error,
             "rss_imports": base, "rss_build": after_build, "rss_peak": _maxrss(),
             "rss_net": _maxrss() - base}
 
@@ -91,8 +81,8 @@ def sweep(kind: str, sizes: list[int]) -> list[dict]:
     rows = []
     for size in sizes:
         started = time.perf_counter()
-        out = isolated("scaling", "point", {"kind": kind, "size": size}, TIMEOUT)
-        rows.append({"kind": kind, "size": size, "load": load(),
+        out = harness.isolated("scaling", "point", {"kind": kind, "size": size}, TIMEOUT)
+        rows.append({"kind": kind, "size": size, "load": harness.load(),
                      "wall": time.perf_counter() - started, **out})
         print(rows[-1], flush=True)
     return rows
@@ -101,7 +91,7 @@ def sweep(kind: str, sizes: list[int]) -> list[dict]:
 def exponents(rows: list[dict]) -> dict[str, float]:
     ok = [r for r in rows if "failure" not in r and r["status"] == "Solve_Succeeded"]
     x = [r["size"] for r in ok]
-    return {key: loglog_slope(x, [r[key] for r in ok]) if len(ok) > 1 else float("nan")
+    return {key: harness.loglog_slope(x, [r[key] for r in ok]) if len(ok) > 1 else float("nan")
             for key in ("build", "solve", "solve_cpu", "per_iteration", "rss_net")}
 
 
@@ -135,49 +125,47 @@ def plot(rows: list[dict], label: str, path: Path) -> None:
 COLUMNS = [("size", "size"), ("status", "status"), ("iterations", "iterations"),
            ("build", "build [s]"), ("solve", "solve [s]"), ("solve_cpu", "solve CPU [s]"),
            ("per_iteration", "per iteration [s]"), ("rss_peak", "peak RSS [MB]"),
-           ("rss_net", "net of imports [MB]"), ("resim_error", "re-sim. error [rad]"),
+           ("rss_net", "net of imports [MB]"), ("interval_error", "interval error [rad]"),
            ("load", "load average"), ("failure", "failure")]
 
 
-def report(by_n: list[dict], by_links: list[dict], note: str, command: str, took: float) -> str:
+def report(by_n: list[dict], by_links: list[dict]) -> str:
     fits = [{"against": "N (arm-2, Legendre 3)", **exponents(by_n)},
             {"against": f"links (chain, N = {LINKS_N})", **exponents(by_links)}]
     return "\n\n".join([
-        (f"Generated by `{command}` in {took / 60:.0f} min on {note}. Each point in a fresh "
-        f"process: build from a cold cache, median of {REPEATS} solves (wall and CPU), peak "
-        "resident memory (`getrusage` ru_maxrss) and the same net of the memory after the "
-        "imports. Exponents: least-squares slope of log(value) against log(size) over the "
-        "points that solved."),
-        table(fits, [("against", "growth against"), ("build", "build"), ("solve", "solve"),
-                     ("solve_cpu", "solve CPU"), ("per_iteration", "per iteration"),
-                     ("rss_net", "memory, net")]),
+        ("Each point in a fresh process, one solve per plan (refinement and retries off): "
+         f"build from a cold cache, median of {REPEATS} solves (wall and CPU), peak resident "
+         "memory (`getrusage` ru_maxrss) and the same net of the memory after the imports. "
+         "Exponents: least-squares slope of log(value) against log(size) over the points "
+         "that solved."),
+        harness.table(fits, [("against", "growth against"), ("build", "build"),
+                             ("solve", "solve"), ("solve_cpu", "solve CPU"),
+                             ("per_iteration", "per iteration"), ("rss_net", "memory, net")]),
         "### Against N",
         "![scaling against N](img/scaling_N.png)",
-        table(by_n, [("size", "N"), *COLUMNS[1:]]),
+        harness.table(by_n, [("size", "N"), *COLUMNS[1:]]),
         "### Against the number of links",
         "![scaling against links](img/scaling_links.png)",
-        table(by_links, [("size", "links"), *COLUMNS[1:]]),
+        harness.table(by_links, [("size", "links"), *COLUMNS[1:]]),
     ])
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench scaling", description=__doc__)
     parser.add_argument("--N", type=int, nargs="+", default=N_GRID)
     parser.add_argument("--links", type=int, nargs="+", default=LINKS)
-    args = parser.parse_args()
-    note, started = machine_note(), time.perf_counter()
+    args = parser.parse_args(argv)
+    started, note = time.perf_counter(), harness.machine_note()
     by_n = sweep("N", args.N)
     by_links = sweep("links", args.links)
-    write_csv(RESULTS / "scaling.csv", [
+    harness.write_csv(harness.RESULTS / "scaling.csv", [
         {k: r.get(k) for k in ["kind", "size", *[c for c, _ in COLUMNS[1:]], "rss_imports", "wall"]}
         for r in by_n + by_links])
-    plot(by_n, "intervals N", DOCS / "img" / "scaling_N.png")
-    plot(by_links, "links", DOCS / "img" / "scaling_links.png")
-    command = ".venv/bin/python bench/scaling.py " + " ".join(sys.argv[1:])
-    text = report(by_n, by_links, note, command.strip(), time.perf_counter() - started)
-    write_section(DOCS / "benchmarks.md", SECTION, text)
+    plot(by_n, "intervals N", harness.DOCS / "img" / "scaling_N.png")
+    plot(by_links, "links", harness.DOCS / "img" / "scaling_links.png")
+    text = "\n\n".join([
+        report(by_n, by_links),
+        f"Rows: `bench/results/scaling.csv`. {harness.manifest('scaling', argv, started, note)}"])
+    harness.write_section(harness.DOCS / "benchmarks.md", SECTION, text)
     print(text)
-
-
-if __name__ == "__main__":
-    main()
+    return 0

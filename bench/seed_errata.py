@@ -1,42 +1,39 @@
 """Evidence for the misprints of the seed's (30)-(31): energy drift and term deviations.
 
-The seed's 4-link arm (tests/seed_printed.SEED_ARM, g = 9.81) moves freely (tau = 0)
-for 5 s from three seeded initial states, integrated by scipy's DOP853 at
+The seed's 4-link arm (planner.examples.VERTICAL_SEED_ARM, g = 9.81) moves freely
+(tau = 0) for 5 s from three seeded initial states, integrated by scipy's DOP853 at
 rtol = atol = 1e-12 with M and h assembled from
-  - the printed terms (every misprint in),
+  - the printed terms (testbed/seed_printed.py, every misprint in),
   - the printed terms with one misprint at a time (the other terms corrected),
-  - the corrected terms (tests/seed_printed.CORRECTED),
+  - the corrected terms (testbed.seed_printed.CORRECTED),
   - the library (planner.dynamics).
 A correct model conserves E = T + V; the drift is max_t |E(t) - E(0)| / (T(0) + |V(0)|)
 with E measured by the library, and a motion is stopped once its drift reaches 1.
-Then each misprinted term's largest deviation from the derived value over 1000 random
-configurations, printed and corrected.
+Then each misprinted term's largest deviation from the derived value over `--states`
+random configurations, printed and corrected. Writes the section "Energy drift and term
+deviations" of docs/seed-errata-evidence.md.
 
-Run: .venv/bin/python bench/seed_errata.py   (writes docs/seed-errata-evidence.md)
+    python -m bench seed_errata [--states 1000] [--duration 5]
 """
 
 from __future__ import annotations
 
-import sys
+import argparse
 import time
 from collections.abc import Callable
-from pathlib import Path
 
 import numpy as np
 from scipy.integrate import solve_ivp
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
-
-import seed_printed as sp
-
+from bench import harness
 from planner.dynamics import Dynamics
+from planner.examples import VERTICAL_SEED_ARM
 from planner.model import Robot
+from testbed import seed_printed as sp
 
-OUTPUT = ROOT / "docs" / "seed-errata-evidence.md"
-DURATION = 5.0
+DOC = harness.DOCS / "seed-errata-evidence.md"
+SECTION = "Energy drift and term deviations"
 TOL = 1e-12
-STATES = 1000
 Rhs = Callable[[np.ndarray], np.ndarray]
 
 
@@ -61,8 +58,9 @@ def library_rhs(dyn: Dynamics) -> Rhs:
     return lambda x: np.r_[x[4:], dyn.forward(x[:4], x[4:], tau)]
 
 
-def drift(dyn: Dynamics, rhs: Rhs, x0: np.ndarray) -> str:
-    """Relative energy drift over DURATION; a motion whose drift reaches 1 is stopped there."""
+def drift(dyn: Dynamics, rhs: Rhs, x0: np.ndarray, duration: float) -> str:
+    """Relative energy drift over `duration` [s]; a motion whose drift reaches 1 is stopped
+    there."""
     T0, V0 = dyn.energy(x0[:4], x0[4:])
     scale, E0 = T0 + abs(V0), T0 + V0
 
@@ -70,8 +68,8 @@ def drift(dyn: Dynamics, rhs: Rhs, x0: np.ndarray) -> str:
         return scale - abs(sum(dyn.energy(x[:4], x[4:])) - E0)
     diverged.terminal = True
 
-    sol = solve_ivp(lambda t, x: rhs(x), (0.0, DURATION), x0, method="DOP853", rtol=TOL,
-                    atol=TOL, t_eval=np.linspace(0.0, DURATION, 501), events=diverged)
+    sol = solve_ivp(lambda t, x: rhs(x), (0.0, duration), x0, method="DOP853", rtol=TOL,
+                    atol=TOL, t_eval=np.linspace(0.0, duration, 501), events=diverged)
     if sol.status == 1:
         return f"> 1 (diverged at t = {sol.t_events[0][0]:.3g} s)"
     if sol.status != 0:
@@ -91,10 +89,12 @@ def derived(dyn: Dynamics, q: np.ndarray) -> dict[str, float]:
     return out
 
 
-def deviations(arm: sp.Arm, dyn: Dynamics, rng: np.random.Generator) -> dict[str, tuple]:
-    """Per misprinted term: max |derived|, max |printed - derived|, max |corrected - derived|."""
+def deviations(arm: sp.Arm, dyn: Dynamics, rng: np.random.Generator,
+               states: int) -> dict[str, tuple]:
+    """Per misprinted term, over `states` random configurations: max |derived|,
+    max |printed - derived|, max |corrected - derived|."""
     stats = {k: np.zeros(3) for k in sp.CORRECTED}
-    for _ in range(STATES):
+    for _ in range(states):
         q = rng.uniform(-np.pi, np.pi, 4)
         q1, d = np.r_[0.0, q], derived(dyn, q)
         printed = {**sp.printed_mass(arm, q1), **sp.printed_bias(arm, q1)}
@@ -104,8 +104,8 @@ def deviations(arm: sp.Arm, dyn: Dynamics, rng: np.random.Generator) -> dict[str
     return {k: tuple(v) for k, v in stats.items()}
 
 
-def report() -> str:
-    robot = Robot.model_validate(sp.SEED_ARM)
+def report(states: int, duration: float) -> str:
+    robot = Robot.model_validate(VERTICAL_SEED_ARM)
     arm, dyn = sp.arm_of(robot), Dynamics(robot)
     rng = np.random.default_rng(2021)
     starts = [np.r_[rng.uniform(-np.pi, np.pi, 4), rng.uniform(-2.0, 2.0, 4)] for _ in range(3)]
@@ -115,35 +115,36 @@ def report() -> str:
         ("corrected", term_rhs(arm, lambda k: True)),
         ("library (planner.dynamics)", library_rhs(dyn)),
     ]
-    lines = ["# Seed errata: evidence", "",
-             "Generated by `.venv/bin/python bench/seed_errata.py`; see `docs/seed-errata.md`.", "",
-             (f"Seed 4-link arm, g = {robot.gravity} m/s^2, tau = 0, {DURATION:g} s, DOP853 "
-             f"rtol = atol = {TOL:g}. Drift = max |E(t) - E(0)| / (T(0) + |V(0)|); "
-             "a motion is stopped once its drift reaches 1."), "",
+    lines = [(f"Seed 4-link arm, g = {robot.gravity} m/s^2, tau = 0, {duration:g} s, DOP853 "
+              f"rtol = atol = {TOL:g}. Drift = max |E(t) - E(0)| / (T(0) + |V(0)|); "
+              "a motion is stopped once its drift reaches 1; see `docs/seed-errata.md`."), "",
              "Initial states (q [rad], dq [rad/s]):", ""]
     lines += [f"- x{k}: q = {np.round(x[:4], 4).tolist()}, dq = {np.round(x[4:], 4).tolist()}"
               for k, x in enumerate(starts)]
     lines += ["", "| model | " + " | ".join(f"drift x{k}" for k in range(len(starts))) + " |",
               "|---|" + "---:|" * len(starts)]
     for name, rhs in variants:
-        cells = [drift(dyn, rhs, x0) for x0 in starts]
+        cells = [drift(dyn, rhs, x0, duration) for x0 in starts]
         print(name, cells, flush=True)
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
-    lines += ["", (f"Largest deviation from the derived value over {STATES} random configurations "
+    lines += ["", (f"Largest deviation from the derived value over {states} random configurations "
               "(q uniform in [-pi, pi]^4), kg m^2:"), "",
               "| term | max abs derived | max abs (printed - derived) | max abs (corrected - derived) |",
               "|---|---:|---:|---:|"]
-    for k, (size, printed, corrected) in deviations(arm, dyn, np.random.default_rng(1000)).items():
+    found = deviations(arm, dyn, np.random.default_rng(1000), states)
+    for k, (size, printed, corrected) in found.items():
         lines.append(f"| `{k}` | {size:.4g} | {printed:.4g} | {corrected:.2e} |")
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines)
 
 
-def main() -> None:
-    start = time.perf_counter()
-    text = report()
-    OUTPUT.write_text(text)
-    print(f"wrote {OUTPUT.relative_to(ROOT)} in {time.perf_counter() - start:.1f} s")
-
-
-if __name__ == "__main__":
-    main()
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench seed_errata", description=__doc__)
+    parser.add_argument("--states", type=int, default=1000)
+    parser.add_argument("--duration", type=float, default=5.0, help="[s] of each free motion")
+    args = parser.parse_args(argv)
+    started, note = time.perf_counter(), harness.machine_note()
+    text = report(args.states, args.duration)
+    harness.write_section(DOC, SECTION, "\n\n".join([
+        text, harness.manifest("seed_errata", argv, started, note)]))
+    print(f"wrote {DOC.relative_to(harness.ROOT)} in {time.perf_counter() - started:.1f} s")
+    return 0

@@ -4,9 +4,10 @@ Starts uvicorn (app.main:app) on 127.0.0.1 with a temporary store, fires N plan 
 at once from one bounded httpx async loop, then polls every accepted job to its end.
 Checks: every answer is 202 or 429 (queue full), none 5xx, every accepted job reaches
 a final state (none lost). Reports submit latency, job latency (submit -> final), and
-throughput, and writes docs/bench-service.md.
+throughput in the section "Concurrent plan requests on loopback" of
+docs/bench-service.md; exits 1 when a check fails.
 
-    .venv/bin/python bench/service_load.py [--requests 50] [--workers 2] [--max-queued 32]
+    python -m bench service_load [--requests 50] [--workers 2] [--max-queued 32]
 """
 
 from __future__ import annotations
@@ -14,8 +15,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import os
-import platform
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -23,9 +22,8 @@ from pathlib import Path
 import httpx
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
-from service_fixtures import LiveServer
+from bench import harness
+from testbed.service import LiveServer
 
 SCENE = {"robot": {"links": [
     {"length": 0.5, "mass": 1.0, "inertia": 0.01, "joint": "passive"},
@@ -34,6 +32,8 @@ SCENE = {"robot": {"links": [
     "task": {"duration": 2.0, "initial": {"q": [0.0, 0.0], "dq": [0.0, 0.0]},
              "final": {"q": [1.0, None], "dq": [0.0, 0.0]}},
     "transcription": {"intervals": 50}}  # 20 is optimal but fails its re-simulation check
+DOC = harness.DOCS / "bench-service.md"
+SECTION = "Concurrent plan requests on loopback"
 FINAL = {"succeeded", "failed", "cancelled"}
 DEADLINE = 600.0  # [s] the whole run stops by itself after this
 
@@ -75,7 +75,7 @@ def percentiles(values: list[float]) -> tuple[float, float]:
     return (float(np.percentile(values, 50)), float(np.percentile(values, 95))) if values else (0, 0)
 
 
-def report(result: dict, args: argparse.Namespace, command: str) -> tuple[str, bool]:
+def report(result: dict, args: argparse.Namespace) -> tuple[str, bool]:
     statuses = [a[0] for a in result["answers"]]
     counts = {s: statuses.count(s) for s in sorted(set(statuses))}
     finals = [status for status, _ in result["ends"]]
@@ -87,16 +87,10 @@ def report(result: dict, args: argparse.Namespace, command: str) -> tuple[str, b
     p50s, p95s = percentiles(submit_latency)
     p50j, p95j = percentiles(job_latency)
     lines = [
-        "# Service load: concurrent plan requests on loopback",
-        "",
-        f"Command: `{command}`",
-        "",
-        (f"Machine: {platform.machine()}, {os.cpu_count()} cores (1-minute load average "
-         f"{result['load']:.1f} when the run started: other work shares them), "
-         f"Python {platform.python_version()}, "
-         f"{args.workers} solver worker processes, queue of {args.max_queued} "
-         f"(so at most {args.workers + args.max_queued} unfinished plans)."),
-        ("Scene: a two-link arm (one passive, one wavy active joint), legendre collocation, "
+        (f"{args.workers} solver worker processes, queue of {args.max_queued} (so at most "
+         f"{args.workers + args.max_queued} unfinished plans); 1-minute load average "
+         f"{result['load']:.1f} when the requests were sent. Scene: a two-link arm (one "
+         "passive, one wavy active joint), legendre collocation, "
          f"{SCENE['transcription']['intervals']} intervals (the NLP is built once per worker, "
          "before or during the run)."),
         "",
@@ -115,29 +109,24 @@ def report(result: dict, args: argparse.Namespace, command: str) -> tuple[str, b
          "no accepted job lost)."),
         "",
         "Refused requests carry `Retry-After`; a client that honours it gets its plan later.",
-        "",
     ]
     return "\n".join(lines), ok
 
 
-def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench service_load", description=__doc__)
     parser.add_argument("--requests", type=int, default=50)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--max-queued", type=int, default=32)
-    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "bench-service.md")
-    args = parser.parse_args()
-    command = "python bench/service_load.py " + " ".join(sys.argv[1:])
+    args = parser.parse_args(argv)
+    started, note = time.perf_counter(), harness.machine_note()
     with tempfile.TemporaryDirectory() as tmp:
         env = {"UNDERTOW_WORKERS": str(args.workers),
                "UNDERTOW_MAX_QUEUED": str(args.max_queued)}
         with LiveServer(Path(tmp) / "jobs.sqlite3", **env) as live:
             result = asyncio.run(run(live.url, args.requests))
-    text, ok = report(result, args, command.strip())
-    args.out.write_text(text)
+    text, ok = report(result, args)
+    text += "\n\n" + harness.manifest("service_load", argv, started, note)
+    harness.write_section(DOC, SECTION, text)
     print(text)
     return 0 if ok else 1
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -6,43 +6,39 @@ in [-2, 2] rad/s), 100 outputs, rtol = atol = 1e-12, through `simulate` itself, 
   - adams-newton: Adams-Moulton with Newton iteration (measured for comparison only),
   - bdf: BDF with Newton iteration (CVODES's default, used before).
 Drift is max_t |E(t) - E(0)| / (T(0) + |V(0)|); CPU time is that of one simulate call
-with its integrator already built. Robot sets (seeded):
-  - random: the robots of tests/test_energy.py's sweep (1-8 links, g = 0 or 9.81, both
-    rotational conventions, 2 each);
-  - stiff-ish: the same draws with every wave at frequency 20 and masses of 0.03 or 30 kg
+with its integrator already built. Robot sets (one seeded generator, drawn in this order):
+  - random: the robots of tests/test_energy.py's sweep (`testbed.robots.random_robot`,
+    1-8 links, g = 0 or 9.81, both rotational conventions, 2 each);
+  - stiff: the same draws with every wave at frequency 20 and masses of 0.03 or 30 kg
     (ratio 1e3), 1-6 links;
   - stress: frequency 20, masses 0.03 or 30 kg, lengths log-uniform in 1e-2..10 m, 1-3 links.
+`--sets` runs some of them only (the later ones then see other draws). Writes the section
+"Free motions: energy drift and CPU time" of docs/bench-simulate.md.
 
-Run: .venv/bin/python bench/simulate_integrator.py   (writes docs/bench-simulate.md)
+    python -m bench simulate_integrator [--sets random,stiff,stress] [--duration 5]
 """
 
 from __future__ import annotations
 
-import os
-import platform
+import argparse
 import statistics
-import sys
 import time
 from collections.abc import Callable, Iterator
-from pathlib import Path
 
-import casadi as ca
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
-
-from conftest import random_robot, random_state
-
 import planner.simulate as sim
+from bench import harness
 from planner.dynamics import Dynamics
 from planner.model import Robot
+from testbed.robots import random_robot, random_state
 
-OUTPUT = ROOT / "docs" / "bench-simulate.md"
-DURATION, OUTPUTS, TOL = 5.0, 100, 1e-12
+DOC = harness.DOCS / "bench-simulate.md"
+SECTION = "Free motions: energy drift and CPU time"
+OUTPUTS, TOL = 100, 1e-12
 METHODS = ("adams", "adams-newton", "bdf")
-sim._METHODS["adams-newton"] = {"linear_multistep_method": "adams",
-                                "nonlinear_solver_iteration": "newton"}
+ADAMS_NEWTON = {"linear_multistep_method": "adams", "nonlinear_solver_iteration": "newton"}
+"""CVODES options of the comparison method, which `planner.simulate` does not offer."""
 
 
 def drift(robot: Robot, q: list, dq: list) -> float:
@@ -52,14 +48,18 @@ def drift(robot: Robot, q: list, dq: list) -> float:
     return float(np.max(np.abs(total - total[0])) / (energies[0, 0] + abs(energies[0, 1])))
 
 
-def measure(robot: Robot, x0: np.ndarray, method: str) -> tuple[float | None, float]:
-    """Drift (None if the integration failed) and CPU time [s] of one free motion."""
+def measure(robot: Robot, x0: np.ndarray, method: str,
+            duration: float) -> tuple[float | None, float]:
+    """Drift (None if the integration failed) and CPU time [s] of one free motion of
+    `duration` [s]."""
     zero = np.zeros((1, 1, len(robot.active)))
-    run = lambda duration: sim.simulate(robot, [0.0, duration], zero, x0, OUTPUTS,
-                                        TOL, TOL, method=method)
+
+    def run(seconds: float) -> sim.Trajectory:
+        return sim.simulate(robot, [0.0, seconds], zero, x0, OUTPUTS, TOL, TOL, method=method)
+
     run(1e-3)  # build the integrator
     start = time.process_time()
-    trajectory = run(DURATION)
+    trajectory = run(duration)
     elapsed = time.process_time() - start
     if trajectory.status != "completed":
         return None, elapsed
@@ -92,13 +92,14 @@ def robots(rng: np.random.Generator, sizes: range, count: int,
                     yield change(random_robot(rng, n, gravity=gravity, rotational=rotational))
 
 
-def sets(rng: np.random.Generator) -> dict[str, Iterator[Robot]]:
+def sets(rng: np.random.Generator) -> dict[str, tuple[str, Iterator[Robot]]]:
+    """Per set: its name in the table and its robots (drawn lazily from `rng`)."""
     return {
-        "random (1-8 links)": robots(rng, range(1, 9), 2, lambda r: r),
-        "stiff-ish: frequency 20, mass ratio 1e3 (1-6 links)":
-            robots(rng, range(1, 7), 1, lambda r: heavy_light(rng, r, lengths=False)),
-        "stress: the above, lengths 1e-2..10 m (1-3 links)":
-            robots(rng, range(1, 4), 1, lambda r: heavy_light(rng, r, lengths=True)),
+        "random": ("random (1-8 links)", robots(rng, range(1, 9), 2, lambda r: r)),
+        "stiff": ("stiff-ish: frequency 20, mass ratio 1e3 (1-6 links)",
+                  robots(rng, range(1, 7), 1, lambda r: heavy_light(rng, r, lengths=False))),
+        "stress": ("stress: the above, lengths 1e-2..10 m (1-3 links)",
+                   robots(rng, range(1, 4), 1, lambda r: heavy_light(rng, r, lengths=True))),
     }
 
 
@@ -123,62 +124,54 @@ def per_robot_worst(results: dict[str, list[tuple[float | None, float]]]) -> tup
     return sum(a < b for a, b in pairs), len(pairs)
 
 
-def machine() -> str:
-    cpu = platform.machine()
-    for line in Path("/proc/cpuinfo").read_text().splitlines():
-        if line.startswith("model name"):
-            cpu = line.split(":", 1)[1].strip()
-            break
-    return (f"{cpu}, {os.cpu_count()} CPUs (load average {os.getloadavg()[0]:.1f} at the "
-            f"start); Python {platform.python_version()}, CasADi {ca.__version__}")
-
-
-def report() -> str:
+def report(chosen: list[str], duration: float) -> str:
     rng = np.random.default_rng(20240611)
     lines = [("| robots | method | count | failed | max drift | median drift | drift > 1e-8 | "
-             "CPU [s] | CPU / bdf | median per-robot CPU / bdf |"),
+              "CPU [s] | CPU / bdf | median per-robot CPU / bdf |"),
              "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     better = []
-    for name, chosen in sets(rng).items():
+    for key, (name, drawn) in sets(rng).items():
+        if key not in chosen:
+            continue
         results: dict[str, list[tuple[float | None, float]]] = {m: [] for m in METHODS}
-        for robot in chosen:
+        for robot in drawn:
             q, dq = random_state(rng, robot.n)
             for method in METHODS:
-                results[method].append(measure(robot, np.r_[q, dq], method))
+                results[method].append(measure(robot, np.r_[q, dq], method, duration))
             print(name, robot.n, [f"{results[m][-1][0]}" for m in METHODS], flush=True)
         lines += rows(name, results)
         wins, total = per_robot_worst(results)
         better.append(f"- {name}: adams drifts less than bdf on {wins} of {total} robots.")
-    head = [
-        "# Simulation: which CVODES method",
-        "",
-        f"Generated by `.venv/bin/python bench/simulate_integrator.py` on {machine()}.",
-        "",
-        ("Free motions (τ = 0) of 5 s from random states through `planner.simulate.simulate` "
-        "at rtol = atol = 1e-12, 100 outputs. Drift: max |E(t) − E(0)| / (T(0) + |V(0)|). "
-        "CPU: process time of one `simulate` call, integrator already built. "
-        "adams: Adams-Moulton, functional iteration (the default); adams-newton: "
-        "Adams-Moulton, Newton iteration (comparison only); bdf: BDF, Newton iteration "
-        "(CVODES's default, used before). See the script's docstring for the robot sets."),
-        "",
-    ]
-    tail = [
-        "",
-        *better,
-        "",
-        ('The arm is conservative and oscillatory. BDF damps oscillations numerically, '
-         'which shows as energy drift; Adams-Moulton does not, and drifts less on every '
-         'robot above at a third to two thirds of the CPU time. Functional iteration never'
-         " failed to converge (no robot is stiff in CVODES's sense) and is cheaper than "
-         'Newton iteration, which buys no accuracy here. Hence `simulate` uses Adams with '
+    return "\n".join([
+        (f"Free motions (τ = 0) of {duration:g} s from random states through "
+         "`planner.simulate.simulate` at rtol = atol = 1e-12, 100 outputs. Drift: "
+         "max |E(t) − E(0)| / (T(0) + |V(0)|). CPU: process time of one `simulate` call, "
+         "integrator already built. adams: Adams-Moulton, functional iteration (the "
+         "default); adams-newton: Adams-Moulton, Newton iteration (comparison only); bdf: "
+         "BDF, Newton iteration (CVODES's default, used before). The robot sets are those "
+         "of `bench/simulate_integrator.py`'s docstring."),
+        "", *lines, "", *better, "",
+        ("The arm is conservative and oscillatory. BDF damps oscillations numerically, "
+         "which shows as energy drift; Adams-Moulton does not, and drifts less on every "
+         "robot above at a third to two thirds of the CPU time. Functional iteration never "
+         "failed to converge (no robot is stiff in CVODES's sense) and is cheaper than "
+         "Newton iteration, which buys no accuracy here. Hence `simulate` uses Adams with "
          'functional iteration; BDF stays available as `method="bdf"`. With frequency-20 '
-         'waves and a mass ratio of 1e3, rtol = atol = 1e-12 holds the energy only to '
-         'about 5e-8 with Adams (5e-7 for the worst stress robot; BDF: 2e-6 and 3e-6).'),
-    ]
-    return "\n".join(head + lines + tail) + "\n"
+         "waves and a mass ratio of 1e3, rtol = atol = 1e-12 holds the energy only to "
+         "about 5e-8 with Adams (5e-7 for the worst stress robot; BDF: 2e-6 and 3e-6)."),
+    ])
 
 
-if __name__ == "__main__":
-    text = report()
-    OUTPUT.write_text(text)
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench simulate_integrator",
+                                     description=__doc__)
+    parser.add_argument("--sets", default="random,stiff,stress")
+    parser.add_argument("--duration", type=float, default=5.0, help="[s] of each free motion")
+    args = parser.parse_args(argv)
+    started, note = time.perf_counter(), harness.machine_note()
+    sim._METHODS.setdefault("adams-newton", ADAMS_NEWTON)
+    text = report(args.sets.split(","), args.duration)
+    harness.write_section(DOC, SECTION, "\n\n".join([
+        text, harness.manifest("simulate_integrator", argv, started, note)]))
     print(text)
+    return 0

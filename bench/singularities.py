@@ -1,31 +1,32 @@
 """Coupling singularities of the built-in examples, with and without their designed waves.
 
-Writes the figures docs/img/singularity_*.png and prints the markdown tables quoted in
-docs/singularities.md. Run: .venv/bin/python bench/singularities.py
+The classical inverse dynamics of each example waveless, waveless from a start moved by
+OFFSET, and with its designed waves; the wave design of each example; the time of a large
+coupling analysis. Writes the figures docs/img/singularity_*.png and the section
+"Measured: inverse dynamics, wave design, coupling analysis" of docs/singularities.md.
+
+    python -m bench singularities
 """
 
 from __future__ import annotations
 
-import os
-import sys
+import argparse
 import time
-from pathlib import Path
 
-import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+from bench import harness
+from planner.coupling import CouplingRequest, analyse, blocks, measures
+from planner.examples import MARGIN, example, seed_arm, seed_start, two_link, two_link_start
+from planner.inverse import InverseDynamicsRequest, InverseDynamicsResult, solve
+from planner.model import Robot
+from planner.simulate import simulate, torque_coefficients
+from planner.waves import WaveDesignRequest, design
 
-from planner.coupling import CouplingRequest, analyse, blocks, measures  # noqa: E402
-from planner.examples import (MARGIN, example, seed_arm, seed_start,  # noqa: E402
-                              two_link, two_link_start)
-from planner.inverse import InverseDynamicsRequest, InverseDynamicsResult, solve  # noqa: E402
-from planner.model import Robot  # noqa: E402
-from planner.simulate import simulate, torque_coefficients  # noqa: E402
-from planner.waves import WaveDesignRequest, design  # noqa: E402
-
-IMG = Path(__file__).resolve().parent.parent / "docs" / "img"
+DOC = harness.DOCS / "singularities.md"
+SECTION = "Measured: inverse dynamics, wave design, coupling analysis"
+IMG = harness.DOCS / "img"
 OFFSET = -0.05
 """Offset [rad] of the last active joint's start angle in the near-singular case."""
 
@@ -65,7 +66,8 @@ def det_map(robot: Robot, base: list[float], axes: tuple[int, int], spans, point
 
 def plot_maps(name: str, arms, base, axes, spans, runs, labels) -> None:
     """det M_pa slices without and with the waves, each with the motions of its robot."""
-    fig, panels = plt.subplots(1, 2, figsize=(11, 4.8), constrained_layout=True)
+    fig = Figure(figsize=(11, 4.8), layout="constrained")
+    panels = fig.subplots(1, 2)
     for ax, (title, robot), wavy in zip(panels, arms, (False, True)):
         U, V, D = det_map(robot, base, axes, spans)
         limit = np.abs(D).max()
@@ -87,13 +89,12 @@ def plot_maps(name: str, arms, base, axes, spans, runs, labels) -> None:
         ax.set_xlabel(f"q{axes[0]} ({labels[0]}) [rad]")
         ax.set_ylabel(f"q{axes[1]} ({labels[1]}) [rad]")
     fig.savefig(IMG / f"singularity_{name}_map.png", dpi=110)
-    plt.close(fig)
 
 
 def plot_runs(name: str, title: str, runs) -> None:
     """|tau| and sigma_min over time; a singular stop is marked with a cross."""
-    fig, (top, bottom) = plt.subplots(2, 1, figsize=(9, 6.5), sharex=True,
-                                      constrained_layout=True)
+    fig = Figure(figsize=(9, 6.5), layout="constrained")
+    top, bottom = fig.subplots(2, 1, sharex=True)
     for k, (label, (req, result)) in enumerate(runs.items()):
         colour = f"C{k}"
         if result.t:
@@ -116,7 +117,6 @@ def plot_runs(name: str, title: str, runs) -> None:
     top.legend(fontsize=7, ncol=2)
     bottom.legend(fontsize=7)
     fig.savefig(IMG / f"singularity_{name}_inverse.png", dpi=110)
-    plt.close(fig)
 
 
 def run_table(key: str, runs) -> list[str]:
@@ -163,7 +163,10 @@ def coupling_timing() -> list[str]:
             f"| det and sigma_min only: seed arm, random | {len(Q):,} | - | {batch:.2f} |"]
 
 
-def main() -> None:
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench singularities", description=__doc__)
+    parser.parse_args(argv)
+    started, note = time.perf_counter(), harness.machine_note()
     IMG.mkdir(parents=True, exist_ok=True)
     two, seed = cases("two-link"), cases("seed-arm")
     q2 = two_link_start()
@@ -178,26 +181,19 @@ def main() -> None:
               ("passive", "active"))
     plot_runs("two_link", "Two-link arm: classical inverse dynamics", two)
     plot_runs("seed_arm", "Seed 4-link arm: classical inverse dynamics", seed)
-
-    print("| example | case | status | singular stop [s] | min sigma_min [kg m^2] | "
-          "max abs tau [N m] | feed-forward error [rad] |")
-    print("|---|---|---|---|---|---|---|")
-    for line in run_table("two-link", two) + run_table("seed-arm", seed):
-        print(line)
-    print()
-    print("| example | design | certified sigma_min [kg m^2] | waves | time [s] |")
-    print("|---|---|---|---|---|")
-    print(design_table("two-link"))
-    print(design_table("seed-arm"))
-    print()
-    print("| coupling analysis | points | singular points | time [s] |")
-    print("|---|---|---|---|")
-    for line in coupling_timing():
-        print(line)
-    load = ", ".join(f"{x:.1f}" for x in os.getloadavg())
-    print(f"\n{os.cpu_count()} cores, load average {load} (1, 5, 15 min) at the end of the run")
-    sys.stdout.flush()
-
-
-if __name__ == "__main__":
-    main()
+    text = "\n\n".join([
+        ("Times are wall-clock seconds; the run shared its cores with other work (load "
+         f"average {harness.load()} at the end), so they are upper bounds."),
+        "\n".join(["| example | case | status | singular stop [s] | min sigma_min [kg m^2] | "
+                   "max abs tau [N m] | feed-forward error [rad] |",
+                   "|---|---|---|---|---|---|---|",
+                   *run_table("two-link", two), *run_table("seed-arm", seed)]),
+        "\n".join(["| example | design | certified sigma_min [kg m^2] | waves | time [s] |",
+                   "|---|---|---|---|---|",
+                   design_table("two-link"), design_table("seed-arm")]),
+        "\n".join(["| coupling analysis | points | singular points | time [s] |",
+                   "|---|---|---|---|", *coupling_timing()]),
+        harness.manifest("singularities", argv, started, note)])
+    harness.write_section(DOC, SECTION, text)
+    print(text)
+    return 0
