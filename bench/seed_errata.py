@@ -117,7 +117,7 @@ def report(states: int, duration: float) -> str:
     ]
     lines = [(f"Seed 4-link arm, g = {robot.gravity} m/s^2, tau = 0, {duration:g} s, DOP853 "
               f"rtol = atol = {TOL:g}. Drift = max |E(t) - E(0)| / (T(0) + |V(0)|); "
-              "a motion is stopped once its drift reaches 1; see `docs/seed-errata.md`."), "",
+              "a motion is stopped once its drift reaches 1."), "",
              "Initial states (q [rad], dq [rad/s]):", ""]
     lines += [f"- x{k}: q = {np.round(x[:4], 4).tolist()}, dq = {np.round(x[4:], 4).tolist()}"
               for k, x in enumerate(starts)]
