@@ -19,6 +19,7 @@ from planner.inverse import InverseDynamicsRequest, solve
 from planner.ocp import Plan, plan
 from planner.ocp.verify import coupling_along
 from planner.scene import Scene
+from testbed.service import wait_final
 
 PNG = b"\x89PNG\r\n\x1a\n"
 
@@ -218,14 +219,8 @@ def test_a_start_on_the_singularity_still_draws():
 
 
 def finished(api, scene: dict, timeout: float = 20.0) -> dict:
-    job = api.post("/v1/plans", json=scene).json()
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        job = api.get(f"/v1/plans/{job['id']}").json()
-        if job["status"] in ("succeeded", "failed", "cancelled"):
-            return job
-        time.sleep(0.05)
-    raise AssertionError("the job did not end")
+    """POST a plan and wait for its job to end."""
+    return wait_final(api, api.post("/v1/plans", json=scene).json()["id"], timeout)
 
 
 @pytest.fixture(scope="module")
