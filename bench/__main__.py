@@ -6,7 +6,11 @@ import importlib
 import sys
 
 BENCHES = {
+    "build": ("bench.build", "building an NLP against the number of links, now and at an "
+                             "earlier commit"),
     "examples": ("bench.examples", "the built-in plan examples, now and at an earlier commit"),
+    "refinement": ("bench.refinement", "mesh refinement on the two-link example at other "
+                                       "numbers of intervals; what each retry recovers"),
     "suite": ("bench.suite", "the task suite: verified plans and time to a verified plan, "
                              "against refinement off, retries off and a plain Opti script"),
 }
