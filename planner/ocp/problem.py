@@ -286,6 +286,8 @@ def _stage_function(key: ProblemKey, tr: Transcription, layout: Layout, params: 
             cost += piece_cost
         if term_rows is not None:
             rows.append(term_rows)
+    if piece.gaps is not None and piece.gaps.numel():
+        rows.insert(0, (piece.gaps, 0.0, 0.0))
     g = ca.vertcat(*(r for r, _, _ in rows)) if rows else tr.symbolic(0, 1)
     bounds = [(lo, hi, r.numel()) for r, lo, hi in rows]
     name = "terminal" if terminal else "stage"
