@@ -1,6 +1,7 @@
 """The task suite (planner.suite): how often a plan verifies, and how long a verified plan
-takes, against the same planner with mesh refinement off or without retries, and a plain
-CasADi Opti script (bench/peers/opti.py, Legendre degree 3 on the same 50 intervals).
+takes, against the same planner with mesh refinement off, without retries or with fatrop
+instead of Ipopt, and a plain CasADi Opti script (bench/peers/opti.py, Legendre degree 3
+on the same 50 intervals).
 
 Every configuration runs in a process of its own, its tasks one after the other as a
 service worker would (NLPs built once per structure and number of intervals stay cached).
@@ -28,6 +29,7 @@ CONFIGS = {
     "undertow": "default settings",
     "refinement off": "transcription.refinement.enabled false",
     "retries off": "solver.retries 0",
+    "fatrop": "solver.name fatrop",
     "Opti script": "plain CasADi Opti, Legendre 3, 50 intervals, Ipopt defaults",
 }
 WALL_TIME = 60.0  # [s] every configuration's cap on one task (the planner's default)
@@ -38,7 +40,8 @@ SECTION = "Task suite: verified plans and time to a verified plan"
 def _settings(config: str) -> dict:
     """Scene changes of a planner configuration."""
     return {"refinement off": {"transcription": {"refinement": {"enabled": False}}},
-            "retries off": {"solver": {"retries": 0}}}.get(config, {})
+            "retries off": {"solver": {"retries": 0}},
+            "fatrop": {"solver": {"name": "fatrop"}}}.get(config, {})
 
 
 def _merged(scene: dict, changes: dict) -> dict:
