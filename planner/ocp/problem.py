@@ -98,6 +98,12 @@ class ProblemKey:
         """The objective and constraint terms this key asks for."""
         return [term for term in TERMS if term.wanted(self)]
 
+    def fingerprint(self) -> str:
+        """A stable hash of the whole key (its number of intervals too) and of the code that
+        builds its NLP: two problems with the same fingerprint have the same variables and
+        constraints."""
+        return hashlib.sha256((repr(self) + formulation_hash()).encode()).hexdigest()[:20]
+
     def digest(self) -> str:
         """A stable hash of the key (but its number of intervals) and of the code that builds
         its NLP: names compiled stages in the disk cache, so code compiled from other
