@@ -11,20 +11,23 @@ from pydantic import BaseModel
 
 from app.errors import FieldError, field_error, invalid
 from app.settings import Settings
+from planner.ocp import methods
 from planner.scene import DurationRange, Scene, Transcription
 
 
-def nodes(transcription: Transcription) -> int:
-    """Time nodes of a transcription: intervals * (degree + 1) for collocation, the grid
-    points (and midpoints) otherwise, intervals * steps for multiple shooting."""
-    k = transcription.intervals
-    return {
-        "legendre": k * (transcription.degree + 1),
-        "radau": k * (transcription.degree + 1),
-        "hermite-simpson": 2 * k + 1,
-        "trapezoidal": k + 1,
-        "multiple-shooting": k * transcription.steps,
-    }[transcription.method]
+def nodes(transcription: Transcription, intervals: int | None = None) -> int:
+    """Time nodes of a transcription's NLP on `intervals` intervals (default: its own), as
+    the transcription method counts them (`Transcription.node_count`)."""
+    tr = transcription if intervals is None else transcription.model_copy(
+        update={"intervals": intervals, "breaks": None})
+    return methods.of(tr).node_count()
+
+
+def most_intervals(transcription: Transcription, max_nodes: int) -> int:
+    """The most intervals whose NLP holds at most `max_nodes` time nodes (node counts are
+    affine in the number of intervals)."""
+    one, two = nodes(transcription, 1), nodes(transcription, 2)
+    return max((max_nodes - one) // (two - one) + 1, 0)
 
 
 def _sized(body: BaseModel) -> list[tuple[list[str], int]]:
@@ -120,9 +123,22 @@ def check_scene(scene: Scene, settings: Settings) -> Scene:
                                   f"{wall:g} s exceeds this server's limit of "
                                   f"{settings.max_wall_time:g} s (UNDERTOW_MAX_WALL_TIME)",
                                   "limit"))
+    refinement = scene.transcription.refinement
+    cap = most_intervals(scene.transcription, settings.max_nodes)
+    if "max_intervals" in refinement.model_fields_set and refinement.max_intervals > cap:
+        errors.append(field_error(["body", "transcription", "refinement", "max_intervals"],
+                                  f"{refinement.max_intervals} intervals would hold "
+                                  f"{nodes(scene.transcription, refinement.max_intervals)} "
+                                  f"nodes, more than this server's limit of "
+                                  f"{settings.max_nodes} (UNDERTOW_MAX_NODES): at most {cap}",
+                                  "limit"))
     if errors:
         raise invalid(errors)
     if wall > settings.max_wall_time:
         solver = scene.solver.model_copy(update={"max_wall_time": settings.max_wall_time})
         scene = scene.model_copy(update={"solver": solver})
+    if refinement.max_intervals > cap:
+        capped = refinement.model_copy(update={"max_intervals": cap})
+        scene = scene.model_copy(update={"transcription": scene.transcription.model_copy(
+            update={"refinement": capped})})
     return scene

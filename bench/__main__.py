@@ -6,6 +6,8 @@ import importlib
 import sys
 
 BENCHES = {
+    "build": ("bench.build", "building an NLP against the number of links, now and at an "
+                             "earlier commit"),
     "container": ("bench.container", "the container image: its size and a running container's "
                                      "memory, idle and after plans"),
     "dynamics_size": ("bench.dynamics_size", "the derived dynamics: expression size, build time "
@@ -23,6 +25,8 @@ BENCHES = {
                                                      "interpreted NLPs, the seed arm's accuracy"),
     "planner_speed": ("bench.planner_speed", "the planner against a plain Opti script on a seed "
                                              "scene, and where a solve's time goes"),
+    "refinement": ("bench.refinement", "mesh refinement on the two-link example at other "
+                                       "numbers of intervals; what each retry recovers"),
     "reliability": ("bench.reliability", "a live server under bad input, slow clients and long "
                                          "synchronous requests"),
     "scaling": ("bench.scaling", "build time, solve time and memory against intervals and "

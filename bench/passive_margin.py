@@ -8,7 +8,7 @@ defaults (mesh refinement and retries on), and records what it returns and how i
 verifies. A plan counts as verified when Ipopt succeeded and every interval,
 re-integrated from the plan's own state with its torque, stays within 1e-3 rad of it.
 Writes bench/results/passive_margin.csv and the section "Passive joints and the coupling
-margin" of docs/planner.md.
+margin" of docs/benchmarks.md.
 
     python -m bench passive_margin [--finals 0:1.75,0:1.8,...] [--durations 2,2.5,3]
 """
@@ -25,7 +25,7 @@ from planner.examples import example
 from planner.ocp import plan
 from planner.scene import Scene, SolverSettings
 
-DOC = harness.DOCS / "planner.md"
+DOC = harness.DOCS / "benchmarks.md"
 SECTION = "Passive joints and the coupling margin"
 FINALS = "0:1.75,0:1.8,0.05:1.8,0.1:1.8,-0.1:1.8,0.3:2,0.4:2.1"
 DURATIONS = "2,2.5,3"

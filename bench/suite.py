@@ -1,6 +1,7 @@
 """The task suite (planner.suite): how often a plan verifies, and how long a verified plan
-takes, against the same planner with mesh refinement off or without retries, and a plain
-CasADi Opti script (bench/peers/opti.py, Legendre degree 3 on the same 50 intervals).
+takes, against the same planner with mesh refinement off, without retries or with fatrop
+instead of Ipopt, and a plain CasADi Opti script (bench/peers/opti.py, Legendre degree 3
+on the same 50 intervals).
 
 Every configuration runs in a process of its own, its tasks one after the other as a
 service worker would (NLPs built once per structure and number of intervals stay cached).
@@ -16,18 +17,26 @@ estimates and verification), counted only for verified plans.
 from __future__ import annotations
 
 import argparse
+import json
 import math
+import subprocess
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
 from bench import harness
+from bench.examples import BEFORE
 from planner.suite import COUNT, SEED, tasks
 
 CONFIGS = {
     "undertow": "default settings",
     "refinement off": "transcription.refinement.enabled false",
     "retries off": "solver.retries 0",
+    "fatrop": "solver.name fatrop",
+    "before": f"the planner of {BEFORE}, before plans were refined and checked interval by "
+              "interval (verified: the whole-horizon replay within 1e-3 rad)",
     "Opti script": "plain CasADi Opti, Legendre 3, 50 intervals, Ipopt defaults",
 }
 WALL_TIME = 60.0  # [s] every configuration's cap on one task (the planner's default)
@@ -38,7 +47,8 @@ SECTION = "Task suite: verified plans and time to a verified plan"
 def _settings(config: str) -> dict:
     """Scene changes of a planner configuration."""
     return {"refinement off": {"transcription": {"refinement": {"enabled": False}}},
-            "retries off": {"solver": {"retries": 0}}}.get(config, {})
+            "retries off": {"solver": {"retries": 0}},
+            "fatrop": {"solver": {"name": "fatrop"}}}.get(config, {})
 
 
 def _merged(scene: dict, changes: dict) -> dict:
@@ -95,8 +105,59 @@ def run_opti(count: int, seed: int) -> dict:
     return {"rows": rows}
 
 
+_BEFORE_RUN = """
+import json, sys, time
+sys.path.insert(0, {root!r})
+from planner.ocp import plan
+from planner.scene import Scene
+for line in sys.stdin:
+    name, scene = json.loads(line)
+    started = time.perf_counter()
+    result = plan(Scene.model_validate(scene))
+    elapsed = time.perf_counter() - started
+    v = result.verification
+    print("RESULT " + json.dumps({{"task": name, "status": result.solver.status,
+          "verified": bool(result.solver.success and v.verified),
+          "iterations": result.solver.iterations, "time": elapsed,
+          "resimulation_error": v.resimulation_error, "objective": result.objective}}),
+          flush=True)
+"""
+
+
+def run_before(count: int, seed: int, commit: str) -> list[dict]:
+    """Every task with the planner of an earlier commit (a temporary worktree)."""
+    lines = "".join(json.dumps([name, scene.model_dump(mode="json", exclude_defaults=True)])
+                    + "\n" for name, scene in tasks(count, seed))
+    rows = []
+    with tempfile.TemporaryDirectory() as work:
+        old = Path(work) / "before"
+        subprocess.run(["git", "-C", str(harness.ROOT), "worktree", "add", "--detach", str(old),
+                        commit], check=True, capture_output=True)
+        try:
+            run = subprocess.run([harness.PYTHON, "-c", _BEFORE_RUN.format(root=str(old))],
+                                 input=lines, cwd=old, capture_output=True, text=True,
+                                 timeout=count * (2 * WALL_TIME + 30), check=False)
+        finally:
+            subprocess.run(["git", "-C", str(harness.ROOT), "worktree", "remove", "--force",
+                            str(old)], check=False, capture_output=True)
+    for line in run.stdout.splitlines():
+        if line.startswith("RESULT "):
+            out = json.loads(line[len("RESULT "):])
+            rows.append({**out, "config": "before", "solves": 1, "intervals": 50,
+                         "time_to_verified": out["time"] if out["verified"] else math.nan,
+                         "local_error": math.nan, "growth_factor": math.nan,
+                         "closed_loop_error": math.nan, "perturbed_closed_loop_error": math.nan,
+                         "strategy": "direct"})
+    if len(rows) != count:
+        raise RuntimeError(f"before: {len(rows)} of {count} tasks ran: "
+                           + (run.stderr.strip().splitlines() or ["no output"])[-1][:200])
+    return rows
+
+
 def _run(config: str, count: int, seed: int) -> list[dict]:
     timeout = count * (2 * WALL_TIME + 30)
+    if config == "before":
+        return run_before(count, seed, BEFORE)
     if config == "Opti script":
         out = harness.isolated("suite", "run_opti", {"count": count, "seed": seed}, timeout)
     else:
@@ -111,9 +172,12 @@ def _summary(rows: list[dict], config: str) -> dict:
     mine = [r for r in rows if r["config"] == config]
     times = [r["time_to_verified"] for r in mine if r["verified"]]
     verified = sum(r["verified"] for r in mine)
+    every = sorted(r["time_to_verified"] if r["verified"] else math.inf for r in mine)
+    middle = every[(len(every) - 1) // 2] if every else math.inf
     return {"config": config, "what": CONFIGS[config], "tasks": len(mine), "verified": verified,
             "share": f"{100 * verified / len(mine):.0f} %",
             "median_time": harness.median(times),
+            "median_all": "never" if math.isinf(middle) else middle,
             "p90_time": float(np.percentile(times, 90)) if times else math.nan,
             "median_iterations": harness.median([r["iterations"] for r in mine]),
             "median_solves": harness.median([r["solves"] for r in mine])}
@@ -186,6 +250,10 @@ def main(argv: list[str]) -> int:
         rows += _run(config, args.count, args.seed)
     harness.write_csv(harness.RESULTS / "suite.csv", rows)
     summary = [_summary(rows, c) for c in configs]
+    ours = next((r for r in summary if r["config"] == "undertow"), None)
+    ratios = [f"{r['config']}: {r['median_all'] / ours['median_all']:.1f}x"
+              for r in summary if ours and r is not ours and isinstance(r["median_all"], float)
+              and isinstance(ours["median_all"], float)]
     _plot(rows, configs)
     text = "\n\n".join([
         f"{args.count} rest-to-rest tasks of `planner.suite` (seed {args.seed}): 2, 3 and 4 "
@@ -199,9 +267,12 @@ def main(argv: list[str]) -> int:
                                 ("tasks", "tasks"), ("verified", "verified"),
                                 ("share", "share"),
                                 ("median_time", "median time to a verified plan [s]"),
+                                ("median_all", "the same, unverified counted as never [s]"),
                                 ("p90_time", "90th percentile [s]"),
                                 ("median_iterations", "median iterations"),
                                 ("median_solves", "median solves")]),
+        ("Median time to a verified plan (unverified counted as never) against the default "
+         "planner's: " + "; ".join(ratios) + "." if ratios else ""),
         "![Share of the suite verified within a time](img/suite.png)",
         "Per task, the default planner: the interval error is what `verified` judges; the "
         "open-loop replay runs the delivered torque from the planned start over the whole "

@@ -189,10 +189,17 @@ class Transcription(BaseModel):
 
 
 class SolverSettings(BaseModel):
-    """Ipopt settings."""
+    """The NLP solver and its settings."""
 
     model_config = _STRICT
 
+    name: Literal["ipopt", "fatrop"] = Field(
+        default="ipopt",
+        description="ipopt: interior point with a sparse direct linear solver (MUMPS); "
+                    "fatrop: interior point that factors the KKT system stage by stage "
+                    "(legendre, radau and multiple-shooting with rk4 on a fixed duration "
+                    "without co-design; no progress reports or cancellation within a solve; "
+                    "docs/planner.md, \"Solvers\")")
     max_iter: int = Field(default=500, ge=1, le=100000,
                           description="Ipopt iterations of one solve (a plan may run several: "
                                       "mesh passes, retries)")
@@ -249,6 +256,14 @@ class Scene(BaseModel):
             raise ValueError(f"task.co_design.frequency: needs {na} entries, one per active joint")
         if task.tracking is not None and isinstance(task.duration, DurationRange):
             raise ValueError("task.tracking: a prescribed motion needs a fixed duration")
+        tr = self.transcription
+        if self.solver.name == "fatrop" and (
+                tr.method not in ("legendre", "radau", "multiple-shooting")
+                or tr.method == "multiple-shooting" and tr.integrator == "cvodes"
+                or isinstance(task.duration, DurationRange) or task.co_design is not None):
+            raise ValueError("solver.name: 'fatrop' needs a transcription whose stages close "
+                             "their gaps explicitly (legendre, radau, or multiple-shooting "
+                             "with rk4), a fixed duration and no wave co-design")
         if self.solver.initial_guess == "inverse-dynamics":
             n_p = len(self.robot.passive)
             if n_p == 0 or na < n_p:

@@ -116,6 +116,7 @@ def test_a_full_queue_answers_429_with_retry_after(api):
 
 
 def test_the_list_pages_newest_first_and_filters(api):
+    api.post("/v1/plans?wait=5", json=two_link_scene(iterations=1, tol=0.6))  # it fails
     ids = [api.post("/v1/plans?wait=5", json=two_link_scene(iterations=1)).json()["id"]
            for _ in range(3)]
     page = api.get("/v1/plans?limit=2").json()
@@ -175,3 +176,14 @@ def test_metrics_report_solve_durations_and_jobs_by_state(api):
     assert lines and float(lines[0].split()[-1]) >= 1
     succeeded = api.get("/v1/plans?status=succeeded&limit=100").json()["items"]
     assert f'undertow_jobs{{state="succeeded"}} {float(len(succeeded))}' in text
+
+
+def test_the_refinement_budget_is_bounded_by_the_node_limit(api):
+    # max_nodes 100 here: Legendre degree 3 holds 4 nodes per interval, so at most 25
+    scene = two_link_scene()
+    scene["transcription"] = {"method": "legendre", "intervals": 10, "degree": 3,
+                              "refinement": {"max_intervals": 30}}
+    assert errors_of(api.post("/v1/plans", json=scene)) == [
+        (["body", "transcription", "refinement", "max_intervals"],
+         "30 intervals would hold 120 nodes, more than this server's limit of 100 "
+         "(UNDERTOW_MAX_NODES): at most 25")]

@@ -265,6 +265,26 @@ def test_warm_start_from_a_plan_saves_iterations():
     assert warm.objective == pytest.approx(cold.objective, rel=1e-6)
 
 
+def test_a_moved_goal_starts_from_the_earlier_plans_primal_and_dual_solution():
+    sc = Scene.model_validate(example("seed-arm-plan").request)
+    earlier = plan(sc)
+    assert earlier.solution is not None and "solution" not in earlier.model_dump()
+    moved = sc.model_dump(mode="json")
+    moved["task"]["final"]["q"][1] += 0.05
+    moved = Scene.model_validate(moved)
+    cold, warm = plan(moved), plan(moved, warm_start=earlier)
+    assert warm.solver.strategy == "warm start" and warm.verification.verified
+    assert warm.solver.iterations <= 4 < cold.solver.iterations
+    assert warm.objective == pytest.approx(cold.objective, rel=1e-8)
+    finer = moved.model_copy(update={"transcription": moved.transcription.model_copy(
+        update={"intervals": 60})})
+    other = plan(finer, warm_start=earlier)  # another mesh: the earlier plan as a guess
+    assert other.solver.strategy == "direct" and other.solver.initial_guess == "warm start"
+    with pytest.raises(ValueError, match="warm_start: the earlier plan is of an arm with 4 "
+                                         "joints, 2 of them active; this one has 2, 2"):
+        plan(scene(N=20), warm_start=earlier)
+
+
 def test_plan_goes_through_waveless_singularities_keeping_the_wavy_det_sign():
     # Without the wave M_pa = I2 + m2 l1 l2 cos(q0 - q1) changes sign between these ends.
     # With the wave it has one sign at both ends, and the margin keeps that sign: a path

@@ -32,10 +32,12 @@ from planner.ocp.guess import (
 from planner.ocp.instance import Instance, initial_point, instance
 from planner.ocp.mesh import Mesh
 from planner.ocp.monitor import Handler
+from planner.ocp.problem import ProblemKey
 from planner.ocp.refine import refined
 from planner.ocp.result import (
     DenseTrajectory,
     MeshPass,
+    NlpSolution,
     Plan,
     SolverReport,
     Verification,
@@ -84,6 +86,8 @@ class Start:
     guess_used: str
     T: float
     robot: Robot
+    point: NlpSolution | None = None
+    """An earlier solution of the same problem on the same mesh: the start, primal and dual."""
 
 
 @dataclass
@@ -110,7 +114,7 @@ def plan(scene: Scene, progress: Handler | None = None, warm_start: Plan | None 
     for start in starts:
         outcomes = [_solve_on(scene, instance(scene, start.robot, start.mesh, start.T),
                               start.robot, start.T, start.guess, budget, progress,
-                              _passes(attempts), start.name)]
+                              _passes(attempts), start.name, start.point)]
         attempts.append(Attempt(start, outcomes))
         _refine(scene, outcomes, budget, progress, _passes(attempts))
         last = outcomes[-1]
@@ -129,12 +133,19 @@ def _starts(scene: Scene, robot: Robot, T: float, warm_start: Plan | None,
             attempts: list[Attempt]) -> Iterator[Start]:
     """The attempts of a plan, in order, each tried while the ones before it have not
     given a converged plan (with mesh refinement on: an accurate one; docs/planner.md,
-    "Retries"): the scene's own start; a restart from the last iterate of a solve that did
-    not converge; the classical inverse dynamics as the initial guess; a first mesh of
-    twice, then of half the intervals."""
+    "Retries"): an earlier plan's own NLP solution where it solved the same problem on a
+    mesh at least as fine as the scene's (its refined mesh is kept); the scene's own start; a restart from the last iterate of a solve that did not converge;
+    the classical inverse dynamics as the initial guess; a first mesh of twice, then of
+    half the intervals."""
     tr = scene.transcription
     mesh = Mesh(np.asarray(tr.breaks)) if tr.breaks else Mesh.uniform(tr.intervals)
     guess, used = _guess(scene, robot, T, warm_start)
+    earlier = warm_start.solution if warm_start is not None else None
+    if earlier is not None:
+        solved_on = Mesh(np.asarray(earlier.breaks))
+        same = ProblemKey.of(scene, solved_on.intervals).fingerprint() == earlier.fingerprint
+        if same and solved_on.intervals >= mesh.intervals:
+            yield Start("warm start", solved_on, guess, used, warm_start.duration, robot, earlier)
     yield Start("direct", mesh, guess, used, T, robot)
     last = attempts[-1].outcomes[-1]
     if last.finite and not last.solution.success:
@@ -184,11 +195,15 @@ def _rank(outcome: Outcome) -> tuple[bool, float]:
 
 def _solve_on(scene: Scene, inst: Instance, robot: Robot, T: float, guess: Guess,
               budget: Budget, progress: Handler | None, mesh_pass: int,
-              strategy: str) -> Outcome:
-    """Solve on the instance's mesh from a guess, and estimate the plan's interval errors."""
+              strategy: str, point: NlpSolution | None = None) -> Outcome:
+    """Solve on the instance's mesh from a guess (or from an earlier solution, primal and
+    dual), and estimate the plan's interval errors."""
     started = time.perf_counter()
-    x0 = initial_point(inst, guess, T, robot)
-    solution = solve(inst, x0, budget, progress, mesh_pass)
+    if point is None:
+        solution = solve(inst, initial_point(inst, guess, T, robot), budget, progress, mesh_pass)
+    else:
+        solution = solve(inst, np.asarray(point.x), budget, progress, mesh_pass,
+                         (np.asarray(point.lam_x), np.asarray(point.lam_g)))
     finite = bool(np.all(np.isfinite(solution.x)))
     solved = _solved_robot(inst, robot, solution.x) if finite else robot
     duration = _duration(scene, inst, solution.x) if finite else T
@@ -210,6 +225,11 @@ def _guess(scene: Scene, robot: Robot, T: float, warm_start: Plan | None) -> tup
     """The initial guess (an earlier plan, else the scene's `solver.initial_guess`) and
     what it was: an inverse dynamics that cannot be computed leaves the interpolation."""
     if warm_start is not None:
+        shape = (len(warm_start.q[0]), len(warm_start.tau[0]))
+        if shape != (robot.n, len(robot.active)):
+            raise ValueError(f"warm_start: the earlier plan is of an arm with {shape[0]} joints, "
+                             f"{shape[1]} of them active; this one has {robot.n}, "
+                             f"{len(robot.active)}")
         return plan_guess(warm_start), "warm start"
     if scene.solver.initial_guess == "inverse-dynamics":
         try:
@@ -309,7 +329,19 @@ def _result(scene: Scene, attempts: list[Attempt], budget: Budget) -> Plan:
         mesh_passes=[o.record for o in outcomes],
         feedback=feedback,
         verification=verification,
+        solution=_nlp_solution(best),
     )
+
+
+def _nlp_solution(outcome: Outcome) -> NlpSolution | None:
+    """The outcome's NLP solution, to warm-start a later plan from (None without multipliers)."""
+    sol = outcome.solution
+    if sol.lam_x is None or sol.lam_g is None or not outcome.finite:
+        return None
+    return NlpSolution(fingerprint=outcome.inst.problem.key.fingerprint(),
+                       breaks=outcome.inst.mesh.breaks.tolist(), x=sol.x.tolist(),
+                       lam_x=np.nan_to_num(sol.lam_x).tolist(),
+                       lam_g=np.nan_to_num(sol.lam_g).tolist())
 
 
 def _unverified(tolerance: float) -> Verification:

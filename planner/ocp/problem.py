@@ -55,6 +55,8 @@ class ProblemKey:
     smoothness: bool
     tol: float
     jit: bool
+    solver: str = "ipopt"
+    max_iter: int = 0  # fatrop's, fixed when its solver is built (0 for Ipopt)
 
     @classmethod
     def of(cls, scene: Scene, intervals: int | None = None) -> ProblemKey:
@@ -83,6 +85,8 @@ class ProblemKey:
             smoothness=task.objective.smoothness > 0,
             tol=scene.solver.tol,
             jit=scene.solver.jit,
+            solver=scene.solver.name,
+            max_iter=scene.solver.max_iter if scene.solver.name == "fatrop" else 0,
         )
 
     def transcription(self) -> Transcription:
@@ -93,6 +97,12 @@ class ProblemKey:
     def terms(self) -> list[Term]:
         """The objective and constraint terms this key asks for."""
         return [term for term in TERMS if term.wanted(self)]
+
+    def fingerprint(self) -> str:
+        """A stable hash of the whole key (its number of intervals too) and of the code that
+        builds its NLP: two problems with the same fingerprint have the same variables and
+        constraints."""
+        return hashlib.sha256((repr(self) + formulation_hash()).encode()).hexdigest()[:20]
 
     def digest(self) -> str:
         """A stable hash of the key (but its number of intervals) and of the code that builds
@@ -286,6 +296,8 @@ def _stage_function(key: ProblemKey, tr: Transcription, layout: Layout, params: 
             cost += piece_cost
         if term_rows is not None:
             rows.append(term_rows)
+    if piece.gaps is not None and piece.gaps.numel():
+        rows.insert(0, (piece.gaps, 0.0, 0.0))
     g = ca.vertcat(*(r for r, _, _ in rows)) if rows else tr.symbolic(0, 1)
     bounds = [(lo, hi, r.numel()) for r, lo, hi in rows]
     name = "terminal" if terminal else "stage"
@@ -391,13 +403,31 @@ def build(key: ProblemKey) -> Problem:
                   **IPOPT_OPTIONS},
         **assembly.derivatives,
     }
-    if tr.symbolic is ca.MX:
+    if key.solver == "fatrop":
+        opts = _fatrop_options(key, parts, lbg, ubg)
+    elif tr.symbolic is ca.MX:
         opts["ipopt"]["hessian_approximation"] = "limited-memory"
     elif not assembly.structured:
         opts["expand"] = True
-    solver = ca.nlpsol("plan", "ipopt", assembly.nlp, opts)
+    solver = ca.nlpsol("plan", key.solver, assembly.nlp, opts)
     return Problem(key, layout, tr, parts.params, lbg, ubg, solver, monitor,
                    time.perf_counter() - start, assembly.structured, assembly.nlp, opts)
+
+
+def _fatrop_options(key: ProblemKey, parts: Stages, lbg: np.ndarray, ubg: np.ndarray) -> dict:
+    """fatrop's options: the stage structure (per stage: the node state, the other stage
+    variables, the rows beyond the gap-closing ones), which rows are equalities, and its
+    iteration limit and tolerance. fatrop differentiates the expanded NLP itself."""
+    N = key.intervals
+    stage, terminal = parts.parts
+    nx = sum(p.size for p in stage if p.name in parts.transcription.link)
+    nu = sum(p.size for p in stage) - nx
+    rows = sum(count for _, _, count in parts.bounds[0])
+    return {"print_time": False, "expand": True, "structure_detection": "manual", "N": N,
+            "nx": [nx] * (N + 1), "nu": [nu] * N + [0],
+            "ng": [rows - nx] * N + [sum(count for _, _, count in parts.bounds[1])],
+            "equality": [bool(e) for e in lbg == ubg],
+            "fatrop": {"print_level": 0, "tol": key.tol, "max_iter": key.max_iter}}
 
 
 def cache_dir() -> Path:

@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from pydantic import BaseModel, ConfigDict, Field
+from pydantic.json_schema import SkipJsonSchema
 
 from planner.torque import TorquePolynomial
 
@@ -166,6 +167,18 @@ class WaveOut(_Out):
     phase: float
 
 
+class NlpSolution(_Out):
+    """The NLP solution behind a plan: the problem it solved (`fingerprint`), its mesh
+    (breakpoints as fractions of the duration), its variables and multipliers. A later
+    plan of the same problem on the same mesh starts from it, primal and dual."""
+
+    fingerprint: str
+    breaks: list[float]
+    x: list[float]
+    lam_x: list[float]
+    lam_g: list[float]
+
+
 class Plan(_Out):
     """A plan: nodes (time-major), dense samples, the delivered torque, objective, solver
     report, mesh history, feedback and verification."""
@@ -187,3 +200,7 @@ class Plan(_Out):
     mesh_passes: list[MeshPass] = Field(default_factory=list)
     feedback: Feedback | None = None
     verification: Verification
+    solution: SkipJsonSchema[NlpSolution | None] = Field(
+        default=None, exclude=True,
+        description="the NLP solution to warm-start a later plan from; kept apart from the "
+                    "plan's JSON")

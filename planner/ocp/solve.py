@@ -13,6 +13,17 @@ from planner.ocp.monitor import Handler
 
 _STOP_STATUS = {"cancelled": "User_Requested_Stop", "max_iter": "Maximum_Iterations_Exceeded",
                 "max_wall_time": "Maximum_WallTime_Exceeded"}
+_FATROP_STATUS = {"SOLVER_RET_SUCCESS": "Solve_Succeeded",
+                  "SOLVER_RET_LIMITED": "Maximum_Iterations_Exceeded",
+                  "SOLVER_RET_NAN": "Invalid_Number_Detected",
+                  "SOLVER_RET_INFEASIBLE": "Infeasible_Problem_Detected"}
+"""fatrop's unified return statuses, named as Ipopt names the same outcome."""
+
+
+def _fatrop_status(stats: dict) -> str:
+    unified = str(stats.get("unified_return_status", "unknown"))
+    return _FATROP_STATUS.get(unified, f"fatrop: {unified} (return flag "
+                                       f"{stats.get('return_status', '?')})")
 _MESSAGES = {"User_Requested_Stop": "the solve was cancelled",
              "Maximum_Iterations_Exceeded": "the iteration limit was reached",
              "Maximum_WallTime_Exceeded": "the wall-time limit was reached",
@@ -81,14 +92,16 @@ def solve(inst: Instance, x0: np.ndarray, budget: Budget, handler: Handler | Non
     except RuntimeError as exc:  # an evaluation error: the last iterate Ipopt reached
         out, error = None, str(exc).strip().splitlines()[-1]
     elapsed = time.perf_counter() - started
-    iterations = max(monitor.calls - 1, 0)
+    monitored = prob.key.solver == "ipopt"  # fatrop calls no iteration callback
+    stats = solver.stats() if out is not None or not monitored else {}
+    iterations = max(monitor.calls - 1, 0) if monitored else int(stats.get("iter_count", 0))
     budget.used += iterations
     if out is None:
         x = monitor.last_x if monitor.last_x is not None else np.asarray(x0, float)
         return Solution(x, None, None, monitor.last_f, "Error", False, error, iterations,
                         elapsed)
-    stats = solver.stats()
-    status = _STOP_STATUS.get(monitor.reason, stats.get("return_status", "Error"))
+    status = _STOP_STATUS.get(monitor.reason, stats.get("return_status", "Error")) \
+        if monitored else _fatrop_status(stats)
     success = bool(stats.get("success", False)) and not monitor.reason
     objective = float(out["f"])
     return Solution(np.array(out["x"]).ravel(), np.array(out["lam_x"]).ravel(),

@@ -55,7 +55,10 @@ class StagePiece:
     defects: equality rows; knot_q, knot_dq, knot_ddq (n x m), knot_tau (na x m): the
     knots, where the dynamics hold (implicit form: M ddq + h = B tau is added there);
     path_q (n x r): where path constraints hold; taus (na x s): the torques in time order,
-    at `tau_positions` (fractions of the interval), for the smoothness term.
+    at `tau_positions` (fractions of the interval), for the smoothness term; gaps: rows
+    next node state - F(stage variables) = 0 that close the gap to the next stage (a
+    method whose defects read the next stage otherwise has none), the stage's first rows,
+    the layout a structure-exploiting solver (fatrop) expects.
     """
 
     defects: ca.SX
@@ -66,6 +69,7 @@ class StagePiece:
     path_q: ca.SX
     taus: ca.SX
     tau_positions: tuple[float, ...]
+    gaps: ca.SX | None = None
 
 
 @dataclass(frozen=True)

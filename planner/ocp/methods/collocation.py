@@ -52,10 +52,10 @@ class Collocation:
         ddqc = model.accelerations(w, "ddq", qc, dqc, tau)
         Q, DQ = ca.horzcat(w["q"], qc), ca.horzcat(w["dq"], dqc)
         defects = ca.vertcat(ca.vec(ca.mtimes(Q, self.C) - h * dqc),
-                             ca.vec(ca.mtimes(DQ, self.C) - h * ddqc),
-                             nxt["q"] - ca.mtimes(Q, self.D), nxt["dq"] - ca.mtimes(DQ, self.D))
+                             ca.vec(ca.mtimes(DQ, self.C) - h * ddqc))
+        gaps = ca.vertcat(nxt["q"] - ca.mtimes(Q, self.D), nxt["dq"] - ca.mtimes(DQ, self.D))
         return StagePiece(defects, qc, dqc, ddqc, tau, ca.horzcat(w["q"], qc), tau,
-                          self.knot_positions)
+                          self.knot_positions, gaps)
 
     def terminal(self, w: dict[str, ca.SX], model: Model) -> StagePiece:
         empty, none = ca.SX(model.n, 0), ca.SX(model.na, 0)

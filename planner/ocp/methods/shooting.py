@@ -50,7 +50,8 @@ class MultipleShooting:
         q, dq, tau = w["q"], w["dq"], w["tau"]
         end = self._end(ca.vertcat(q, dq), tau, h, model)
         ddq = model.fd(q, dq, tau, model.p)
-        return StagePiece(ca.vertcat(nxt["q"], nxt["dq"]) - end, q, dq, ddq, tau, q, tau, (0.5,))
+        return StagePiece(self.symbolic(0, 1), q, dq, ddq, tau, q, tau, (0.5,),
+                          ca.vertcat(nxt["q"], nxt["dq"]) - end)
 
     def _end(self, x, tau, h, model: Model):
         """The state one interval of width h later under the constant torque."""
