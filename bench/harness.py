@@ -53,6 +53,10 @@ class CpuTimed:
     def stats(self) -> dict:
         return self.solver.stats()
 
+    def __getattr__(self, name: str) -> object:
+        """Everything else of the wrapped solver (its derivative functions, for instance)."""
+        return getattr(self.solver, name)
+
 
 def build_instrumented(scene: Scene) -> tuple[float, CpuTimed]:
     """Build (or fetch) the NLP of the scene's first mesh; its build time [s] and its
