@@ -23,15 +23,12 @@ import httpx
 import numpy as np
 
 from bench import harness
+from testbed.probes import QUICK
 from testbed.service import LiveServer
 
-SCENE = {"robot": {"links": [
-    {"length": 0.5, "mass": 1.0, "inertia": 0.01, "joint": "passive"},
-    {"length": 0.4, "mass": 0.5, "inertia": 0.005, "joint": "active",
-     "wave": {"amplitude": 0.05, "frequency": 3.0, "phase": 0.3}}], "gravity": 9.81},
-    "task": {"duration": 2.0, "initial": {"q": [0.0, 0.0], "dq": [0.0, 0.0]},
-             "final": {"q": [1.0, None], "dq": [0.0, 0.0]}},
-    "transcription": {"intervals": 50}}  # 20 is optimal but fails its re-simulation check
+SCENE = {**QUICK, "transcription": {"intervals": 50}}
+"""The two-link plan of `testbed.probes.QUICK` (one passive, one wavy active joint) on 50
+intervals."""
 DOC = harness.DOCS / "bench-service.md"
 SECTION = "Concurrent plan requests on loopback"
 FINAL = {"succeeded", "failed", "cancelled"}
