@@ -213,8 +213,9 @@ class SolverSettings(BaseModel):
                     "the active rows; inverse-dynamics: the classical inverse dynamics along "
                     "that passive path until it meets sigma_min(M_pa) = coupling margin (1e-3 "
                     "without one), the interpolation after")
-    jit: bool = Field(default=False, description="compile the NLP's derivative kernels to C "
-                                                 "(once per structure, cached on disk)")
+    jit: bool = Field(default=False, description="compile the NLP's derivative kernels and the "
+                                                 "verification's dynamics to C (once per "
+                                                 "structure, cached on disk)")
     retries: int = Field(default=4, ge=0, le=4,
                          description="further attempts after one that gives no accurate plan: "
                                      "a restart from its last iterate, the inverse dynamics "

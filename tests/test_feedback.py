@@ -110,3 +110,15 @@ def test_replays_from_several_starts_at_once_equal_each_alone(seed_arm):
     assert [status for _, status in together] == ["completed"] * 3
     assert np.allclose([e for e, _ in together], [e for e, _ in alone], rtol=1e-9, atol=0.0)
     assert together[0][0] == result.verification.closed_loop_error
+
+
+def test_the_compiled_dynamics_give_the_same_checks(seed_arm, tmp_path, monkeypatch):
+    monkeypatch.setenv("UNDERTOW_CACHE_DIR", str(tmp_path))
+    sc, result, interp = seed_arm
+    interpreted, _ = interval_errors(sc.robot, interp)
+    compiled, status = interval_errors(sc.robot, interp, compiled=True)
+    assert status == "completed" and list(tmp_path.glob("flow_*.so"))
+    assert np.allclose(compiled, interpreted, rtol=1e-9, atol=1e-14)
+    start = np.concatenate([result.q[0], result.dq[0]])[None, :]
+    assert replay(sc.robot, interp, start, None, compiled=True)[0][0] == pytest.approx(
+        replay(sc.robot, interp, start, None)[0][0], rel=1e-9)

@@ -21,13 +21,14 @@ from planner.ocp.transcription import Interpolant
 SAMPLES = 4  # comparison points per interval, at s = 1/4, 1/2, 3/4, 1
 
 
-def interval_errors(robot: Robot, interp: Interpolant) -> tuple[np.ndarray, str]:
+def interval_errors(robot: Robot, interp: Interpolant,
+                    compiled: bool = False) -> tuple[np.ndarray, str]:
     """(N,) error of every interval [rad] (inf where CVODES failed) and a status: "completed"
-    or on which intervals CVODES failed."""
+    or on which intervals CVODES failed. compiled: the dynamics compiled to C."""
     s = Structure.of(robot)
     coeffs = interp.tau.coeffs
     N, degree = coeffs.shape[0], coeffs.shape[1] - 1
-    flow = integrator(s, degree, SAMPLES)
+    flow = integrator(s, degree, SAMPLES, compiled=compiled)
     starts, params = inputs(robot, interp)
     zero = np.zeros((len(s.active_idx), SAMPLES * N))  # u is held per output interval
     try:

@@ -121,15 +121,16 @@ def gains(lin: Linearisation, h: np.ndarray, tau_scale: float) -> Feedback:
 
 
 def replay(robot: Robot, interp: Interpolant, starts: np.ndarray, K: np.ndarray | None,
-           tol: float = REPLAY_TOL) -> list[tuple[float | None, str]]:
+           tol: float = REPLAY_TOL, compiled: bool = False) -> list[tuple[float | None, str]]:
     """Replays from each of `starts` (R, 2n) at once under the plan's torque and, with gains
     K (N, na, 2n), the feedback: per start, max |q_sim - q_plan| [rad] over REPLAY_SAMPLES
-    points per interval and "completed", or None and where CVODES failed."""
+    points per interval and "completed", or None and where CVODES failed (compiled: the
+    dynamics compiled to C)."""
     s = Structure.of(robot)
     coeffs = interp.tau.coeffs
     N, degree = coeffs.shape[0], coeffs.shape[1] - 1
     R = len(starts)
-    flow = integrator(s, degree, REPLAY_SAMPLES, tol).map(R)
+    flow = integrator(s, degree, REPLAY_SAMPLES, tol, compiled).map(R)
     _, params = inputs(robot, interp)
     breaks = interp.q.breaks
     planned = np.hstack([interp.q(breaks), interp.dq(breaks)])  # (N + 1, 2n)

@@ -210,8 +210,8 @@ def _solve_on(scene: Scene, inst: Instance, robot: Robot, T: float, guess: Guess
     interp = _interpolant(inst, solved, duration, solution.x)
     errors, status, replayed = np.full(inst.mesh.intervals, np.inf), NOT_FINITE, (None, NOT_FINITE)
     if finite:
-        errors, status = interval_errors(solved, interp)
-        replayed = open_loop(solved, interp)
+        errors, status = interval_errors(solved, interp, scene.solver.jit)
+        replayed = open_loop(solved, interp, scene.solver.jit)
     record = MeshPass(strategy=strategy, intervals=inst.mesh.intervals,
                       iterations=solution.iterations,
                       status=solution.status, objective=_finite_or_none(solution.objective),
@@ -303,7 +303,8 @@ def _result(scene: Scene, attempts: list[Attempt], budget: Budget) -> Plan:
     t_dense = np.concatenate([np.linspace(a, b, per, endpoint=False)
                               for a, b in zip(breaks[:-1], breaks[1:])] + [breaks[-1:]])
     verification, feedback = (verify(robot, interp, t_dense, best.errors, best.errors_status,
-                                     best.replayed, tolerance, scene.task.torque_limit)
+                                     best.replayed, tolerance, scene.task.torque_limit,
+                                     scene.solver.jit)
                               if best.finite else (_unverified(tolerance), None))
     built = [o.inst for o in outcomes if not o.inst.cache_hit]
     refined_by = " + mesh refinement" if best is not attempt.outcomes[0] else ""

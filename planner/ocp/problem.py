@@ -11,10 +11,6 @@ and every mesh with its number of intervals. The NLP is written stage by stage
 from __future__ import annotations
 
 import hashlib
-import os
-import subprocess
-import tempfile
-import threading
 import time
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
@@ -23,6 +19,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from planner.compiled import library, source_digest
 from planner.dynamics import functions
 from planner.model import Structure, wave_slots
 from planner.ocp import methods
@@ -120,14 +117,11 @@ FORMULATION_SOURCES = ("dynamics.py", "model.py", "rk4.py", "ocp/transcription.p
 
 @lru_cache(maxsize=1)
 def formulation_hash() -> str:
-    """SHA-256 of the CasADi version and of `FORMULATION_SOURCES`."""
+    """A hash of the CasADi version and of `FORMULATION_SOURCES`."""
     root = Path(__file__).resolve().parents[1]
-    digest = hashlib.sha256(ca.__version__.encode())
-    for name in FORMULATION_SOURCES:
-        path = root / name
-        for source in sorted(path.glob("*.py")) if path.is_dir() else [path]:
-            digest.update(source.read_bytes())
-    return digest.hexdigest()
+    sources = [source for name in FORMULATION_SOURCES for source in
+               (sorted((root / name).glob("*.py")) if (root / name).is_dir() else [root / name])]
+    return source_digest(sources=sources)
 
 
 IPOPT_OPTIONS = {"linear_solver": "mumps", "mumps_pivot_order": 0, "mumps_scaling": 0,
@@ -265,8 +259,12 @@ class _Symbols:
         return self.local[self.params.local[name]]
 
 
+RowGroups = list[tuple[float, float, int]]
+"""Constraint rows in groups: lower bound, upper bound, count."""
+
+
 def _stage_function(key: ProblemKey, tr: Transcription, layout: Layout, params: Parameters,
-                    terms: list[Term], terminal: bool) -> tuple[ca.Function, list[tuple[float, float, int]]]:
+                    terms: list[Term], terminal: bool) -> tuple[ca.Function, RowGroups]:
     """A stage's (or the terminal's) rows and cost, and the bounds of its row groups."""
     s = key.structure
     parts = layout.terminal if terminal else layout.stage
@@ -430,36 +428,14 @@ def _fatrop_options(key: ProblemKey, parts: Stages, lbg: np.ndarray, ubg: np.nda
             "fatrop": {"print_level": 0, "tol": key.tol, "max_iter": key.max_iter}}
 
 
-def cache_dir() -> Path:
-    """Where compiled stages are kept: $UNDERTOW_CACHE_DIR, else ~/.cache/undertow."""
-    default = Path.home() / ".cache" / "undertow"
-    return Path(os.environ.get("UNDERTOW_CACHE_DIR", default))
-
-
-_CODEGEN = threading.Lock()  # one compilation at a time per process
-
-
 def compiled(built: Stages, key: ProblemKey) -> Stages:
     """The stages with their derivative kernels (what an iteration spends its time in)
-    compiled to one shared library (C, gcc -O1), built on first use and kept on disk, named
-    by the key's digest: every number of intervals of the key, every process and every
-    later run share it. The library is written atomically, so processes sharing the cache
-    never load a partial one. The stage functions themselves stay symbolic: nlpsol
-    differentiates them for what it computes once per solve."""
+    compiled (`planner.compiled`), named by the key's digest: every number of intervals of
+    the key, every process and every later run share the library. The stage functions
+    themselves stay symbolic: nlpsol differentiates them for what it computes once per
+    solve."""
     functions = built.derivatives.functions()
-    folder = cache_dir()
-    library = folder / f"stages_{key.digest()}.so"
-    if not library.exists():
-        folder.mkdir(parents=True, exist_ok=True)
-        with _CODEGEN, tempfile.TemporaryDirectory(dir=folder) as work:
-            generator = ca.CodeGenerator("stages.c", {"with_header": False})
-            for function in functions:
-                generator.add(function)
-            generator.generate(work + os.sep)
-            subprocess.run(["gcc", "-O1", "-fPIC", "-shared", "stages.c", "-o", "stages.so"],
-                           cwd=work, check=True, capture_output=True)
-            os.replace(Path(work) / "stages.so", library)
-    loaded = {f.name(): ca.external(f.name(), str(library)) for f in functions}
+    loaded = library(f"stages_{key.digest()}", functions)
     return replace(built, derivatives=built.derivatives.replaced(loaded))
 
 

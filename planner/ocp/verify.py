@@ -41,12 +41,13 @@ def coupling_along(robot: Robot, q: np.ndarray) -> tuple[np.ndarray, np.ndarray 
     return sv, (np.linalg.det(mpa) if rows == cols else None)
 
 
-def open_loop(robot: Robot, interp: Interpolant) -> tuple[float | None, str]:
+def open_loop(robot: Robot, interp: Interpolant,
+              compiled: bool = False) -> tuple[float | None, str]:
     """The whole-horizon replay of the delivered torque from the planned initial state:
     max |q_sim - q_plan| [rad] and "completed", or None and where CVODES failed."""
     breaks = interp.q.breaks
     start = np.concatenate([interp.q(breaks[:1])[0], interp.dq(breaks[:1])[0]])
-    return replay(robot, interp, start[None, :], None, RESIM_TOL)[0]
+    return replay(robot, interp, start[None, :], None, RESIM_TOL, compiled)[0]
 
 
 def defect(robot: Robot, interp: Interpolant) -> float:
@@ -97,8 +98,8 @@ def torque_excess(tau: np.ndarray, limit: list[float] | float | None) -> float |
     return float(np.maximum(np.abs(tau) - bound[None, :], 0.0).max(initial=0.0))
 
 
-def _feedback(robot: Robot, interp: Interpolant,
-              torque_limit: list[float] | float | None) -> tuple[Feedback | None, dict]:
+def _feedback(robot: Robot, interp: Interpolant, torque_limit: list[float] | float | None,
+              compiled: bool) -> tuple[Feedback | None, dict]:
     """The plan's LQR feedback and what it and the open-loop sensitivity measure."""
     lin = linearise(robot, interp)
     if lin is None:
@@ -110,14 +111,16 @@ def _feedback(robot: Robot, interp: Interpolant,
     breaks = interp.q.breaks
     start = np.concatenate([interp.q(breaks[:1])[0], interp.dq(breaks[:1])[0]])
     (closed, _), (perturbed, _) = replay(robot, interp,
-                                         np.stack([start, start + PERTURBATION]), K)
+                                         np.stack([start, start + PERTURBATION]), K,
+                                         compiled=compiled)
     return fb, {"growth_factor": growth_factor(lin), "closed_loop_error": closed,
                 "perturbed_closed_loop_error": perturbed, "perturbation": PERTURBATION}
 
 
 def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.ndarray,
            errors_status: str, replayed: tuple[float | None, str], tolerance: float,
-           torque_limit: list[float] | float | None) -> tuple[Verification, Feedback | None]:
+           torque_limit: list[float] | float | None,
+           compiled: bool = False) -> tuple[Verification, Feedback | None]:
     """All checks of a plan of `robot` whose interpolant is `interp`, whose interval errors
     [rad] are `errors` and whose open-loop replay gave `replayed`; verified when every
     interval error is at most `tolerance` [rad]. Also the plan's feedback (None where the
@@ -127,7 +130,7 @@ def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.nd
     crossings, waveless_min = singular_crossings(robot, interp, t_dense)
     finite = np.isfinite(sigma)
     local = float(errors.max())
-    fb, measured = _feedback(robot, interp, torque_limit)
+    fb, measured = _feedback(robot, interp, torque_limit, compiled)
     return Verification(
         local_error=local if np.isfinite(local) else None,
         interval_errors=[float(e) if np.isfinite(e) else None for e in errors],
