@@ -7,12 +7,11 @@ sigma_min = 0, sigma_min when there is no passive joint) is None.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from planner import budget
+from planner.coupling_block import at
 from planner.dynamics import Dynamics
 from planner.model import Robot
 from planner.schema import REQUEST as _STRICT
@@ -83,10 +82,6 @@ class DynamicsResponse(BaseModel):
     results: list[DynamicsResult]
 
 
-def _defined(value: float | None) -> float | None:
-    return value if value is not None and math.isfinite(value) else None
-
-
 def _result(dyn: Dynamics, k: int, state: StateQuery) -> DynamicsResult:
     q, dq = np.asarray(state.q), np.asarray(state.dq)
     M, h, gravity = dyn.mass_matrix(q), dyn.bias(q, dq), dyn.gravity(q)
@@ -96,12 +91,11 @@ def _result(dyn: Dynamics, k: int, state: StateQuery) -> DynamicsResult:
     arrays = [M, h, gravity, np.array([T, V]), tips] + ([forces] if forces is not None else [])
     if not all(np.all(np.isfinite(a)) for a in arrays):
         raise ValueError(f"states.{k}: the dynamics overflow at this state (values too large)")
-    c = dyn.coupling(q)
+    c = at(dyn.robot, q, dyn.structure)
     return DynamicsResult(
         M=M.tolist(), h=h.tolist(), gravity=gravity.tolist(), kinetic_energy=T,
         potential_energy=V, tips=tips.tolist(),
-        coupling=CouplingMeasures(det=_defined(c.det), sigma_min=_defined(c.sigma_min),
-                                  condition=_defined(c.condition)),
+        coupling=CouplingMeasures(det=c.det, sigma_min=c.sigma_min, condition=c.condition),
         generalized_forces=None if forces is None else forces.tolist())
 
 

@@ -33,7 +33,8 @@ from pydantic import BaseModel, Field, model_validator
 from scipy.integrate import solve_ivp
 
 from planner import budget
-from planner.coupling import blocks, check_split, measures
+from planner.coupling import check_split
+from planner.coupling_block import along, measures
 from planner.dynamics import derive, functions
 from planner.model import Robot, Structure, parameters
 from planner.profiles import PassiveMotion, SampledProfile
@@ -205,7 +206,7 @@ class _Problem:
         mass = np.array(self.mass(q[0], self.p))
         block = mass[np.ix_(self.P, self.A)]
         level = max(self.threshold, RESOLUTION * float(np.diag(mass).max()))
-        return float(measures(block[None])[1][0]), level
+        return float(measures(block[None]).sigma_min[0]), level
 
 
 def solve(request: InverseDynamicsRequest, *,
@@ -288,7 +289,7 @@ def _result(status, pb: _Problem, t: np.ndarray, xa: np.ndarray,
     ddq[:, pb.A] = np.array(accel(q.T, dq.T, ddqp.T, pb.p)).T
     generalized = np.array(functions(pb.s)["id"].map(K)(q.T, dq.T, ddq.T, pb.p)).T
     tau = generalized[:, pb.A]
-    sigma = measures(blocks(pb.robot, q, pb.s))[1]
+    sigma = along(pb.robot, q, pb.s).sigma_min
     arrays = (q, dq, ddq, tau, sigma)
     if not all(np.all(np.isfinite(a)) for a in arrays):
         raise ValueError(f"the inverse dynamics of this motion overflow (values too large): "

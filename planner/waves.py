@@ -39,7 +39,7 @@ import numpy as np
 from pydantic import BaseModel, Field, model_validator
 
 from planner import budget
-from planner.coupling import evaluate, measures
+from planner.coupling_block import evaluate, measures
 from planner.dynamics import derive
 from planner.exclusive import Exclusive
 from planner.inverse import (ActiveState, InverseDynamicsRequest, InverseDynamicsResult,
@@ -397,7 +397,7 @@ class _RegionProblem:
         K = len(self.samples)
         Q = np.tile(self.samples, (len(cands), 1))
         P = np.repeat(_params(self.s, self.p, cands), K, axis=0)
-        smin = measures(evaluate(self.s, "Mpa", Q, P, self.deadline))[1]
+        smin = measures(evaluate(self.s, "Mpa", Q, P, self.deadline)).sigma_min
         return list(smin.reshape(len(cands), K).min(axis=1))
 
     def optimise(self, c: Candidate, upper: np.ndarray) -> Candidate:
@@ -414,7 +414,7 @@ class _RegionProblem:
     def certify(self, c: Candidate) -> Certificate:
         """Dense-grid minimum minus the Lipschitz bound between grid points."""
         p = _params(self.s, self.p, [c])[0]
-        smin = measures(evaluate(self.s, "Mpa", self.dense, p, self.deadline))[1]
+        smin = measures(evaluate(self.s, "Mpa", self.dense, p, self.deadline)).sigma_min
         jac = evaluate(self.s, "dMpa", self.dense, p, self.deadline)  # (K, r*c, n)
         slope = np.sqrt((jac**2).sum(axis=1)).max(axis=0)  # largest |dM_pa/dq_i|_F
         lipschitz = float((slope * self.steps / 2)[self.free].sum())
@@ -511,7 +511,7 @@ class _MotionProblem:
         q[~finite] = 0.0
         mpa = evaluate(self.s, "Mpa", q.reshape(-1, self.s.n), np.tile(P, (steps + 1, 1)),
                        self.deadline)
-        sigma = measures(mpa)[1].reshape(steps + 1, C)
+        sigma = measures(mpa).sigma_min.reshape(steps + 1, C)
         bad = (sigma < self.threshold) | ~finite
         reached = np.where(bad.any(axis=0), bad.argmax(axis=0) / steps, 1.0)
         return [float(sigma[:, k].min()) if reached[k] == 1.0 else float(reached[k] - 1.0)

@@ -156,6 +156,15 @@ class Verification(_Out):
     waveless_min_sigma: float | None = Field(
         description="min sigma_min(M_pa) along the plan for the robot without waves")
     waveless_singular_crossings: list[Crossing]
+    sigma_min: list[float | None] = Field(
+        default_factory=list,
+        description="[kg m^2] sigma_min(M_pa) at every time of dense.t (the smallest "
+                    "singular value, which task.coupling_margin bounds); None where it is "
+                    "undefined (no passive joint). Empty in plans that could not be "
+                    "verified or were stored before the field existed")
+    waveless_sigma_min: list[float | None] = Field(
+        default_factory=list,
+        description="[kg m^2] the same for the robot without waves")
 
 
 class WaveOut(_Out):
