@@ -15,17 +15,14 @@ from planner.coupling_block import at
 from planner.dynamics import Dynamics
 from planner.model import Robot
 from planner.schema import REQUEST as _STRICT
+from planner.schema import JointState
 
 MAX_STATES = 10_000
 
 
-class StateQuery(BaseModel):
+class StateQuery(JointState):
     """Joint angles q [rad], rates dq [rad/s] and, optionally, accelerations ddq [rad/s^2]."""
 
-    model_config = _STRICT
-
-    q: list[float]
-    dq: list[float]
     ddq: list[float] | None = None
 
 

@@ -39,6 +39,7 @@ from planner.dynamics import derive, functions
 from planner.model import Robot, Structure, parameters
 from planner.profiles import PassiveMotion, SampledProfile
 from planner.schema import REQUEST as _STRICT
+from planner.schema import JointState
 
 RESOLUTION = 1e-8
 """Smallest sigma_min(M_pa) / max_i M_ii the integration follows. The entries of M carry
@@ -57,17 +58,12 @@ _SCALE_DOWN = "scale down passive_motion, its rates over duration, or active_ini
 """What to do about a motion too fast or too large to integrate."""
 
 
+ACTIVE_INITIAL = "the active joints' angles and rates at t = 0, in joint order"
+"""What an `active_initial` state holds."""
+
+
 class _OverBudget(Exception):
     """The integration ran past its wall-time budget."""
-
-
-class ActiveState(BaseModel):
-    """Angles [rad] and rates [rad/s] of the active joints only, in joint order."""
-
-    model_config = _STRICT
-
-    q: list[float]
-    dq: list[float]
 
 
 class InverseDynamicsRequest(BaseModel):
@@ -78,7 +74,7 @@ class InverseDynamicsRequest(BaseModel):
     robot: Robot
     passive_motion: PassiveMotion
     duration: float = Field(gt=0.0, le=1e4, description="T [s]")
-    active_initial: ActiveState
+    active_initial: JointState = Field(description=ACTIVE_INITIAL)
     samples: int = Field(default=201, ge=2, le=100_000,
                          description="output samples, evenly spaced over [0, T]")
     sigma_threshold: float = Field(default=1e-3, gt=0.0,
@@ -103,7 +99,7 @@ def check_prescribable(robot: Robot) -> None:
                          "prescribed")
 
 
-def check_motion(robot: Robot, motion, duration: float, initial: ActiveState,
+def check_motion(robot: Robot, motion, duration: float, initial: JointState,
                  prefix: str = "") -> None:
     """Raise ValueError unless the motion and initial state fit the robot's joints."""
     check_prescribable(robot)
@@ -218,7 +214,7 @@ def solve(request: InverseDynamicsRequest, *,
                      request.rtol, request.atol, deadline=deadline)
 
 
-def integrate(robot: Robot, motion, duration: float, active_initial: ActiveState,
+def integrate(robot: Robot, motion, duration: float, active_initial: JointState,
               samples: int, sigma_threshold: float, rtol: float = 1e-10,
               atol: float = 1e-10, wall_time: float | None = None, *,
               deadline: float | None = None) -> InverseDynamicsResult:

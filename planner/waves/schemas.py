@@ -7,10 +7,11 @@ from typing import Literal
 
 from pydantic import BaseModel, Field, model_validator
 
-from planner.inverse import ActiveState, check_motion, check_prescribable
+from planner.inverse import ACTIVE_INITIAL, check_motion, check_prescribable
 from planner.model import Robot
 from planner.profiles import PassiveMotion
 from planner.schema import REQUEST as _STRICT
+from planner.schema import JointState
 from planner.waves.screening import SCREEN_STEPS, coarse_points, phases_per_joint
 
 MAX_SCREENING = 5_000_000
@@ -35,7 +36,7 @@ class Motion(BaseModel):
 
     passive_motion: PassiveMotion
     duration: float = Field(gt=0.0, le=1e4, description="T [s]")
-    active_initial: ActiveState
+    active_initial: JointState = Field(description=ACTIVE_INITIAL)
 
 
 class WaveDesignRequest(BaseModel):
