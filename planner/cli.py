@@ -10,7 +10,6 @@ import argparse
 import contextlib
 import json
 import os
-import re
 import signal
 import sys
 import threading
@@ -20,6 +19,8 @@ from pathlib import Path
 from typing import Any, TextIO, TypeVar
 
 from pydantic import BaseModel, ValidationError
+
+from planner.errors import InputError, located
 
 OK, FAILED, BAD_INPUT, IO_ERROR, INTERRUPTED = 0, 1, 2, 3, 130
 EXIT_CODES = f"""exit codes:
@@ -34,14 +35,8 @@ EXIT_CODES = f"""exit codes:
 
 PROGRESS_PERIOD = 1.0
 """[s] between two progress lines when stderr is not a terminal."""
-_PREFIXES = ("Value error, ", "Assertion failed, ")
-_FIELD = re.compile(r"^(?P<path>[A-Za-z_]\w*(?:\.\w+)*): (?P<msg>.+)$", re.DOTALL)
 
 M = TypeVar("M", bound=BaseModel)
-
-
-class InputError(Exception):
-    """Bad input: exit code 2."""
 
 
 class OutputError(Exception):
@@ -88,13 +83,8 @@ def field_messages(error: ValidationError) -> list[str]:
     """One "field.path: what is wrong" line per offending field."""
     lines = []
     for item in error.errors():
-        msg = item["msg"]
-        for prefix in _PREFIXES:
-            msg = msg.removeprefix(prefix)
-        loc = [str(p) for p in item["loc"]]
-        match = _FIELD.match(msg)
-        if match:
-            loc, msg = [*loc, *match["path"].split(".")], match["msg"]
+        path, msg = located(item["msg"])
+        loc = [str(p) for p in [*item["loc"], *path]]
         where = "".join(f"[{p}]" if p.isdigit() else f".{p}" for p in loc).lstrip(".")
         lines.append(f"{where}: {msg}" if where else msg)
     return lines
@@ -207,12 +197,10 @@ def say(args: argparse.Namespace, message: str) -> None:
 
 
 def check_plot_name(path: str | None) -> None:
+    """InputError unless `path` is None or names a figure format."""
     if path is not None:
         from planner.plots import format_of
-        try:
-            format_of(path)
-        except ValueError as exc:
-            raise InputError(str(exc)) from exc
+        format_of(path)
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
@@ -385,10 +373,7 @@ def main(argv: list[str] | None = None) -> int:
     run: Callable[[argparse.Namespace], int] = args.run
     try:
         return run(args)
-    except InputError as exc:
-        print(f"undertow {args.command}: {exc}", file=sys.stderr)
-        return BAD_INPUT
-    except ValueError as exc:  # the library's field-level rejection of a valid-looking input
+    except InputError as exc:  # unreadable input, or what the library refuses of it
         print(f"undertow {args.command}: {exc}", file=sys.stderr)
         return BAD_INPUT
     except OutputError as exc:

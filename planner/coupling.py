@@ -22,6 +22,7 @@ from scipy.optimize import minimize, minimize_scalar
 
 from planner import budget
 from planner.coupling_block import along, condition, refine
+from planner.errors import InputError
 from planner.model import Robot, Structure, parameters
 from planner.schema import REQUEST as _STRICT
 
@@ -121,9 +122,9 @@ class CouplingRequest(BaseModel):
 
 
 def check_split(robot: Robot) -> None:
-    """Raise ValueError when the robot has no coupling block (no passive joint)."""
+    """Raise InputError when the robot has no coupling block (no passive joint)."""
     if not robot.passive:
-        raise ValueError("robot: has no passive joint, so there is no coupling block "
+        raise InputError("robot: has no passive joint, so there is no coupling block "
                          "(the arm is fully actuated)")
 
 

@@ -160,7 +160,7 @@ class Coupling:
 
 
 def at(robot: Robot, q, structure: Structure | None = None) -> Coupling:
-    """The measures of M_pa(q) at one configuration q (n,) [rad]; ValueError naming q
+    """The measures of M_pa(q) at one configuration q (n,) [rad]; InputError naming q
     unless it holds one finite number per joint."""
     m = along(robot, vector("q", q, robot.n, "joint")[None, :], structure)
 

@@ -15,6 +15,7 @@ from functools import lru_cache
 import casadi as ca
 import numpy as np
 
+from planner.errors import InputError
 from planner.model import Robot, Structure, parameters
 
 
@@ -145,19 +146,19 @@ def functions(s: Structure) -> dict[str, ca.Function]:
 
 
 def vector(name: str, value, size: int, per: str) -> np.ndarray:
-    """`value` as a float vector of `size` finite entries; ValueError naming `name` if not
+    """`value` as a float vector of `size` finite entries; InputError naming `name` if not
     ("q: needs 2 entries, one per joint (got 1)")."""
     try:
         v = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
-        raise ValueError(f"{name}: must be a list of numbers") from None
+        raise InputError(f"{name}: must be a list of numbers") from None
     if v.ndim > 1:
-        raise ValueError(f"{name}: must be a flat list of numbers (got shape {v.shape})")
+        raise InputError(f"{name}: must be a flat list of numbers (got shape {v.shape})")
     if v.size != size:
         entries = "entry" if size == 1 else "entries"
-        raise ValueError(f"{name}: needs {size} {entries}, one per {per} (got {v.size})")
+        raise InputError(f"{name}: needs {size} {entries}, one per {per} (got {v.size})")
     if not np.all(np.isfinite(v)):
-        raise ValueError(f"{name}: every entry must be a finite number (got {v.tolist()})")
+        raise InputError(f"{name}: every entry must be a finite number (got {v.tolist()})")
     return v.reshape(size)
 
 
@@ -165,7 +166,7 @@ class Dynamics:
     """Numpy-facing dynamics of one robot (vectors in, arrays out; SI units).
 
     q [rad], dq [rad/s] and ddq [rad/s^2] need one finite entry per joint, tau [N m] one
-    per active joint (a plain sequence or a 1-D array); anything else raises ValueError
+    per active joint (a plain sequence or a 1-D array); anything else raises InputError
     naming the argument, e.g. "q: needs 2 entries, one per joint (got 1)".
     """
 
@@ -203,14 +204,14 @@ class Dynamics:
     def forward(self, q, dq, tau) -> np.ndarray:
         """Joint accelerations [rad/s^2] for the active torques tau [N m].
 
-        Raises ValueError where they are not finite: M(q) numerically singular (masses,
+        Raises InputError where they are not finite: M(q) numerically singular (masses,
         lengths and inertias spanning too many orders of magnitude) or values too large.
         """
         tau = vector("tau", tau, len(self.structure.active_idx), "active joint")
         ddq = np.array(self.f["fd"](self._joints("q", q), self._joints("dq", dq), tau,
                                     self.p)).ravel()
         if not np.all(np.isfinite(ddq)):
-            raise ValueError("the accelerations are not finite at this state: M(q) is "
+            raise InputError("the accelerations are not finite at this state: M(q) is "
                              "numerically singular or the values are too large")
         return ddq
 

@@ -13,6 +13,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from planner import budget
 from planner.coupling_block import at
 from planner.dynamics import Dynamics
+from planner.errors import InputError
 from planner.model import Robot
 from planner.schema import REQUEST as _STRICT
 from planner.schema import JointState
@@ -87,7 +88,7 @@ def _result(dyn: Dynamics, k: int, state: StateQuery) -> DynamicsResult:
     forces = None if state.ddq is None else dyn.inverse(q, dq, np.asarray(state.ddq))
     arrays = [M, h, gravity, np.array([T, V]), tips] + ([forces] if forces is not None else [])
     if not all(np.all(np.isfinite(a)) for a in arrays):
-        raise ValueError(f"states.{k}: the dynamics overflow at this state (values too large)")
+        raise InputError(f"states.{k}: the dynamics overflow at this state (values too large)")
     c = at(dyn.robot, q, dyn.structure)
     return DynamicsResult(
         M=M.tolist(), h=h.tolist(), gravity=gravity.tolist(), kinetic_energy=T,
@@ -99,7 +100,7 @@ def _result(dyn: Dynamics, k: int, state: StateQuery) -> DynamicsResult:
 def evaluate(request: DynamicsRequest, *, deadline: float | None = None) -> DynamicsResponse:
     """Evaluate the dynamics at every state of a request.
 
-    Raises ValueError ("states.k: ...") where a state is so large that a value overflows,
+    Raises InputError ("states.k: ...") where a state is so large that a value overflows,
     BudgetExceeded past `deadline` (a `time.monotonic()` value).
     """
     dyn = Dynamics(request.robot)

@@ -36,6 +36,7 @@ from planner import budget
 from planner.coupling import check_split
 from planner.coupling_block import along, measures
 from planner.dynamics import derive, functions
+from planner.errors import InputError
 from planner.model import Robot, Structure, parameters
 from planner.profiles import PassiveMotion, SampledProfile
 from planner.schema import REQUEST as _STRICT
@@ -89,29 +90,29 @@ class InverseDynamicsRequest(BaseModel):
 
 
 def check_prescribable(robot: Robot) -> None:
-    """Raise ValueError when the robot has no passive joint, or too few active joints
+    """Raise InputError when the robot has no passive joint, or too few active joints
     for M_pa to have full row rank."""
     check_split(robot)
     n_p, n_a = len(robot.passive), len(robot.active)
     if n_a < n_p:
-        raise ValueError(f"robot: fewer active joints ({n_a}) than passive joints ({n_p}): "
+        raise InputError(f"robot: fewer active joints ({n_a}) than passive joints ({n_p}): "
                          "M_pa never has full row rank, so the passive motion cannot be "
                          "prescribed")
 
 
 def check_motion(robot: Robot, motion, duration: float, initial: JointState,
                  prefix: str = "") -> None:
-    """Raise ValueError unless the motion and initial state fit the robot's joints."""
+    """Raise InputError unless the motion and initial state fit the robot's joints."""
     check_prescribable(robot)
     n_p, n_a = len(robot.passive), len(robot.active)
     if motion.n != n_p:
-        raise ValueError(f"{prefix}passive_motion: needs {n_p} angle{'s' * (n_p > 1)} "
+        raise InputError(f"{prefix}passive_motion: needs {n_p} angle{'s' * (n_p > 1)} "
                          "per time, one per passive joint")
     if isinstance(motion, SampledProfile) and not np.isclose(
             motion.t[-1], duration, rtol=1e-12, atol=0.0):
-        raise ValueError(f"{prefix}passive_motion.t: must end at duration ({duration:g} s)")
+        raise InputError(f"{prefix}passive_motion.t: must end at duration ({duration:g} s)")
     if len(initial.q) != n_a or len(initial.dq) != n_a:
-        raise ValueError(f"{prefix}active_initial: q and dq need {n_a} "
+        raise InputError(f"{prefix}active_initial: q and dq need {n_a} "
                          f"entr{'ies' if n_a > 1 else 'y'} each, one per active joint")
 
 
@@ -220,7 +221,7 @@ def integrate(robot: Robot, motion, duration: float, active_initial: JointState,
               deadline: float | None = None) -> InverseDynamicsResult:
     """`solve` for an already checked robot and motion; the motion may be any object with
     `evaluate(t, duration) -> (q, dq, ddq)` of the passive joints. Past wall_time [s] of
-    integration (default WALL_TIME) it raises ValueError, as it does when the results
+    integration (default WALL_TIME) it raises InputError, as it does when the results
     overflow; past `deadline` (`time.monotonic()`) BudgetExceeded."""
     pb = _Problem(robot, motion, duration, sigma_threshold, wall_time, deadline)
     x0 = np.concatenate([active_initial.q, active_initial.dq])
@@ -241,7 +242,7 @@ def integrate(robot: Robot, motion, duration: float, active_initial: JointState,
         sol = solve_ivp(pb.rhs, (0.0, duration), x0, method="DOP853", dense_output=True,
                         rtol=rtol, atol=atol, events=event)
     except _OverBudget:
-        raise ValueError(f"the inverse dynamics did not finish within {pb.wall_time:g} s: the "
+        raise InputError(f"the inverse dynamics did not finish within {pb.wall_time:g} s: the "
                          f"motion is far too fast for its duration; {_SCALE_DOWN}") from None
     if sol.status == 0:
         return _result("completed", pb, grid, sol.sol(grid).T, None, "completed")
@@ -288,7 +289,7 @@ def _result(status, pb: _Problem, t: np.ndarray, xa: np.ndarray,
     sigma = along(pb.robot, q, pb.s).sigma_min
     arrays = (q, dq, ddq, tau, sigma)
     if not all(np.all(np.isfinite(a)) for a in arrays):
-        raise ValueError(f"the inverse dynamics of this motion overflow (values too large): "
+        raise InputError(f"the inverse dynamics of this motion overflow (values too large): "
                          f"{_SCALE_DOWN}")
     return InverseDynamicsResult(status=status, t=t.tolist(), q=q.tolist(), dq=dq.tolist(),
                                  ddq=ddq.tolist(), tau=tau.tolist(), sigma_min=sigma.tolist(),

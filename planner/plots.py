@@ -32,6 +32,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
 from planner.dynamics import Dynamics
+from planner.errors import InputError
 from planner.inverse import InverseDynamicsRequest, InverseDynamicsResult
 from planner.model import Robot, Wave
 from planner.ocp.result import Plan, Verification
@@ -139,7 +140,7 @@ def inverse_figure(result: InverseDynamicsResult,
 def render(fig: Figure, fmt: Format = "png", dpi: int = 110) -> bytes:
     """The figure as PNG or SVG bytes; the same figure always gives the same bytes."""
     if fmt not in FORMATS:
-        raise ValueError(f"format: must be one of {', '.join(FORMATS)} (got {fmt!r})")
+        raise InputError(f"format: must be one of {', '.join(FORMATS)} (got {fmt!r})")
     FigureCanvasAgg(fig)
     buffer = io.BytesIO()
     metadata = {"Date": None} if fmt == "svg" else {"Software": None}
@@ -163,7 +164,7 @@ def format_of(path: str | Path) -> Format:
     """The image format named by a file's suffix (.png or .svg)."""
     suffix = Path(path).suffix.lower().lstrip(".")
     if suffix not in FORMATS:
-        raise ValueError(f"plot: the file name must end in .png or .svg (got {str(path)!r})")
+        raise InputError(f"plot: the file name must end in .png or .svg (got {str(path)!r})")
     return suffix  # type: ignore[return-value]
 
 

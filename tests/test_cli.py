@@ -19,6 +19,8 @@ from test_plots import CROSSING_SCENE
 
 from planner import cli
 from planner.examples import example, examples
+from planner import inverse
+from planner.errors import InputError
 from planner.inverse import InverseDynamicsResult
 from planner.ocp import Plan, plan
 from planner.ocp.result import Progress
@@ -201,6 +203,23 @@ def test_inverse_completes_or_stops_singular_with_exit_codes_0_and_1(capsys, tmp
     result = InverseDynamicsResult.model_validate_json(out.read_text())
     assert code == cli.FAILED and result.status == "singular"
     assert err == f"singular: {result.message}\n"
+
+
+def test_what_the_library_refuses_is_bad_input_and_a_bug_is_not(capsys, tmp_path, monkeypatch):
+    request = write_json(tmp_path / "r.json", example("two-link-waves").request)
+    out = str(tmp_path / "out.json")
+
+    def refuse(*args, **kwargs):
+        raise InputError("samples: refused by the library")
+    monkeypatch.setattr(inverse, "solve", refuse)
+    assert run(capsys, "inverse", request, "-o", out) == (
+        cli.BAD_INPUT, "", "undertow inverse: samples: refused by the library\n")
+
+    def bug(*args, **kwargs):
+        raise ValueError("samples: a bug, not the input's fault")
+    monkeypatch.setattr(inverse, "solve", bug)
+    with pytest.raises(ValueError, match="a bug"):  # a traceback, not "bad input"
+        cli.main(["inverse", request, "-o", out])
 
 
 def test_design_wave_certifies_the_two_link_example(capsys, tmp_path):

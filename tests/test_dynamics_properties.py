@@ -20,6 +20,7 @@ from conftest import point_mass_dynamics, random_robot, random_state, seed_arm
 
 from planner.coupling_block import Coupling, at, blocks, condition, measures
 from planner.dynamics import Dynamics, functions
+from planner.errors import InputError
 from planner.model import (
     MAX_FREQUENCY,
     MAX_GRAVITY,
@@ -251,7 +252,7 @@ def test_a_vector_of_the_wrong_length_is_refused(case, size):
     _, args, k, name, needs = CALLS[case]
     if size == len(args[k]):
         size += 1
-    with pytest.raises(ValueError) as info:
+    with pytest.raises(InputError) as info:
         call(case, [0.1] * size)
     assert str(info.value) == f"{name}: needs {needs} (got {size})"
 
@@ -261,16 +262,16 @@ def test_a_vector_of_the_wrong_length_is_refused(case, size):
 def test_a_non_finite_entry_is_refused(case, bad):
     _, args, k, name, _ = CALLS[case]
     value = [bad] + list(args[k][1:])
-    with pytest.raises(ValueError) as info:
+    with pytest.raises(InputError) as info:
         call(case, value)
     assert str(info.value) == f"{name}: every entry must be a finite number (got {value})"
 
 
 def test_matrices_and_text_are_refused():
     dyn = Dynamics(two_link())
-    with pytest.raises(ValueError, match=r"^q: must be a flat list of numbers \(got shape \(2, 1\)\)$"):
+    with pytest.raises(InputError, match=r"^q: must be a flat list of numbers \(got shape \(2, 1\)\)$"):
         dyn.mass_matrix([[0.1], [0.2]])
-    with pytest.raises(ValueError, match="^dq: must be a list of numbers$"):
+    with pytest.raises(InputError, match="^dq: must be a list of numbers$"):
         dyn.bias(Q, ["fast", "slow"])
 
 
