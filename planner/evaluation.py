@@ -1,8 +1,8 @@
 """Dynamics at given states: M, h, gravity term, energies, tips and coupling measures.
 
-The library side of `POST /v1/dynamics`. Every number in a result is finite; a measure
-that is undefined at a state (det of a non-square M_pa, the condition number where
-sigma_min = 0, sigma_min when there is no passive joint) is None.
+Every number in a result is finite; a measure that is undefined at a state (det of a
+non-square M_pa, the condition number where sigma_min = 0, sigma_min when there is no
+passive joint) is None.
 """
 
 from __future__ import annotations

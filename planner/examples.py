@@ -212,7 +212,7 @@ PLAN_ARM = {"links": [
 
 
 def _plan_examples() -> list[Example]:
-    """Optimal-control plans (kind "plan", for POST /v1/plans); see planner.ocp.
+    """Optimal-control plans (kind "plan", scenes for planner.ocp.plan).
 
     The seed arm's: with q0 = q2 = 0 the waveless M_01 and M_21 go as cos(q1), so det M_pa
     changes sign where link 1 is horizontal; gravity holds the passive links near rest and

@@ -127,7 +127,7 @@ class Verification(_Out):
         description="[rad] open-loop behaviour: max |q_sim - q_plan| with the delivered "
                     "torque fed to CVODES (rtol 1e-10) from the plan's initial state over "
                     "the whole horizon, at the breakpoints and 3 points between each two "
-                    "(POST /v1/simulate with samples_per_interval 4 gives the same)")
+                    "(a simulation with samples_per_interval 4 gives the same)")
     resimulation_status: str
     growth_factor: float | None = Field(
         default=None,
