@@ -159,7 +159,7 @@ class Verification(_Out):
     sigma_min: list[float | None] = Field(
         default_factory=list,
         description="[kg m^2] sigma_min(M_pa) at every time of dense.t (the smallest "
-                    "singular value, which task.coupling_margin bounds); None where it is "
+                    "singular value, which task.coupling_margin bounds); null where it is "
                     "undefined (no passive joint). Empty in plans that could not be "
                     "verified or were stored before the field existed")
     waveless_sigma_min: list[float | None] = Field(
