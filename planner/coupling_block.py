@@ -205,7 +205,7 @@ def sweep(q, joint: int) -> Callable[[np.ndarray], np.ndarray]:
 
 def zeros_along(robot: Robot, path: Callable[[np.ndarray], np.ndarray], u: np.ndarray,
                 structure: Structure | None = None,
-                deadline: float | None = None) -> np.ndarray:
+                deadline: float | None = None) -> np.ndarray | None:
     """Where det M_pa(path(u)) = 0 between the samples u (K,) of a path's parameter
     (increasing): the samples where it is exactly 0 and every sign change between
     neighbouring samples, refined (see `refine`); sorted. path: u (m,) -> configurations
