@@ -32,6 +32,7 @@ from bench.stress import (
     waveless_seed,
     waveless_two_link,
 )
+from planner import coupling_block
 from planner.dynamics import Dynamics
 from planner.inverse import RESOLUTION
 from planner.model import Robot
@@ -50,9 +51,8 @@ def test_non_finite_names_the_path_of_every_nan_and_inf():
 @pytest.mark.parametrize("arm, at", [("2-link", two_link_at), ("seed 4-link", seed_at)])
 def test_near_singular_configurations_have_the_asked_sigma_min(arm, at):
     robot = waveless_two_link() if arm == "2-link" else waveless_seed()
-    dyn = Dynamics(robot)
     for sigma in SIGMAS:
-        assert dyn.coupling(at(sigma)).sigma_min == pytest.approx(sigma, rel=1e-3)
+        assert coupling_block.at(robot, at(sigma)).sigma_min == pytest.approx(sigma, rel=1e-3)
 
 
 @pytest.mark.parametrize("sigma", SIGMAS)
