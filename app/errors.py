@@ -3,31 +3,31 @@
 Each problem has type, title, status, detail and instance, the request id, and for
 validation errors `errors: [{loc, msg, type}]`, one entry per offending field. Library
 messages of the form "field.path: what is wrong" are split so that `loc` names the field.
+What the caller got wrong is a 4xx; anything else, a library ValueError from a bug
+included, is a 500 `internal` problem with the request id (`UnexpectedErrorMiddleware`).
 """
 
 from __future__ import annotations
 
 import logging
-import re
 from collections.abc import Sequence
 from typing import Any
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
-from pydantic import BaseModel, Field, ValidationError
+from pydantic import BaseModel, Field
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.routing import Match, Mount
 from starlette.types import Message, Receive, Scope, Send
 
 from app.middleware import HttpMiddleware
+from planner.errors import InputError, located
 
 log = logging.getLogger("undertow.errors")
 
 MEDIA_TYPE = "application/problem+json"
 TYPE_PREFIX = "urn:undertow:problem:"
-_FIELD_PREFIX = re.compile(r"^(?P<path>[A-Za-z_]\w*(?:\.\w+)*): (?P<msg>.+)$", re.DOTALL)
-_PYDANTIC_PREFIXES = ("Value error, ", "Assertion failed, ")
 
 Loc = list[str | int]
 
@@ -65,21 +65,10 @@ class ApiError(Exception):
         self.headers = headers
 
 
-def _split(loc: Sequence[str | int], message: str) -> tuple[Loc, str]:
-    """Move a leading "field.path: " of a message into the location."""
-    for prefix in _PYDANTIC_PREFIXES:
-        message = message.removeprefix(prefix)
-    match = _FIELD_PREFIX.match(message)
-    if not match:
-        return list(loc), message
-    extra = [int(p) if p.isdigit() else p for p in match["path"].split(".")]
-    return [*loc, *extra], match["msg"]
-
-
 def field_error(loc: Sequence[str | int], message: str, kind: str = "value_error") -> FieldError:
     """A field error, with a "field.path: " message prefix moved into `loc`."""
-    where, msg = _split(loc, message)
-    return FieldError(loc=where, msg=msg, type=kind)
+    where, msg = located(message)
+    return FieldError(loc=[*loc, *where], msg=msg, type=kind)
 
 
 def invalid(errors: Sequence[FieldError]) -> ApiError:
@@ -89,10 +78,8 @@ def invalid(errors: Sequence[FieldError]) -> ApiError:
     return ApiError(422, "validation", "The request is not valid", detail, errors)
 
 
-def from_value_error(exc: ValueError, loc: Sequence[str | int] = ("body",)) -> ApiError:
-    """A 422 for a library ValueError (or pydantic ValidationError) about the request body."""
-    if isinstance(exc, ValidationError):
-        return from_pydantic(exc.errors(), prefix=loc)
+def from_input_error(exc: InputError, loc: Sequence[str | int] = ("body",)) -> ApiError:
+    """A 422 at the field a library InputError ("field.path: what is wrong") names."""
     return invalid([field_error(loc, str(exc))])
 
 

@@ -31,7 +31,6 @@ from planner.scene import Scene
 
 log = logging.getLogger("undertow.jobs")
 
-ProgressCallback = Callable[[Progress], bool]
 SolveFunction = Callable[..., Plan]
 """solve(scene, progress=callback) -> Plan; never raises for a solver failure."""
 

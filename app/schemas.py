@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from datetime import UTC, datetime
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, Field
 
 from app.store import JobRecord, JobStatus
 from planner.ocp.result import Plan
@@ -26,8 +26,6 @@ class JobProgress(BaseModel):
 
 class JobSummary(BaseModel):
     """A plan job without its plan."""
-
-    model_config = ConfigDict(from_attributes=True)
 
     id: str
     status: JobStatus = Field(description="queued, running, succeeded (the solver converged), "

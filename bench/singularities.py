@@ -17,7 +17,8 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from bench import harness
-from planner.coupling import CouplingRequest, analyse, blocks, measures
+from planner.coupling import CouplingRequest, analyse
+from planner.coupling_block import along
 from planner.examples import MARGIN, example, seed_arm, seed_start, two_link, two_link_start
 from planner.inverse import InverseDynamicsRequest, InverseDynamicsResult, solve
 from planner.model import Robot
@@ -60,7 +61,7 @@ def det_map(robot: Robot, base: list[float], axes: tuple[int, int], spans, point
     U, V = np.meshgrid(u, v, indexing="xy")
     Q = np.tile(base, (U.size, 1))
     Q[:, axes[0]], Q[:, axes[1]] = U.ravel(), V.ravel()
-    det, _, _ = measures(blocks(robot, Q))
+    det = along(robot, Q).det
     return U, V, det.reshape(U.shape)
 
 
@@ -156,7 +157,7 @@ def coupling_timing() -> list[str]:
     elapsed = time.perf_counter() - start
     Q = np.random.default_rng(0).uniform(-np.pi, np.pi, (100_000, 4))
     start = time.perf_counter()
-    measures(blocks(robot, Q))
+    along(robot, Q)
     batch = time.perf_counter() - start
     return [f"| analyse: seed arm, 20 x 50 x 100 grid | {report.results_omitted:,} | "
             f"{len(report.singular_points)} | {elapsed:.2f} |",

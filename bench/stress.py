@@ -37,7 +37,7 @@ import numpy as np
 
 from bench import harness
 from bench.scenes import SEED_TASK, UNDERACTUATED
-from planner.dynamics import Dynamics
+from planner import coupling_block
 from planner.model import Robot
 from testbed.edges import (
     SIGMAS,
@@ -73,7 +73,7 @@ def inverse_point(arm: str, sigma: float, threshold: float) -> dict:
     robot, q = robot_of(), at(sigma)
     out = inverse_case(robot, q, threshold)
     out.pop("stop_q", None)
-    return {"actual": Dynamics(robot).coupling(q).sigma_min, **out}
+    return {"actual": coupling_block.at(robot, q).sigma_min, **out}
 
 
 def singular_rows(sigmas: list[float]) -> list[dict]:

@@ -17,10 +17,12 @@ from functools import lru_cache
 
 import casadi as ca
 
+from planner.errors import InputError
 
-class BudgetExceeded(ValueError):
-    """A computation ran past its deadline (a ValueError, as a motion too fast for
-    `planner.inverse.WALL_TIME` always was)."""
+
+class BudgetExceeded(InputError):
+    """A computation ran past its deadline: the request asks for more than its budget
+    allows (an InputError, as a motion too fast for `planner.inverse.WALL_TIME` is)."""
 
 
 def check(deadline: float | None, what: str) -> None:

@@ -1,5 +1,6 @@
-"""The `undertow` command: serve the HTTP API, list examples, plan, design waves, and run
-the classical inverse dynamics from JSON files (the same request bodies as the service).
+"""The library's commands of `undertow`: list examples, plan, design waves, and run the
+classical inverse dynamics from JSON files (the same request bodies as the service).
+`app.cli` adds `serve` and is the installed command; the library knows nothing of HTTP.
 
 Exit codes are part of the interface; see EXIT_CODES and `undertow --help`.
 """
@@ -10,7 +11,6 @@ import argparse
 import contextlib
 import json
 import os
-import re
 import signal
 import sys
 import threading
@@ -20,6 +20,8 @@ from pathlib import Path
 from typing import Any, TextIO, TypeVar
 
 from pydantic import BaseModel, ValidationError
+
+from planner.errors import InputError, located
 
 OK, FAILED, BAD_INPUT, IO_ERROR, INTERRUPTED = 0, 1, 2, 3, 130
 EXIT_CODES = f"""exit codes:
@@ -34,14 +36,8 @@ EXIT_CODES = f"""exit codes:
 
 PROGRESS_PERIOD = 1.0
 """[s] between two progress lines when stderr is not a terminal."""
-_PREFIXES = ("Value error, ", "Assertion failed, ")
-_FIELD = re.compile(r"^(?P<path>[A-Za-z_]\w*(?:\.\w+)*): (?P<msg>.+)$", re.DOTALL)
 
 M = TypeVar("M", bound=BaseModel)
-
-
-class InputError(Exception):
-    """Bad input: exit code 2."""
 
 
 class OutputError(Exception):
@@ -88,13 +84,8 @@ def field_messages(error: ValidationError) -> list[str]:
     """One "field.path: what is wrong" line per offending field."""
     lines = []
     for item in error.errors():
-        msg = item["msg"]
-        for prefix in _PREFIXES:
-            msg = msg.removeprefix(prefix)
-        loc = [str(p) for p in item["loc"]]
-        match = _FIELD.match(msg)
-        if match:
-            loc, msg = [*loc, *match["path"].split(".")], match["msg"]
+        path, msg = located(item["msg"])
+        loc = [str(p) for p in [*item["loc"], *path]]
         where = "".join(f"[{p}]" if p.isdigit() else f".{p}" for p in loc).lstrip(".")
         lines.append(f"{where}: {msg}" if where else msg)
     return lines
@@ -207,12 +198,10 @@ def say(args: argparse.Namespace, message: str) -> None:
 
 
 def check_plot_name(path: str | None) -> None:
+    """InputError unless `path` is None or names a figure format."""
     if path is not None:
         from planner.plots import format_of
-        try:
-            format_of(path)
-        except ValueError as exc:
-            raise InputError(str(exc)) from exc
+        format_of(path)
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
@@ -298,39 +287,27 @@ def cmd_examples(args: argparse.Namespace) -> int:
     if args.output not in (None, "-"):
         command = _COMMANDS.get(item.kind)
         use = (f"undertow {command} {args.output} -o OUT.json" if command
-               else f"POST it to {_ENDPOINTS[item.kind]}")
+               else f"the service takes it (docs/api.md, the {item.kind} endpoint)")
         say(args, f"wrote the {item.kind} request {item.name!r} to {args.output}; next: {use}")
     return OK
 
 
-_ENDPOINTS = {"plan": "/v1/plans", "inverse-dynamics": "/v1/inverse-dynamics",
-              "wave-design": "/v1/waves/design", "coupling": "/v1/coupling"}
-_COMMANDS = {"plan": "plan", "inverse-dynamics": "inverse", "wave-design": "design-wave"}
-
-
-def cmd_serve(args: argparse.Namespace) -> int:
-    import uvicorn
-
-    from app.server import PROTOCOL
-
-    if args.workers is not None:
-        os.environ["UNDERTOW_WORKERS"] = str(args.workers)
-    uvicorn.run("app.main:app", host=args.host, port=args.port, http=PROTOCOL)
-    return OK
+_COMMANDS = {"plan": "plan", "inverse-dynamics": "inverse", "wave-design": "design-wave",
+             "coupling": None}
+"""Every kind of example (`planner.examples.Kind`) and the command that runs it (None: only
+the service does)."""
 
 
 # --------------------------------------------------------------------------- parser
 
 
-def positive(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1 (got {value})")
-    return value
+Commands = argparse._SubParsersAction
+"""What `parser`'s extensions add their commands to."""
 
 
-def parser() -> argparse.ArgumentParser:
-    """The argument parser of `undertow`."""
+def parser(*extensions: Callable[[Commands], None]) -> argparse.ArgumentParser:
+    """The argument parser of `undertow`: each extension adds commands (before the
+    library's own, in the help)."""
     top = argparse.ArgumentParser(
         prog="undertow", formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Plan feed-forward torques for underactuated planar arms with wavy\n"
@@ -338,16 +315,11 @@ def parser() -> argparse.ArgumentParser:
                     "(`undertow examples` lists ready ones); SI units, radians.",
         epilog=EXIT_CODES)
     commands = top.add_subparsers(dest="command", required=True, metavar="COMMAND")
-
-    serve = commands.add_parser("serve", help="run the HTTP service and the viewer at /")
-    serve.add_argument("--host", default="127.0.0.1", help="interface (default 127.0.0.1)")
-    serve.add_argument("--port", type=int, default=8000, help="port (default 8000)")
-    serve.add_argument("--workers", type=positive, default=None,
-                       help="solver worker processes (UNDERTOW_WORKERS; default 2)")
-    serve.set_defaults(run=cmd_serve)
+    for extend in extensions:
+        extend(commands)
 
     ex = commands.add_parser("examples", help="list the built-in examples or write one")
-    ex.add_argument("--kind", choices=sorted(_ENDPOINTS), help="only examples of this kind")
+    ex.add_argument("--kind", choices=sorted(_COMMANDS), help="only examples of this kind")
     ex.add_argument("--name", help="write this example's request body")
     ex.add_argument("-o", "--output", help="file for --name (default: stdout)")
     ex.set_defaults(run=cmd_examples)
@@ -379,16 +351,15 @@ def parser() -> argparse.ArgumentParser:
     return top
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Run `undertow` with `argv` (default: the command line); returns the exit code."""
-    args = parser().parse_args(argv)
+def main(argv: list[str] | None = None,
+         *extensions: Callable[[Commands], None]) -> int:
+    """Run `undertow` with `argv` (default: the command line) and the commands of
+    `extensions` (see `parser`); returns the exit code."""
+    args = parser(*extensions).parse_args(argv)
     run: Callable[[argparse.Namespace], int] = args.run
     try:
         return run(args)
-    except InputError as exc:
-        print(f"undertow {args.command}: {exc}", file=sys.stderr)
-        return BAD_INPUT
-    except ValueError as exc:  # the library's field-level rejection of a valid-looking input
+    except InputError as exc:  # unreadable input, or what the library refuses of it
         print(f"undertow {args.command}: {exc}", file=sys.stderr)
         return BAD_INPUT
     except OutputError as exc:

@@ -4,29 +4,25 @@ M_pa(q) is the block of the mass matrix with the passive joints' rows and the ac
 joints' columns [kg m^2]. Prescribing the passive motion needs M_pa of full row rank;
 configurations where it loses rank are inertial coupling singularities.
 
-Evaluation is batched: one CasADi `Function.map` evaluates M_pa at a chunk of
-configurations, numpy takes the determinants and singular values of the whole batch.
+The block and its measures are evaluated in batches by `planner.coupling_block`.
 Singular points are found by sign changes of det between neighbouring configurations
-(square blocks), refined on the straight segment between them by a bracketing root
-finder (Chandrupatla's method, which like Brent's keeps the bracket and converges
-superlinearly; all segments at once), and by local minima of sigma_min below the
-threshold, refined by a local minimisation.
+(square blocks), refined on the straight segment between them by the block's root
+finder (`planner.coupling_block.refine`, all segments at once), and by local minima of
+sigma_min below the threshold, refined by a local minimisation.
 """
 
 from __future__ import annotations
 
 import math
-from functools import lru_cache
 from typing import Literal
 
-import casadi as ca
 import numpy as np
 from pydantic import BaseModel, Field, model_validator
 from scipy.optimize import minimize, minimize_scalar
-from scipy.optimize.elementwise import find_root
 
 from planner import budget
-from planner.dynamics import derive, functions
+from planner.coupling_block import along, condition, refine
+from planner.errors import InputError
 from planner.model import Robot, Structure, parameters
 from planner.schema import REQUEST as _STRICT
 
@@ -36,8 +32,6 @@ MAX_RESULTS = 20_000
 """Largest number of per-configuration results a report lists (the rest are counted)."""
 MAX_SINGULAR = 1_000
 """Largest number of singular points a report refines and lists."""
-CHUNK = 4096
-"""Configurations per mapped CasADi call."""
 _REFINING = "the refinement of singular point {} of {}"
 
 
@@ -128,9 +122,9 @@ class CouplingRequest(BaseModel):
 
 
 def check_split(robot: Robot) -> None:
-    """Raise ValueError when the robot has no coupling block (no passive joint)."""
+    """Raise InputError when the robot has no coupling block (no passive joint)."""
     if not robot.passive:
-        raise ValueError("robot: has no passive joint, so there is no coupling block "
+        raise InputError("robot: has no passive joint, so there is no coupling block "
                          "(the arm is fully actuated)")
 
 
@@ -209,94 +203,6 @@ def split_of(robot: Robot) -> Split:
     return Split(passive=passive, active=active, kind=kind, note=note)
 
 
-# --------------------------------------------------------------------------- batch evaluation
-
-
-def block_jacobian(s: Structure) -> ca.Function:
-    """dMpa(q, p): d vec(M_pa) / dq, (n_passive * n_active) x n, column-major vec."""
-    return _block_jacobian(s)
-
-
-@lru_cache(maxsize=64)
-def _block_jacobian(s: Structure) -> ca.Function:
-    sym = derive(s)
-    mpa = sym.mass[s.passive_idx, s.active_idx]
-    return ca.Function("dMpa", [sym.q, sym.p], [ca.jacobian(ca.vec(mpa), sym.q)],
-                       ["q", "p"], ["dMpa"])
-
-
-@lru_cache(maxsize=128)
-def _mapped(s: Structure, name: str, size: int) -> ca.Function:
-    """A function of (q, p) mapped over `size` columns; a one-column p is shared."""
-    f = block_jacobian(s) if name == "dMpa" else functions(s)[name]
-    return f.map(size)
-
-
-def evaluate(s: Structure, name: str, configurations, p,
-             deadline: float | None = None) -> np.ndarray:
-    """Evaluate function `name` (of q and p: "Mpa", "dMpa", "M", ...) at every configuration.
-
-    configurations: (K, n); p: one parameter vector (n_params,) or one per row (K, n_params).
-    Returns (K, rows, cols) of the function's output at each configuration. Past
-    `deadline` (`time.monotonic()`, checked between chunks) it raises BudgetExceeded.
-    """
-    Q = np.atleast_2d(np.asarray(configurations, dtype=float))
-    P = np.asarray(p, dtype=float)
-    K = Q.shape[0]
-    size = min(CHUNK, max(K, 1))
-    f = _mapped(s, name, size)
-    rows, cols = f.size_out(0)
-    cols //= size
-    out = np.empty((K, rows, cols))
-    for start in range(0, K, size):
-        budget.check(deadline, f"the evaluation of {name} (at configuration {start:,} of {K:,})")
-        stop = min(start + size, K)
-        args = [_pad(Q[start:stop], size).T,
-                P if P.ndim == 1 else _pad(P[start:stop], size).T]
-        flat = np.array(f(*args))  # (rows, cols * size): the outputs side by side
-        stacked = flat.reshape(rows, cols, size, order="F").transpose(2, 0, 1)
-        out[start:stop] = stacked[:stop - start]
-    return out
-
-
-def _pad(rows: np.ndarray, size: int) -> np.ndarray:
-    """Repeat the last row up to `size` rows."""
-    missing = size - len(rows)
-    return np.vstack([rows, np.repeat(rows[-1:], missing, axis=0)]) if missing else rows
-
-
-def blocks(robot: Robot, configurations, structure: Structure | None = None,
-           deadline: float | None = None) -> np.ndarray:
-    """M_pa at every configuration: (K, n_passive, n_active) [kg m^2] for q of shape (K, n)."""
-    s = structure or Structure.of(robot)
-    return evaluate(s, "Mpa", configurations, parameters(robot, s), deadline)
-
-
-def measures(mpa: np.ndarray) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
-    """det (square blocks only, else None), sigma_min and sigma_max of a batch (K, r, c).
-
-    sigma_min is the r-th singular value (0 when r > c: no full row rank is possible).
-    """
-    K, rows, cols = mpa.shape
-    sv = np.linalg.svd(mpa, compute_uv=False)
-    smax = sv[:, 0]
-    smin = sv[:, rows - 1] if rows <= cols else np.zeros(K)
-    det = np.linalg.det(mpa) if rows == cols else None
-    return det, smin, smax
-
-
-def sigma_min(robot: Robot, configurations, structure: Structure | None = None) -> np.ndarray:
-    """sigma_min(M_pa) [kg m^2] at every configuration (K, n)."""
-    return measures(blocks(robot, configurations, structure))[1]
-
-
-def _condition(smin: np.ndarray, smax: np.ndarray) -> list[float | None]:
-    """sigma_max / sigma_min, None where it does not exist as a finite number."""
-    with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
-        ratio = smax / smin
-    return [float(c) if a > 0.0 and math.isfinite(c) else None for a, c in zip(smin, ratio)]
-
-
 # --------------------------------------------------------------------------- singular points
 
 
@@ -316,8 +222,7 @@ def _edges(shape: tuple[int, ...]) -> list[tuple[np.ndarray, np.ndarray]]:
 def _sign_changes(robot: Robot, s: Structure, Q: np.ndarray, det: np.ndarray,
                   pairs, deadline: float | None = None) -> tuple[list[SingularPoint], int]:
     """Grid points with det = 0, and every sign change of det between neighbours refined
-    on the straight segment between them (all edges at once: Chandrupatla's bracketing
-    method, scipy.optimize.elementwise.find_root, to machine precision).
+    on the straight segment between them (all edges at once, to machine precision).
 
     Returns at most MAX_SINGULAR points and the number left out."""
     zeros = np.flatnonzero(det == 0.0)
@@ -330,26 +235,25 @@ def _sign_changes(robot: Robot, s: Structure, Q: np.ndarray, det: np.ndarray,
     if len(lo) == 0:
         return found, skipped
     start, step = Q[lo], Q[hi] - Q[lo]
-    p = parameters(robot, s)
-
-    def det_along(u: np.ndarray, *columns: np.ndarray) -> np.ndarray:
-        n = len(columns) // 2
-        q = np.stack([a + u * d for a, d in zip(columns[:n], columns[n:])], axis=-1)
-        return measures(evaluate(s, "Mpa", q.reshape(-1, s.n), p, deadline))[0].reshape(u.shape)
-
-    res = find_root(det_along, (np.zeros(len(lo)), np.ones(len(lo))),
-                    args=(*start.T, *step.T), tolerances={"xatol": 1e-16, "xrtol": 1e-15})
-    points = start + res.x[:, None] * step
-    det_r, smin, _ = measures(evaluate(s, "Mpa", points, p))
-    found += [SingularPoint(q=q.tolist(), det=float(d), sigma_min=float(m),
-                            source="det-sign-change") for q, d, m in zip(points, det_r, smin)]
+    u = refine(s, parameters(robot, s), lambda x, k: start[k] + x[:, None] * step[k],
+               np.zeros(len(lo)), np.ones(len(lo)), deadline)
+    points = start + u[:, None] * step
+    m = along(robot, points, s)
+    found += [SingularPoint(q=q.tolist(), det=float(d), sigma_min=float(a),
+                            source="det-sign-change")
+              for q, d, a in zip(points, m.det, m.sigma_min)]
     return found, skipped
 
 
 def _singular(robot: Robot, s: Structure, q: np.ndarray, source) -> SingularPoint:
-    det, smin, _ = measures(blocks(robot, q[None, :], s))
-    return SingularPoint(q=q.tolist(), det=None if det is None else float(det[0]),
-                         sigma_min=float(smin[0]), source=source)
+    m = along(robot, q[None, :], s)
+    return SingularPoint(q=q.tolist(), det=None if m.det is None else float(m.det[0]),
+                         sigma_min=float(m.sigma_min[0]), source=source)
+
+
+def _sigma_min(robot: Robot, s: Structure, q: np.ndarray) -> float:
+    """sigma_min(M_pa) [kg m^2] at one configuration q (n,)."""
+    return float(along(robot, q[None, :], s).sigma_min[0])
 
 
 def _local_minima(smin: np.ndarray, pairs, threshold: float, exclude: np.ndarray) -> np.ndarray:
@@ -385,7 +289,7 @@ def _refine_minimum(robot: Robot, s: Structure, lower: np.ndarray, upper: np.nda
     def objective(x: np.ndarray) -> float:
         q = q0.copy()
         q[free] = x
-        return float(sigma_min(robot, q[None, :], s)[0])
+        return _sigma_min(robot, s, q)
 
     if free.sum() == 1:
         (i,) = np.flatnonzero(free)
@@ -453,7 +357,8 @@ def _analyse(request: CouplingRequest, deadline: float | None) -> CouplingReport
     s = Structure.of(robot)
     split = split_of(robot)
     Q, pairs, boxes, is_path = _points(request)
-    det, smin, smax = measures(blocks(robot, Q, s, deadline))
+    m = along(robot, Q, s, deadline)
+    det, smin = m.det, m.sigma_min
 
     singular: list[SingularPoint] = []
     omitted = 0
@@ -476,7 +381,7 @@ def _analyse(request: CouplingRequest, deadline: float | None) -> CouplingReport
             best = MinSigma(q=point.q, sigma_min=point.sigma_min)
 
     listed = len(Q) if len(Q) <= MAX_RESULTS else 0
-    cond = _condition(smin[:listed], smax[:listed])
+    cond = condition(smin[:listed], m.sigma_max[:listed])
     results = [PointResult(q=Q[i].tolist(), det=None if det is None else float(det[i]),
                            sigma_min=float(smin[i]), condition=cond[i]) for i in range(listed)]
     return CouplingReport(split=split, results=results, results_omitted=len(Q) - listed,
@@ -493,10 +398,10 @@ def _path_minima(robot: Robot, s: Structure, Q: np.ndarray, idx: np.ndarray,
         budget.check(deadline, _REFINING.format(len(found), len(idx)))
         prev, nxt = Q[max(k - 1, 0)], Q[min(k + 1, K - 1)]
 
-        def along(u: float) -> np.ndarray:
+        def point(u: float) -> np.ndarray:
             return Q[k] + u * (Q[k] - prev) if u < 0 else Q[k] + u * (nxt - Q[k])
 
-        res = minimize_scalar(lambda u: float(sigma_min(robot, along(u)[None, :], s)[0]),
+        res = minimize_scalar(lambda u: _sigma_min(robot, s, point(u)),
                               bounds=(-1.0, 1.0), method="bounded", options={"xatol": 1e-12})
-        found.append(_singular(robot, s, along(float(res.x)), "sigma-minimum"))
+        found.append(_singular(robot, s, point(float(res.x)), "sigma-minimum"))
     return found

@@ -9,13 +9,13 @@ zero inertia. Functions are cached per `Structure`, the numbers enter as paramet
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from functools import lru_cache
 
 import casadi as ca
 import numpy as np
 
+from planner.errors import InputError
 from planner.model import Robot, Structure, parameters
 
 
@@ -118,7 +118,8 @@ def functions(s: Structure) -> dict[str, ca.Function]:
     Keys and signatures (p is the parameter vector of `planner.model.parameters`):
       M(q, p), h(q, dq, p), gravity(q, p), energy(q, dq, p) -> [T, V], tips(q, p) -> 2 x n,
       fd(q, dq, tau, p) -> ddq, id(q, dq, ddq, p) -> Q = M ddq + h (see generalized_forces),
-      residual(q, dq, ddq, tau, p) -> M ddq + h - B tau, Mpa(q, p), ode(x, tau, p) -> dx.
+      residual(q, dq, ddq, tau, p) -> M ddq + h - B tau, ode(x, tau, p) -> dx.
+    The coupling block M_pa and its measures are `planner.coupling_block`'s.
     """
     sym = derive(s)
     q, dq, p = sym.q, sym.dq, sym.p
@@ -128,7 +129,6 @@ def functions(s: Structure) -> dict[str, ca.Function]:
     generalized = generalized_forces(sym, ddq)
     accel = ca.solve(sym.mass, ca.mtimes(B, tau) - sym.bias)
     x = ca.vertcat(q, dq)
-    mpa = sym.mass[s.passive_idx, s.active_idx] if s.passive_idx else ca.SX(0, len(s.active_idx))
     return {
         "M": ca.Function("M", [q, p], [sym.mass], ["q", "p"], ["M"]),
         "h": ca.Function("h", [q, dq, p], [sym.bias], ["q", "dq", "p"], ["h"]),
@@ -141,58 +141,24 @@ def functions(s: Structure) -> dict[str, ca.Function]:
         "residual": ca.Function("residual", [q, dq, ddq, tau, p],
                                 [generalized - ca.mtimes(B, tau)],
                                 ["q", "dq", "ddq", "tau", "p"], ["r"]),
-        "Mpa": ca.Function("Mpa", [q, p], [mpa], ["q", "p"], ["Mpa"]),
         "ode": ca.Function("ode", [x, tau, p], [ca.vertcat(dq, accel)], ["x", "tau", "p"], ["dx"]),
     }
 
 
-@dataclass(frozen=True)
-class Coupling:
-    """Measures of the inertial coupling block M_pa at one configuration.
-
-    det: determinant (square M_pa only, else None); sigma_min, sigma_max: extreme
-    singular values [kg m^2], sigma_min = 0 when M_pa has more rows than columns (it
-    cannot have full row rank); condition: sigma_max / sigma_min (None where sigma_min is
-    0 or so small that the ratio overflows).
-    A robot without passive joints has an empty M_pa: no passive row constrains the
-    active accelerations, so there is no singularity to measure. Then det, sigma_min and
-    sigma_max are None (undefined) and condition is 1.0 (trivially well conditioned).
-    Every value is finite or None.
-    """
-
-    det: float | None
-    sigma_min: float | None
-    sigma_max: float | None
-    condition: float | None
-
-
-def coupling_measures(mpa: np.ndarray) -> Coupling:
-    """det, extreme singular values and condition number of a coupling block (see Coupling)."""
-    rows, cols = mpa.shape
-    if rows == 0:
-        return Coupling(det=None, sigma_min=None, sigma_max=None, condition=1.0)
-    sv = np.linalg.svd(mpa, compute_uv=False)
-    smin = float(sv[-1]) if rows <= cols else 0.0
-    smax = float(sv[0])
-    det = float(np.linalg.det(mpa)) if rows == cols else None
-    condition = smax / smin if smin > 0.0 else math.inf
-    return Coupling(det=det, sigma_min=smin, sigma_max=smax,
-                    condition=condition if math.isfinite(condition) else None)
-
-
-def _vector(name: str, value, size: int, per: str) -> np.ndarray:
-    """`value` as a float vector of `size` finite entries; ValueError naming `name` if not."""
+def vector(name: str, value, size: int, per: str) -> np.ndarray:
+    """`value` as a float vector of `size` finite entries; InputError naming `name` if not
+    ("q: needs 2 entries, one per joint (got 1)")."""
     try:
         v = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
-        raise ValueError(f"{name}: must be a list of numbers") from None
+        raise InputError(f"{name}: must be a list of numbers") from None
     if v.ndim > 1:
-        raise ValueError(f"{name}: must be a flat list of numbers (got shape {v.shape})")
+        raise InputError(f"{name}: must be a flat list of numbers (got shape {v.shape})")
     if v.size != size:
         entries = "entry" if size == 1 else "entries"
-        raise ValueError(f"{name}: needs {size} {entries}, one per {per} (got {v.size})")
+        raise InputError(f"{name}: needs {size} {entries}, one per {per} (got {v.size})")
     if not np.all(np.isfinite(v)):
-        raise ValueError(f"{name}: every entry must be a finite number (got {v.tolist()})")
+        raise InputError(f"{name}: every entry must be a finite number (got {v.tolist()})")
     return v.reshape(size)
 
 
@@ -200,7 +166,7 @@ class Dynamics:
     """Numpy-facing dynamics of one robot (vectors in, arrays out; SI units).
 
     q [rad], dq [rad/s] and ddq [rad/s^2] need one finite entry per joint, tau [N m] one
-    per active joint (a plain sequence or a 1-D array); anything else raises ValueError
+    per active joint (a plain sequence or a 1-D array); anything else raises InputError
     naming the argument, e.g. "q: needs 2 entries, one per joint (got 1)".
     """
 
@@ -212,7 +178,7 @@ class Dynamics:
         self.B = selection(self.structure)
 
     def _joints(self, name: str, value) -> np.ndarray:
-        return _vector(name, value, self.structure.n, "joint")
+        return vector(name, value, self.structure.n, "joint")
 
     def mass_matrix(self, q) -> np.ndarray:
         """M(q) [kg m^2], n x n."""
@@ -238,14 +204,14 @@ class Dynamics:
     def forward(self, q, dq, tau) -> np.ndarray:
         """Joint accelerations [rad/s^2] for the active torques tau [N m].
 
-        Raises ValueError where they are not finite: M(q) numerically singular (masses,
+        Raises InputError where they are not finite: M(q) numerically singular (masses,
         lengths and inertias spanning too many orders of magnitude) or values too large.
         """
-        tau = _vector("tau", tau, len(self.structure.active_idx), "active joint")
+        tau = vector("tau", tau, len(self.structure.active_idx), "active joint")
         ddq = np.array(self.f["fd"](self._joints("q", q), self._joints("dq", dq), tau,
                                     self.p)).ravel()
         if not np.all(np.isfinite(ddq)):
-            raise ValueError("the accelerations are not finite at this state: M(q) is "
+            raise InputError("the accelerations are not finite at this state: M(q) is "
                              "numerically singular or the values are too large")
         return ddq
 
@@ -261,11 +227,3 @@ class Dynamics:
         return np.array(self.f["id"](self._joints("q", q), self._joints("dq", dq),
                                      self._joints("ddq", ddq), self.p)).ravel()
 
-    def coupling_block(self, q) -> np.ndarray:
-        """M_pa(q) [kg m^2]: passive rows, active columns of M."""
-        return np.array(self.f["Mpa"](self._joints("q", q), self.p)).reshape(
-            len(self.structure.passive_idx), len(self.structure.active_idx))
-
-    def coupling(self, q) -> Coupling:
-        """det, extreme singular values and condition of M_pa(q) (see Coupling)."""
-        return coupling_measures(self.coupling_block(q))

@@ -1,32 +1,29 @@
 """Dynamics at given states: M, h, gravity term, energies, tips and coupling measures.
 
-The library side of `POST /v1/dynamics`. Every number in a result is finite; a measure
-that is undefined at a state (det of a non-square M_pa, the condition number where
-sigma_min = 0, sigma_min when there is no passive joint) is None.
+Every number in a result is finite; a measure that is undefined at a state (det of a
+non-square M_pa, the condition number where sigma_min = 0, sigma_min when there is no
+passive joint) is None.
 """
 
 from __future__ import annotations
-
-import math
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from planner import budget
+from planner.coupling_block import at
 from planner.dynamics import Dynamics
+from planner.errors import InputError
 from planner.model import Robot
 from planner.schema import REQUEST as _STRICT
+from planner.schema import JointState
 
 MAX_STATES = 10_000
 
 
-class StateQuery(BaseModel):
+class StateQuery(JointState):
     """Joint angles q [rad], rates dq [rad/s] and, optionally, accelerations ddq [rad/s^2]."""
 
-    model_config = _STRICT
-
-    q: list[float]
-    dq: list[float]
     ddq: list[float] | None = None
 
 
@@ -83,10 +80,6 @@ class DynamicsResponse(BaseModel):
     results: list[DynamicsResult]
 
 
-def _defined(value: float | None) -> float | None:
-    return value if value is not None and math.isfinite(value) else None
-
-
 def _result(dyn: Dynamics, k: int, state: StateQuery) -> DynamicsResult:
     q, dq = np.asarray(state.q), np.asarray(state.dq)
     M, h, gravity = dyn.mass_matrix(q), dyn.bias(q, dq), dyn.gravity(q)
@@ -95,20 +88,19 @@ def _result(dyn: Dynamics, k: int, state: StateQuery) -> DynamicsResult:
     forces = None if state.ddq is None else dyn.inverse(q, dq, np.asarray(state.ddq))
     arrays = [M, h, gravity, np.array([T, V]), tips] + ([forces] if forces is not None else [])
     if not all(np.all(np.isfinite(a)) for a in arrays):
-        raise ValueError(f"states.{k}: the dynamics overflow at this state (values too large)")
-    c = dyn.coupling(q)
+        raise InputError(f"states.{k}: the dynamics overflow at this state (values too large)")
+    c = at(dyn.robot, q, dyn.structure)
     return DynamicsResult(
         M=M.tolist(), h=h.tolist(), gravity=gravity.tolist(), kinetic_energy=T,
         potential_energy=V, tips=tips.tolist(),
-        coupling=CouplingMeasures(det=_defined(c.det), sigma_min=_defined(c.sigma_min),
-                                  condition=_defined(c.condition)),
+        coupling=CouplingMeasures(det=c.det, sigma_min=c.sigma_min, condition=c.condition),
         generalized_forces=None if forces is None else forces.tolist())
 
 
 def evaluate(request: DynamicsRequest, *, deadline: float | None = None) -> DynamicsResponse:
     """Evaluate the dynamics at every state of a request.
 
-    Raises ValueError ("states.k: ...") where a state is so large that a value overflows,
+    Raises InputError ("states.k: ...") where a state is so large that a value overflows,
     BudgetExceeded past `deadline` (a `time.monotonic()` value).
     """
     dyn = Dynamics(request.robot)

@@ -24,9 +24,8 @@ from typing import Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict
-from scipy.optimize import brentq
 
-from planner.dynamics import Dynamics
+from planner.coupling_block import sweep, zeros_along
 from planner.model import Robot, Wave
 
 Kind = Literal["inverse-dynamics", "wave-design", "coupling", "plan"]
@@ -93,30 +92,26 @@ def seed_arm(waves: bool) -> Robot:
     return Robot.model_validate({"links": links, "gravity": 0.0})
 
 
-def _singular_angle(det, guess: float, width: float = 0.5) -> float:
-    """Root of det(x) bracketed near `guess` (to machine precision)."""
-    xs = np.linspace(guess - width, guess + width, 201)
-    values = np.array([det(x) for x in xs])
-    k = int(np.flatnonzero(np.sign(values[:-1]) != np.sign(values[1:]))[0])
-    return float(brentq(det, xs[k], xs[k + 1], xtol=1e-15, rtol=1e-15))
+def _singular_angle(robot: Robot, q: list[float], joint: int, guess: float,
+                    width: float = 0.5) -> float:
+    """The first angle of `joint` [rad] within `width` of `guess` where det M_pa = 0, the
+    other joints at q (to machine precision)."""
+    u = np.linspace(guess - width, guess + width, 201)
+    return float(zeros_along(robot, sweep(q, joint), u)[0])
 
 
 @lru_cache(maxsize=1)
 def two_link_start() -> list[float]:
     """Start configuration of the two-link arm: det M_pa = 0 without the wave [rad]."""
-    dyn = Dynamics(two_link(False))
     q0 = TWO_LINK_PASSIVE[0][0]
-    q1 = _singular_angle(lambda x: dyn.coupling([q0, x]).det, 1.6)
-    return [q0, q1]
+    return [q0, _singular_angle(two_link(False), [q0, 0.0], 1, 1.6)]
 
 
 @lru_cache(maxsize=1)
 def seed_start() -> list[float]:
     """Start configuration of the seed arm: det M_pa = 0 without waves [rad]."""
-    dyn = Dynamics(seed_arm(False))
     (q0, q2), (q1, guess) = SEED_PASSIVE[0], SEED_ACTIVE_GUESS
-    q3 = _singular_angle(lambda x: dyn.coupling([q0, q1, q2, x]).det, guess)
-    return [q0, q1, q2, q3]
+    return [q0, q1, q2, _singular_angle(seed_arm(False), [q0, q1, q2, 0.0], 3, guess)]
 
 
 def seed_crossing() -> tuple[list[float], list[float]]:
@@ -217,7 +212,7 @@ PLAN_ARM = {"links": [
 
 
 def _plan_examples() -> list[Example]:
-    """Optimal-control plans (kind "plan", for POST /v1/plans); see planner.ocp.
+    """Optimal-control plans (kind "plan", scenes for planner.ocp.plan).
 
     The seed arm's: with q0 = q2 = 0 the waveless M_01 and M_21 go as cos(q1), so det M_pa
     changes sign where link 1 is horizontal; gravity holds the passive links near rest and

@@ -33,11 +33,14 @@ from pydantic import BaseModel, Field, model_validator
 from scipy.integrate import solve_ivp
 
 from planner import budget
-from planner.coupling import blocks, check_split, measures
+from planner.coupling import check_split
+from planner.coupling_block import along, measures
 from planner.dynamics import derive, functions
+from planner.errors import InputError
 from planner.model import Robot, Structure, parameters
 from planner.profiles import PassiveMotion, SampledProfile
 from planner.schema import REQUEST as _STRICT
+from planner.schema import JointState
 
 RESOLUTION = 1e-8
 """Smallest sigma_min(M_pa) / max_i M_ii the integration follows. The entries of M carry
@@ -56,17 +59,12 @@ _SCALE_DOWN = "scale down passive_motion, its rates over duration, or active_ini
 """What to do about a motion too fast or too large to integrate."""
 
 
+ACTIVE_INITIAL = "the active joints' angles and rates at t = 0, in joint order"
+"""What an `active_initial` state holds."""
+
+
 class _OverBudget(Exception):
     """The integration ran past its wall-time budget."""
-
-
-class ActiveState(BaseModel):
-    """Angles [rad] and rates [rad/s] of the active joints only, in joint order."""
-
-    model_config = _STRICT
-
-    q: list[float]
-    dq: list[float]
 
 
 class InverseDynamicsRequest(BaseModel):
@@ -77,7 +75,7 @@ class InverseDynamicsRequest(BaseModel):
     robot: Robot
     passive_motion: PassiveMotion
     duration: float = Field(gt=0.0, le=1e4, description="T [s]")
-    active_initial: ActiveState
+    active_initial: JointState = Field(description=ACTIVE_INITIAL)
     samples: int = Field(default=201, ge=2, le=100_000,
                          description="output samples, evenly spaced over [0, T]")
     sigma_threshold: float = Field(default=1e-3, gt=0.0,
@@ -92,29 +90,29 @@ class InverseDynamicsRequest(BaseModel):
 
 
 def check_prescribable(robot: Robot) -> None:
-    """Raise ValueError when the robot has no passive joint, or too few active joints
+    """Raise InputError when the robot has no passive joint, or too few active joints
     for M_pa to have full row rank."""
     check_split(robot)
     n_p, n_a = len(robot.passive), len(robot.active)
     if n_a < n_p:
-        raise ValueError(f"robot: fewer active joints ({n_a}) than passive joints ({n_p}): "
+        raise InputError(f"robot: fewer active joints ({n_a}) than passive joints ({n_p}): "
                          "M_pa never has full row rank, so the passive motion cannot be "
                          "prescribed")
 
 
-def check_motion(robot: Robot, motion, duration: float, initial: ActiveState,
+def check_motion(robot: Robot, motion, duration: float, initial: JointState,
                  prefix: str = "") -> None:
-    """Raise ValueError unless the motion and initial state fit the robot's joints."""
+    """Raise InputError unless the motion and initial state fit the robot's joints."""
     check_prescribable(robot)
     n_p, n_a = len(robot.passive), len(robot.active)
     if motion.n != n_p:
-        raise ValueError(f"{prefix}passive_motion: needs {n_p} angle{'s' * (n_p > 1)} "
+        raise InputError(f"{prefix}passive_motion: needs {n_p} angle{'s' * (n_p > 1)} "
                          "per time, one per passive joint")
     if isinstance(motion, SampledProfile) and not np.isclose(
             motion.t[-1], duration, rtol=1e-12, atol=0.0):
-        raise ValueError(f"{prefix}passive_motion.t: must end at duration ({duration:g} s)")
+        raise InputError(f"{prefix}passive_motion.t: must end at duration ({duration:g} s)")
     if len(initial.q) != n_a or len(initial.dq) != n_a:
-        raise ValueError(f"{prefix}active_initial: q and dq need {n_a} "
+        raise InputError(f"{prefix}active_initial: q and dq need {n_a} "
                          f"entr{'ies' if n_a > 1 else 'y'} each, one per active joint")
 
 
@@ -205,7 +203,7 @@ class _Problem:
         mass = np.array(self.mass(q[0], self.p))
         block = mass[np.ix_(self.P, self.A)]
         level = max(self.threshold, RESOLUTION * float(np.diag(mass).max()))
-        return float(measures(block[None])[1][0]), level
+        return float(measures(block[None]).sigma_min[0]), level
 
 
 def solve(request: InverseDynamicsRequest, *,
@@ -217,13 +215,13 @@ def solve(request: InverseDynamicsRequest, *,
                      request.rtol, request.atol, deadline=deadline)
 
 
-def integrate(robot: Robot, motion, duration: float, active_initial: ActiveState,
+def integrate(robot: Robot, motion, duration: float, active_initial: JointState,
               samples: int, sigma_threshold: float, rtol: float = 1e-10,
               atol: float = 1e-10, wall_time: float | None = None, *,
               deadline: float | None = None) -> InverseDynamicsResult:
     """`solve` for an already checked robot and motion; the motion may be any object with
     `evaluate(t, duration) -> (q, dq, ddq)` of the passive joints. Past wall_time [s] of
-    integration (default WALL_TIME) it raises ValueError, as it does when the results
+    integration (default WALL_TIME) it raises InputError, as it does when the results
     overflow; past `deadline` (`time.monotonic()`) BudgetExceeded."""
     pb = _Problem(robot, motion, duration, sigma_threshold, wall_time, deadline)
     x0 = np.concatenate([active_initial.q, active_initial.dq])
@@ -244,7 +242,7 @@ def integrate(robot: Robot, motion, duration: float, active_initial: ActiveState
         sol = solve_ivp(pb.rhs, (0.0, duration), x0, method="DOP853", dense_output=True,
                         rtol=rtol, atol=atol, events=event)
     except _OverBudget:
-        raise ValueError(f"the inverse dynamics did not finish within {pb.wall_time:g} s: the "
+        raise InputError(f"the inverse dynamics did not finish within {pb.wall_time:g} s: the "
                          f"motion is far too fast for its duration; {_SCALE_DOWN}") from None
     if sol.status == 0:
         return _result("completed", pb, grid, sol.sol(grid).T, None, "completed")
@@ -288,10 +286,10 @@ def _result(status, pb: _Problem, t: np.ndarray, xa: np.ndarray,
     ddq[:, pb.A] = np.array(accel(q.T, dq.T, ddqp.T, pb.p)).T
     generalized = np.array(functions(pb.s)["id"].map(K)(q.T, dq.T, ddq.T, pb.p)).T
     tau = generalized[:, pb.A]
-    sigma = measures(blocks(pb.robot, q, pb.s))[1]
+    sigma = along(pb.robot, q, pb.s).sigma_min
     arrays = (q, dq, ddq, tau, sigma)
     if not all(np.all(np.isfinite(a)) for a in arrays):
-        raise ValueError(f"the inverse dynamics of this motion overflow (values too large): "
+        raise InputError(f"the inverse dynamics of this motion overflow (values too large): "
                          f"{_SCALE_DOWN}")
     return InverseDynamicsResult(status=status, t=t.tolist(), q=q.tolist(), dq=dq.tolist(),
                                  ddq=ddq.tolist(), tau=tau.tolist(), sigma_min=sigma.tolist(),

@@ -4,7 +4,7 @@ Plan figure: a strip of arm snapshots (links, tip masses, and the mass path
 r_i(q) e(q) of every active link drawn around its joint: wavy with a wave, a circle
 without), then the joint angles [rad], the
 active torques [N m] and sigma_min(M_pa) [kg m^2] over time, the last with and without
-the waves. The times where the waveless arm is singular (the plan's
+the waves (the plan's own `verification.sigma_min` and `waveless_sigma_min`). The times where the waveless arm is singular (the plan's
 `waveless_singular_crossings`) are vertical lines on every time axis.
 
 Inverse-dynamics figure: angles, torques and sigma_min over time, the singular stop
@@ -32,10 +32,10 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
 from planner.dynamics import Dynamics
+from planner.errors import InputError
 from planner.inverse import InverseDynamicsRequest, InverseDynamicsResult
 from planner.model import Robot, Wave
-from planner.ocp.result import Plan
-from planner.ocp.verify import coupling_along
+from planner.ocp.result import Plan, Verification
 
 Format = Literal["png", "svg"]
 FORMATS: tuple[Format, ...] = ("png", "svg")
@@ -87,7 +87,7 @@ def plan_figure(plan: Plan, robot: Robot, snapshots: int = SNAPSHOTS) -> Figure:
     ax_s = fig.add_subplot(rows[3], sharex=ax_q)
     _angles(ax_q, t, q, robot)
     _torques(ax_tau, t, tau, robot)
-    _sigma(ax_s, t, q, robot, plan.verification.min_sigma)
+    _sigma(ax_s, t, robot, plan.verification)
     for ax, panel in ((ax_q, "angles"), (ax_tau, "torques"), (ax_s, "sigma")):
         _mark(ax, crossings, CROSSING_GID, "waveless singular crossing", panel)
         _legend(ax)
@@ -140,7 +140,7 @@ def inverse_figure(result: InverseDynamicsResult,
 def render(fig: Figure, fmt: Format = "png", dpi: int = 110) -> bytes:
     """The figure as PNG or SVG bytes; the same figure always gives the same bytes."""
     if fmt not in FORMATS:
-        raise ValueError(f"format: must be one of {', '.join(FORMATS)} (got {fmt!r})")
+        raise InputError(f"format: must be one of {', '.join(FORMATS)} (got {fmt!r})")
     FigureCanvasAgg(fig)
     buffer = io.BytesIO()
     metadata = {"Date": None} if fmt == "svg" else {"Software": None}
@@ -164,7 +164,7 @@ def format_of(path: str | Path) -> Format:
     """The image format named by a file's suffix (.png or .svg)."""
     suffix = Path(path).suffix.lower().lstrip(".")
     if suffix not in FORMATS:
-        raise ValueError(f"plot: the file name must end in .png or .svg (got {str(path)!r})")
+        raise InputError(f"plot: the file name must end in .png or .svg (got {str(path)!r})")
     return suffix  # type: ignore[return-value]
 
 
@@ -281,22 +281,24 @@ def _torques(ax: Axes, t: np.ndarray, tau: np.ndarray, robot: Robot | None) -> N
     ax.grid(True, alpha=0.3)
 
 
-def _sigma(ax: Axes, t: np.ndarray, q: np.ndarray, robot: Robot, minimum: float | None) -> None:
-    """sigma_min(M_pa) along q with and without the waves (log scale)."""
+def _sigma(ax: Axes, t: np.ndarray, robot: Robot, v: Verification) -> None:
+    """The plan's sigma_min(M_pa) at the times t with and without the waves (log scale)."""
     ax.set_ylabel("sigma_min(M_pa) [kg m^2]")
     ax.grid(True, alpha=0.3, which="both")
-    if not robot.passive:
-        ax.text(0.5, 0.5, "no passive joint: no coupling block", ha="center", va="center",
-                transform=ax.transAxes)
+    note = ("no passive joint: no coupling block" if not robot.passive else
+            None if len(v.sigma_min) == len(t) else "sigma_min not recorded in this plan")
+    if note:
+        ax.text(0.5, 0.5, note, ha="center", va="center", transform=ax.transAxes)
         return
-    with_waves, _ = coupling_along(robot, q)
-    waveless, _ = coupling_along(robot.without_waves(), q)
+    with_waves, waveless = (np.array(values, dtype=float)  # None -> NaN: a gap in the curve
+                            for values in (v.sigma_min, v.waveless_sigma_min))
+    minimum = v.min_sigma
     label = "with waves" + (f" (min {minimum:.3g})" if minimum is not None else "")
     ax.semilogy(t, np.clip(waveless, _SIGMA_FLOOR, None), color=_WITHOUT, lw=1.2,
                 label="without waves")
     ax.semilogy(t, np.clip(with_waves, _SIGMA_FLOOR, None), color=_WITH, lw=1.8, label=label)
-    top = float(max(with_waves.max(), waveless.max(), _SIGMA_FLOOR))
-    low = float(np.clip(min(with_waves.min(), waveless.min()), _SIGMA_FLOOR, None))
+    top = float(max(np.nanmax(with_waves), np.nanmax(waveless), _SIGMA_FLOOR))
+    low = float(np.clip(min(np.nanmin(with_waves), np.nanmin(waveless)), _SIGMA_FLOOR, None))
     ax.set_ylim(max(low / 3.0, top * 1e-9), top * 3.0)
 
 

@@ -13,6 +13,7 @@ from pydantic import BaseModel, Field, model_validator
 from planner.model import Robot
 from planner.profiles import PassiveMotion
 from planner.schema import REQUEST as _STRICT
+from planner.schema import JointState
 
 
 class State(BaseModel):
@@ -22,15 +23,6 @@ class State(BaseModel):
 
     q: list[float | None]
     dq: list[float | None]
-
-
-class FixedState(BaseModel):
-    """A fully given state: joint angles q [rad] and rates dq [rad/s]."""
-
-    model_config = _STRICT
-
-    q: list[float]
-    dq: list[float]
 
 
 class DurationRange(BaseModel):
@@ -108,7 +100,7 @@ class Task(BaseModel):
     model_config = _STRICT
 
     duration: float | DurationRange = Field(description="fixed T [s] or bounds of a free T")
-    initial: FixedState
+    initial: JointState = Field(description="the state at t = 0, one entry per joint")
     final: State
     tracking: Tracking | None = None
     tip_target: TipTarget | None = None

@@ -29,6 +29,7 @@ from planner.dynamics import functions
 from planner.exclusive import Exclusive
 from planner.model import Robot, Structure, parameters
 from planner.schema import REQUEST as _STRICT
+from planner.schema import JointState
 from planner.torque import TorquePolynomial
 
 Interpolation = Literal["zoh", "linear", "cubic"]
@@ -177,15 +178,6 @@ def _trajectory(times, states, n, status, message) -> Trajectory:
                       status=status, message=message)
 
 
-class InitialState(BaseModel):
-    """Joint angles [rad] and rates [rad/s] at t[0]."""
-
-    model_config = _STRICT
-
-    q: list[float]
-    dq: list[float]
-
-
 class SimulationRequest(BaseModel):
     """The torques of the active joints, as samples with their interpolation or as a
     piecewise polynomial, and the initial state."""
@@ -204,7 +196,8 @@ class SimulationRequest(BaseModel):
     torque: TorquePolynomial | None = Field(
         default=None, description="the torques as a piecewise polynomial, simulated as they "
                                   "are (a plan's `torque`), instead of `t` and `tau`")
-    initial: InitialState
+    initial: JointState = Field(description="the state at the first time, one entry per "
+                                            "joint")
     samples_per_interval: int = Field(default=1, ge=1, le=100)
     rtol: float = Field(default=1e-10, ge=1e-14, le=1e-2)
     atol: float = Field(default=1e-10, ge=1e-14, le=1e-2)
@@ -262,7 +255,7 @@ class SimulationRequest(BaseModel):
 
     @field_validator("initial")
     @classmethod
-    def _one_per_joint(cls, initial: InitialState, info: ValidationInfo) -> InitialState:
+    def _one_per_joint(cls, initial: JointState, info: ValidationInfo) -> JointState:
         robot = info.data.get("robot")
         for name in ("q", "dq") if robot is not None else ():
             got = len(getattr(initial, name))

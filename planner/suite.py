@@ -18,9 +18,8 @@ import itertools
 import math
 
 import numpy as np
-from scipy.optimize import brentq
 
-from planner.dynamics import Dynamics
+from planner.coupling_block import sweep, zeros_along
 from planner.model import Robot
 from planner.scene import Scene
 
@@ -53,25 +52,19 @@ def _robot(rng: np.random.Generator, kinds: str, gravity: float) -> Robot:
 
 
 def singular_configuration(robot: Robot, rng: np.random.Generator, tries: int = 20) -> np.ndarray | None:
-    """A configuration where the waveless M_pa of a square block is singular, or None."""
+    """A configuration where the waveless M_pa of a square block is singular, or None: a
+    random configuration with one active joint moved to the nearest zero of det M_pa
+    within pi of it."""
     if len(robot.passive) != len(robot.active):
         return None
-    dyn = Dynamics(robot.without_waves())
+    waveless = robot.without_waves()
     for _ in range(tries):
         q = rng.uniform(-1.0, 1.0, robot.n)
         joint = int(rng.choice(robot.active))
-
-        def det(x: float, q=q, joint=joint) -> float:
-            trial = q.copy()
-            trial[joint] = x
-            return dyn.coupling(trial).det
-
         grid = np.linspace(q[joint] - math.pi, q[joint] + math.pi, 73)
-        values = np.array([det(x) for x in grid])
-        change = np.flatnonzero(np.sign(values[:-1]) * np.sign(values[1:]) < 0)
-        if change.size:
-            k = int(change[np.argmin(np.abs(grid[change] - q[joint]))])
-            q[joint] = brentq(det, grid[k], grid[k + 1], xtol=1e-12)
+        zeros = zeros_along(waveless, sweep(q, joint), grid)
+        if zeros.size:
+            q[joint] = zeros[np.argmin(np.abs(zeros - q[joint]))]
             return q
     return None
 

@@ -13,6 +13,7 @@ import time
 import numpy as np
 from scipy.optimize import brentq
 
+from planner import coupling_block
 from planner.dynamics import Dynamics
 from planner.examples import PLAN_ARM, VERTICAL_SEED_ARM
 from planner.inverse import InverseDynamicsRequest, solve
@@ -63,19 +64,17 @@ def seed_at(sigma: float, start: list[float], final: list[float]) -> np.ndarray:
     with sigma_min(M_pa) = sigma: the path's first root of det M_pa, then the point between
     it and the nearest of 401 path points with a larger sigma_min where sigma_min equals
     `sigma`."""
-    dyn = Dynamics(waveless_seed())
+    robot = waveless_seed()
     q0, q1 = np.array(start), np.array(final)
-    along = lambda s: q0 + s * (q1 - q0)
+    path = lambda s: q0 + np.outer(s, q1 - q0)
     grid = np.linspace(0.0, 1.0, 401)
-    det = np.array([dyn.coupling(along(s)).det for s in grid])
-    k = int(np.flatnonzero(np.sign(det[:-1]) != np.sign(det[1:]))[0])
-    root = brentq(lambda s: dyn.coupling(along(s)).det, grid[k], grid[k + 1], xtol=1e-16)
-    sig = np.array([dyn.coupling(along(s)).sigma_min for s in grid])
+    root = coupling_block.zeros_along(robot, path, grid)[0]
+    sig = coupling_block.along(robot, path(grid)).sigma_min
     above = grid[sig > sigma]
     outer = above[np.argmin(np.abs(above - root))]
-    s = brentq(lambda s: dyn.coupling(along(s)).sigma_min - sigma, *sorted((outer, root)),
-               xtol=1e-18)
-    return along(s)
+    s = brentq(lambda s: coupling_block.at(robot, path([s])[0]).sigma_min - sigma,
+               *sorted((outer, root)), xtol=1e-18)
+    return path([s])[0]
 
 
 def inverse_case(robot: Robot, q: np.ndarray, threshold: float, rate: float = 1.0) -> dict:

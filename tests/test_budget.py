@@ -14,6 +14,9 @@ import pytest
 
 from planner import budget, coupling, evaluation, examples, inverse, simulate, waves
 from planner.budget import BudgetExceeded
+from planner.waves import screening
+from planner.waves.nlp import wave_structure
+from planner.waves.region import RegionProblem
 
 TWO_LINK = examples.example("two-link-waves").request["robot"]
 
@@ -144,10 +147,10 @@ def test_the_screening_is_counted_as_the_design_builds_it(region):
     design = waves.WaveDesignRequest.model_validate(request)
     base = design.robot.without_waves()
     upper = np.full(len(base.active), design.amplitude_max)
-    cands = waves._candidates(len(upper), design.frequency_max, upper,
-                              waves._phases_per_joint(len(upper)))
-    per_candidate = (waves.SCREEN_STEPS + 1 if region is None else len(waves._RegionProblem(
-        design, waves.wave_structure(base), base).samples))
+    cands = screening.candidates(len(upper), design.frequency_max, upper,
+                                 screening.phases_per_joint(len(upper)))
+    per_candidate = (screening.SCREEN_STEPS + 1 if region is None else len(RegionProblem(
+        design, wave_structure(base), base).samples))
     assert design.screening == len(cands) * per_candidate
 
 

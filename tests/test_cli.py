@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ast
 import io
 import json
 import os
@@ -10,14 +11,18 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import get_args
 
 import httpx
 import numpy as np
 import pytest
+from service_fixtures import ROOT
 from test_plots import CROSSING_SCENE
 
 from planner import cli
-from planner.examples import example, examples
+from planner.examples import Kind, example, examples
+from planner import inverse
+from planner.errors import InputError
 from planner.inverse import InverseDynamicsResult
 from planner.ocp import Plan, plan
 from planner.ocp.result import Progress
@@ -55,6 +60,7 @@ def test_the_installed_command_documents_its_exit_codes():
 
 
 def test_examples_lists_every_example_and_filters_by_kind(capsys):
+    assert set(cli._COMMANDS) == set(get_args(Kind))  # --kind offers every kind
     code, out, _ = run(capsys, "examples")
     assert code == 0
     assert [line.split()[0] for line in out.splitlines()] == [e.name for e in examples()]
@@ -203,6 +209,23 @@ def test_inverse_completes_or_stops_singular_with_exit_codes_0_and_1(capsys, tmp
     assert err == f"singular: {result.message}\n"
 
 
+def test_what_the_library_refuses_is_bad_input_and_a_bug_is_not(capsys, tmp_path, monkeypatch):
+    request = write_json(tmp_path / "r.json", example("two-link-waves").request)
+    out = str(tmp_path / "out.json")
+
+    def refuse(*args, **kwargs):
+        raise InputError("samples: refused by the library")
+    monkeypatch.setattr(inverse, "solve", refuse)
+    assert run(capsys, "inverse", request, "-o", out) == (
+        cli.BAD_INPUT, "", "undertow inverse: samples: refused by the library\n")
+
+    def bug(*args, **kwargs):
+        raise ValueError("samples: a bug, not the input's fault")
+    monkeypatch.setattr(inverse, "solve", bug)
+    with pytest.raises(ValueError, match="a bug"):  # a traceback, not "bad input"
+        cli.main(["inverse", request, "-o", out])
+
+
 def test_design_wave_certifies_the_two_link_example(capsys, tmp_path):
     out = tmp_path / "waves.json"
     request = write_json(tmp_path / "r.json", example("two-link-wave-design").request)
@@ -240,6 +263,20 @@ def test_serve_runs_the_service_and_the_viewer(tmp_path):
     finally:
         os.killpg(proc.pid, signal.SIGTERM)
         proc.wait(30)
+
+
+def test_the_library_knows_nothing_of_http():
+    """`serve` and every URL live in app/: planner/ imports no web framework or server,
+    names no endpoint, and its command line runs without the service."""
+    for path in sorted((ROOT / "planner").rglob("*.py")):
+        text = path.read_text()
+        imported = {alias.name.split(".")[0] for node in ast.walk(ast.parse(text))
+                    if isinstance(node, (ast.Import, ast.ImportFrom))
+                    for alias in (node.names if isinstance(node, ast.Import)
+                                  else [ast.alias(node.module or "")])}
+        assert not imported & {"app", "fastapi", "starlette", "uvicorn", "httpx"}, path
+        assert "/v1/" not in text, path
+    assert "serve" not in cli.parser().format_help()
 
 
 SLOW_SCENE = {  # the seed arm rest-to-rest across a waveless singularity: many iterations

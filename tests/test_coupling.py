@@ -12,8 +12,8 @@ import pytest
 from conftest import point_mass_dynamics
 from pydantic import ValidationError
 
-from planner.coupling import (MAX_POINTS, MAX_RESULTS, MAX_SINGULAR, CouplingRequest, analyse,
-                              blocks, measures)
+from planner.coupling import MAX_POINTS, MAX_RESULTS, MAX_SINGULAR, CouplingRequest, analyse
+from planner.coupling_block import blocks, measures
 from planner.model import Robot
 
 L0, L1, M1, I1 = 0.5, 0.4, 0.5, 0.005
@@ -56,7 +56,8 @@ def test_batch_measures_match_an_independent_mass_matrix(joints, rng):
     B = blocks(robot, Q)
     reference = np.array([independent_block(robot, q) for q in Q])
     assert np.abs(B - reference).max() < 1e-12
-    det, smin, smax = measures(B)
+    m = measures(B)
+    det, smin, smax = m.det, m.sigma_min, m.sigma_max
     sv = np.array([np.linalg.svd(b, compute_uv=False) for b in reference])
     rows, cols = B.shape[1:]
     expected_min = sv[:, rows - 1] if rows <= cols else np.zeros(len(Q))

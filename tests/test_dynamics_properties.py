@@ -18,7 +18,9 @@ import numpy as np
 import pytest
 from conftest import point_mass_dynamics, seed_arm
 
-from planner.dynamics import Coupling, Dynamics, coupling_measures, functions
+from planner.coupling_block import Coupling, at, blocks, condition, measures
+from planner.dynamics import Dynamics, functions
+from planner.errors import InputError
 from planner.model import (
     MAX_FREQUENCY,
     MAX_GRAVITY,
@@ -240,6 +242,8 @@ def call(case: str, value):
     method, args, k, _, _ = CALLS[case]
     args = list(args)
     args[k] = value
+    if method == "coupling":  # the coupling block's measures at one configuration
+        return at(two_link(), *args)
     return getattr(Dynamics(two_link()), method)(*args)
 
 
@@ -249,7 +253,7 @@ def test_a_vector_of_the_wrong_length_is_refused(case, size):
     _, args, k, name, needs = CALLS[case]
     if size == len(args[k]):
         size += 1
-    with pytest.raises(ValueError) as info:
+    with pytest.raises(InputError) as info:
         call(case, [0.1] * size)
     assert str(info.value) == f"{name}: needs {needs} (got {size})"
 
@@ -259,16 +263,16 @@ def test_a_vector_of_the_wrong_length_is_refused(case, size):
 def test_a_non_finite_entry_is_refused(case, bad):
     _, args, k, name, _ = CALLS[case]
     value = [bad] + list(args[k][1:])
-    with pytest.raises(ValueError) as info:
+    with pytest.raises(InputError) as info:
         call(case, value)
     assert str(info.value) == f"{name}: every entry must be a finite number (got {value})"
 
 
 def test_matrices_and_text_are_refused():
     dyn = Dynamics(two_link())
-    with pytest.raises(ValueError, match=r"^q: must be a flat list of numbers \(got shape \(2, 1\)\)$"):
+    with pytest.raises(InputError, match=r"^q: must be a flat list of numbers \(got shape \(2, 1\)\)$"):
         dyn.mass_matrix([[0.1], [0.2]])
-    with pytest.raises(ValueError, match="^dq: must be a list of numbers$"):
+    with pytest.raises(InputError, match="^dq: must be a list of numbers$"):
         dyn.bias(Q, ["fast", "slow"])
 
 
@@ -306,7 +310,7 @@ def test_robots_at_the_bounds_give_finite_values_or_a_clear_error(rng):
         dyn = Dynamics(robot)
         q, dq = random_state(rng, robot.n, speed=10.0)
         values = [dyn.mass_matrix(q), dyn.bias(q, dq), dyn.gravity(q), dyn.energy(q, dq),
-                  dyn.tips(q), dyn.coupling_block(q)]
+                  dyn.tips(q), blocks(robot, q[None, :])]
         assert all(np.all(np.isfinite(v)) for v in values), robot.model_dump_json()
         try:
             assert np.all(np.isfinite(dyn.forward(q, dq, np.ones(len(robot.active)))))
@@ -331,22 +335,26 @@ def test_a_numerically_singular_mass_matrix_is_refused_not_answered_with_nan():
 
 def test_a_robot_without_passive_joints_has_no_coupling_measures_but_finite_json():
     robot = Robot.model_validate({"links": [{"length": 0.5, "mass": 1.0, "joint": "active"}] * 2})
-    coupling = Dynamics(robot).coupling(Q)
+    coupling = at(robot, Q)
     assert coupling == Coupling(det=None, sigma_min=None, sigma_max=None, condition=1.0)
     assert json.loads(json.dumps(asdict(coupling), allow_nan=False))["sigma_min"] is None
 
 
 def test_coupling_measures_agree_with_numpy(rng):
-    square = rng.normal(size=(2, 2))
-    wide = rng.normal(size=(2, 3))
+    square = rng.normal(size=(5, 2, 2))
     sv = np.linalg.svd(square, compute_uv=False)
-    assert coupling_measures(square) == Coupling(det=pytest.approx(np.linalg.det(square), rel=1e-14),
-                                                 sigma_min=pytest.approx(sv[1], rel=1e-14),
-                                                 sigma_max=pytest.approx(sv[0], rel=1e-14),
-                                                 condition=pytest.approx(sv[0] / sv[1], rel=1e-14))
-    sv = np.linalg.svd(wide, compute_uv=False)
-    c = coupling_measures(wide)
-    assert (c.det, c.sigma_min, c.sigma_max) == (None, pytest.approx(sv[1]), pytest.approx(sv[0]))
+    m = measures(square)
+    assert np.allclose(m.det, np.linalg.det(square), rtol=1e-14, atol=0.0)
+    assert np.allclose([m.sigma_min, m.least, m.sigma_max], [sv[:, 1], sv[:, 1], sv[:, 0]],
+                       rtol=1e-14, atol=0.0)
+    assert condition(m.sigma_min, m.sigma_max) == pytest.approx(sv[:, 0] / sv[:, 1], rel=1e-14)
+    for shape, rank in (((5, 2, 3), 1), ((5, 3, 2), None)):  # fewer, more passive than active
+        block = rng.normal(size=shape)
+        sv = np.linalg.svd(block, compute_uv=False)
+        m = measures(block)
+        assert m.det is None and np.allclose(m.sigma_max, sv[:, 0], rtol=1e-14, atol=0.0)
+        assert np.allclose(m.least, sv[:, -1], rtol=1e-14, atol=0.0)
+        assert np.allclose(m.sigma_min, 0.0 if rank is None else sv[:, rank], rtol=1e-14, atol=0.0)
 
 
 @pytest.mark.parametrize(("block", "sigma_min"), [
@@ -355,6 +363,6 @@ def test_coupling_measures_agree_with_numpy(rng):
     (np.diag([1e300, 1e-10]), 1e-10),    # sigma_max / sigma_min overflows
 ])
 def test_condition_is_none_where_it_is_undefined_or_overflows(block, sigma_min):
-    c = coupling_measures(block)
-    assert (c.sigma_min, c.condition) == (pytest.approx(sigma_min, rel=1e-14), None)
-    assert json.dumps(asdict(c), allow_nan=False)
+    m = measures(block[None])
+    assert m.sigma_min[0] == pytest.approx(sigma_min, rel=1e-14)
+    assert condition(m.sigma_min, m.sigma_max) == [None]

@@ -1,8 +1,11 @@
-"""Unexpected errors: a 500 problem, logged once, on a connection that stays usable."""
+"""Errors by kind: what the caller got wrong is a 4xx at its field; anything else, a
+ValueError from a bug included, a 500 problem, logged once, on a connection that stays
+usable."""
 
 from __future__ import annotations
 
 import http.client
+import importlib
 import json
 import logging
 from collections.abc import Iterator
@@ -10,10 +13,12 @@ from collections.abc import Iterator
 import pytest
 from fastapi import FastAPI
 from fastapi.routing import APIRoute
-from service_fixtures import serving
+from service_fixtures import TWO_LINK, client, serving
 
 from app.main import create_app
 from app.settings import Settings
+from planner.errors import InputError
+from planner.examples import example
 
 
 class Records(logging.Handler):
@@ -69,3 +74,60 @@ def test_a_500_keeps_the_connection_and_is_logged_once(failing_app, records):
     tracebacks = [r for r in records.records if r.exc_info]
     assert [(r.name, r.getMessage()) for r in tracebacks] == [
         ("undertow.errors", "unhandled error on /v1/boom")]
+
+
+# --------------------------------------------------------------------------- errors by kind
+
+
+BODIES = {  # a body each synchronous endpoint accepts, and a library function it calls
+    "/v1/dynamics": ({"robot": TWO_LINK, "states": [{"q": [0.1, 0.2], "dq": [0.0, 0.0]}]},
+                     "planner.evaluation", "at"),
+    "/v1/coupling": ({"robot": TWO_LINK, "configurations": [[0.1, 0.2], [0.2, 0.4]]},
+                     "planner.coupling", "along"),
+    "/v1/inverse-dynamics": (example("two-link-waves").request, "planner.inverse", "along"),
+    "/v1/simulate": ({"robot": TWO_LINK, "t": [0.0, 0.1], "tau": [[0.0], [0.0]],
+                      "initial": {"q": [0.0, 0.0], "dq": [0.0, 0.0]}},
+                     "planner.simulate", "_trajectory"),
+    "/v1/waves/design": (example("two-link-wave-design").request, "planner.waves.design",
+                         "candidates"),
+}
+BLAME = "states.0.q: a message that names a field of the request"
+
+
+@pytest.fixture(scope="module")
+def api(tmp_path_factory):
+    with client(tmp_path_factory.mktemp("kinds")) as c:
+        yield c
+
+
+def _raising(error: Exception):
+    def raise_it(*args, **kwargs):
+        raise error
+    return raise_it
+
+
+@pytest.mark.parametrize("path", BODIES)
+def test_a_value_error_from_a_bug_in_a_computation_is_a_500_with_the_request_id(
+        api, path, monkeypatch, records):
+    body, module, name = BODIES[path]
+    monkeypatch.setattr(importlib.import_module(module), name, _raising(ValueError(BLAME)))
+    r = api.post(path, json=body, headers={"X-Request-ID": "bug-1"})
+    assert (r.status_code, r.headers["content-type"]) == (500, "application/problem+json")
+    assert r.json() == {"type": "urn:undertow:problem:internal", "title": "Internal server error",
+                        "status": 500, "instance": path, "request_id": "bug-1",
+                        "detail": "an unexpected error occurred; see the server log"}
+    (logged,) = [r for r in records.records if r.exc_info]
+    assert logged.exc_info[0] is ValueError and logged.getMessage() == f"unhandled error on {path}"
+
+
+@pytest.mark.parametrize("path", BODIES)
+def test_an_input_error_of_a_computation_is_a_422_at_the_field_it_names(api, path, monkeypatch):
+    body, module, name = BODIES[path]
+    monkeypatch.setattr(importlib.import_module(module), name, _raising(InputError(BLAME)))
+    r = api.post(path, json=body, headers={"X-Request-ID": "input-1"})
+    assert (r.status_code, r.headers["content-type"]) == (422, "application/problem+json")
+    problem = r.json()
+    assert (problem["type"], problem["request_id"]) == ("urn:undertow:problem:validation",
+                                                        "input-1")
+    assert problem["errors"] == [{"loc": ["body", "states", 0, "q"], "type": "value_error",
+                                  "msg": "a message that names a field of the request"}]

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from planner.coupling import CouplingRequest, analyse
-from planner.dynamics import Dynamics
+from planner.coupling_block import at
 from planner.examples import (MARGIN, example, examples, seed_arm, seed_crossing,
                               seed_start, two_link, two_link_start)
 from planner.inverse import InverseDynamicsRequest
@@ -55,8 +55,8 @@ def test_the_seed_arm_is_the_seeds():
 @pytest.mark.parametrize("arm, start", [(two_link, two_link_start), (seed_arm, seed_start)])
 def test_the_motion_starts_exactly_singular_without_waves_and_regular_with(arm, start):
     q = start()
-    assert abs(Dynamics(arm(False)).coupling(q).det) < 1e-16
-    assert Dynamics(arm(True)).coupling(q).sigma_min > MARGIN
+    assert abs(at(arm(False), q).det) < 1e-16
+    assert at(arm(True), q).sigma_min > MARGIN
 
 
 @pytest.mark.parametrize("name, arm", [("two-link-waves", two_link),
@@ -70,11 +70,10 @@ def test_the_wave_examples_carry_the_designed_waves_and_the_same_motion(name, ar
 
 def test_seed_crossing_straddles_a_waveless_singularity():
     a, b = seed_crossing()
-    dyn = Dynamics(seed_arm(False))
-    assert dyn.coupling(a).det * dyn.coupling(b).det < 0.0
+    assert at(seed_arm(False), a).det * at(seed_arm(False), b).det < 0.0
     report = analyse(CouplingRequest(robot=seed_arm(False), configurations=[a, b]))
     (point,) = report.singular_points
     assert abs(point.det) < 1e-15
     u = np.dot(np.subtract(point.q, a), np.subtract(b, a)) / np.sum(np.subtract(b, a) ** 2)
     assert np.allclose(point.q, np.add(a, u * np.subtract(b, a)), atol=1e-12)
-    assert abs(Dynamics(seed_arm(True)).coupling(point.q).sigma_min) > MARGIN
+    assert abs(at(seed_arm(True), point.q).sigma_min) > MARGIN

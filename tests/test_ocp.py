@@ -125,6 +125,13 @@ def test_boundary_conditions_hold_exactly():
     assert result.dq[-1] == pytest.approx([0.0, 0.0], abs=1e-12)
 
 
+def test_a_fully_actuated_plan_has_no_sigma_min_but_a_sample_per_dense_time():
+    result = plan(scene(N=10))  # no passive joint: no coupling block
+    v = result.verification
+    assert v.min_sigma is None and v.waveless_min_sigma is None
+    assert v.sigma_min == v.waveless_sigma_min == [None] * len(result.dense.t)
+
+
 def test_torque_limit_is_respected_and_binds():
     # Trapezoidal torques are linear between nodes, so bounds at the nodes hold everywhere.
     free = plan(scene(method="trapezoidal", N=40))

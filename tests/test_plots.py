@@ -8,6 +8,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
+from conftest import point_mass_dynamics
 from fake_solvers import fake_plan
 from matplotlib.figure import Figure
 from service_fixtures import client, two_link_scene
@@ -87,6 +88,46 @@ def test_the_sigma_panel_shows_both_robots_along_the_dense_path(crossing_plan, s
     for c in crossing_plan.verification.waveless_singular_crossings:
         k = int(np.argmin(np.abs(t - c.time)))
         assert waveless[k] < 1e-2 * np.median(waveless)  # the dip is where the mark is
+
+
+def test_the_plan_carries_sigma_min_at_its_dense_times_with_and_without_waves(crossing_plan,
+                                                                              scene):
+    v, q = crossing_plan.verification, np.asarray(crossing_plan.dense.q)
+    assert len(v.sigma_min) == len(v.waveless_sigma_min) == len(crossing_plan.dense.t)
+    for values, robot, minimum in ((v.sigma_min, scene.robot, v.min_sigma),
+                                   (v.waveless_sigma_min, scene.robot.without_waves(),
+                                    v.waveless_min_sigma)):
+        blocks = [point_mass_dynamics(robot, qk, np.zeros(robot.n))[0][np.ix_(robot.passive,
+                                                                               robot.active)]
+                  for qk in q]  # M_pa by d'Alembert's principle, independent of the library
+        independent = np.linalg.svd(np.array(blocks), compute_uv=False)[:, -1]
+        assert np.allclose(values, independent, rtol=1e-9, atol=1e-14)
+        assert min(values) == minimum
+    for c in v.waveless_singular_crossings:  # the waveless dips are where the crossings are
+        k = int(np.argmin(np.abs(np.asarray(crossing_plan.dense.t) - c.time)))
+        assert v.waveless_sigma_min[k] < 1e-2 * np.median(v.waveless_sigma_min)
+
+
+def test_the_sigma_panel_draws_the_plans_own_values(crossing_plan, scene):
+    data = crossing_plan.model_dump()
+    v = data["verification"]
+    v["sigma_min"] = [2.0 * s for s in v["sigma_min"]]
+    v["waveless_sigma_min"][:10] = [None] * 10  # undefined there: a gap
+    ax = time_axes(plots.plan_figure(Plan.model_validate(data), scene.robot))["sigma"]
+    curves = {line.get_label(): line.get_ydata() for line in ax.get_lines()}
+    wavy = next(y for label, y in curves.items() if label.startswith("with waves"))
+    assert np.allclose(wavy, np.clip(v["sigma_min"], 1e-12, None))
+    assert np.isnan(curves["without waves"][:10]).all()
+    assert np.isfinite(curves["without waves"][10:]).all()
+
+
+def test_a_plan_without_sigma_min_says_so_instead_of_drawing_it(crossing_plan, scene):
+    data = crossing_plan.model_dump()
+    for name in ("sigma_min", "waveless_sigma_min"):
+        del data["verification"][name]  # as stored before the plan carried them
+    ax = time_axes(plots.plan_figure(Plan.model_validate(data), scene.robot))["sigma"]
+    assert [t.get_text() for t in ax.texts] == ["sigma_min not recorded in this plan"]
+    assert not [line for line in ax.get_lines() if line.get_label().startswith("with")]
 
 
 def test_the_snapshots_draw_the_links_through_the_dynamics_tips(crossing_plan, scene):

@@ -15,6 +15,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from service_fixtures import client
 
+from planner import coupling_block
 from planner.dynamics import Dynamics
 from planner.examples import seed_crossing
 from planner.inverse import RESOLUTION
@@ -57,9 +58,8 @@ def seed_near(sigma: float) -> np.ndarray:
 @pytest.mark.parametrize("arm, at", [("2-link", two_link_at), ("seed 4-link", seed_near)])
 def test_near_singular_configurations_have_the_asked_sigma_min(arm, at):
     robot = waveless_two_link() if arm == "2-link" else waveless_seed()
-    dyn = Dynamics(robot)
     for sigma in SIGMAS:
-        assert dyn.coupling(at(sigma)).sigma_min == pytest.approx(sigma, rel=1e-3)
+        assert coupling_block.at(robot, at(sigma)).sigma_min == pytest.approx(sigma, rel=1e-3)
 
 
 @pytest.mark.parametrize("sigma", SIGMAS)

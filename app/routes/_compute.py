@@ -5,7 +5,9 @@ for a compute thread (503 with Retry-After when none comes free), and runs with 
 deadline UNDERTOW_SYNC_WALL_TIME after it arrived: the library stops there by itself
 (`planner.budget`), and the answer is a 422 `budget-exceeded` problem. Quick requests
 (dynamics or coupling at few points) have threads of their own, so that they are
-answered while long computations hold every other thread. ValueErrors are 422s.
+answered while long computations hold every other thread. What the library refuses as
+the caller's mistake (`planner.errors.InputError`) is a 422 at the field it names; any
+other exception, a plain ValueError included, is a bug and goes on to become a 500.
 """
 
 from __future__ import annotations
@@ -21,10 +23,11 @@ from anyio import CapacityLimiter, to_thread
 from fastapi import Depends, Request
 from pydantic import BaseModel
 
-from app.errors import ApiError, from_value_error
+from app.errors import ApiError, from_input_error
 from app.limits import check_request, points
 from app.settings import Settings
 from planner.budget import BudgetExceeded
+from planner.errors import InputError
 
 R = TypeVar("R")
 
@@ -77,7 +80,7 @@ async def compute(function: Callable[..., R], request: BaseModel, settings: Sett
         return await to_thread.run_sync(partial(function, request, deadline=deadline))
     except BudgetExceeded as exc:
         raise over_budget(exc, settings) from exc
-    except ValueError as exc:
-        raise from_value_error(exc) from exc
+    except InputError as exc:
+        raise from_input_error(exc) from exc
     finally:
         limiter.release()

@@ -24,7 +24,7 @@
     plan: null,         // its plan
     robot: null,        // the scene's robot with the plan's waves
     frames: null,       // per dense sample: joint positions (n + 1) x 2, model coordinates
-    sigma: null,        // { with: [], without: [] } along plan.dense.q, or { note }
+    sigma: null,        // { with: [], without: [] } at plan.dense.t (the plan's own), or { note }
     t: 0, playing: false, lastTick: null, pollTimer: null, plots: [],
   };
 
@@ -315,8 +315,6 @@
     return out;
   }
 
-  const waveless = (robot) => ({ ...robot, links: robot.links.map((l) => ({ ...l, wave: null })) });
-
   async function showPlan(job) {
     const plan = job.plan;
     state.plan = plan;
@@ -325,22 +323,18 @@
     state.t = 0;
     renderSummary(job);
     setupPlayer();
-    state.sigma = await couplingAlong(state.robot, plan.dense.q);
+    state.sigma = sigmaOf(plan, state.robot);
     buildPlots();
     drawAll();
     if (!state.playing) togglePlay();
   }
 
-  async function couplingAlong(robot, q) {
+  /** sigma_min(M_pa) at the dense samples, with and without the waves, as the plan carries it. */
+  function sigmaOf(plan, robot) {
     if (!robot.links.some((l) => l.joint === "passive")) return { note: "no passive joint: no coupling block" };
-    try {
-      const ask = (r) => api("/v1/coupling", { method: "POST",
-        body: JSON.stringify({ robot: r, configurations: q, threshold: 0 }) });
-      const [a, b] = await Promise.all([ask(robot), ask(waveless(robot))]);
-      return { with: a.results.map((r) => r.sigma_min), without: b.results.map((r) => r.sigma_min) };
-    } catch (err) {
-      return { note: `sigma_min unavailable: ${err.message}` };
-    }
+    const v = plan.verification;
+    if (!v.sigma_min || v.sigma_min.length !== plan.dense.t.length) return { note: "sigma_min not recorded in this plan" };
+    return { with: v.sigma_min, without: v.waveless_sigma_min };
   }
 
   function renderSummary(job) {
@@ -575,8 +569,8 @@
     return out;
   }
 
-  /** A time plot: series [{y, color, dash, width, label}] with a legend of the labelled
-   *  ones, log scale, vertical marks, a "t [s]" axis; a cursor is drawn over a cached
+  /** A time plot: series [{y, color, dash, width, label}] (null y: a gap) with a legend of
+   *  the labelled ones, log scale, vertical marks, a "t [s]" axis; a cursor is drawn over a cached
    *  background. */
   class TimePlot {
     constructor(canvas, t, series, options = {}) {
@@ -639,7 +633,13 @@
       for (const s of series) {
         ctx.strokeStyle = s.color; ctx.lineWidth = s.width || 1.6; ctx.setLineDash(s.dash || []);
         ctx.beginPath();
-        s.y.forEach((v, k) => { const x = X(t[k]), y = Y(v); if (k) ctx.lineTo(x, y); else ctx.moveTo(x, y); });
+        let gap = true; // a null value (undefined there) breaks the curve
+        s.y.forEach((v, k) => {
+          if (!Number.isFinite(v)) { gap = true; return; }
+          const x = X(t[k]), y = Y(v);
+          if (gap) ctx.moveTo(x, y); else ctx.lineTo(x, y);
+          gap = false;
+        });
         ctx.stroke();
       }
       ctx.restore();

@@ -7,12 +7,13 @@ from collections.abc import Callable
 import numpy as np
 
 from planner.dynamics import functions
-from planner.inverse import WALL_TIME, ActiveState, integrate
+from planner.inverse import WALL_TIME, integrate
 from planner.model import Robot, Structure, parameters
 from planner.ocp.interpolant import PiecewisePolynomial, hermite
 from planner.ocp.result import Plan
 from planner.ocp.transcription import Interpolant
 from planner.scene import Scene
+from planner.schema import JointState
 
 Guess = Callable[[np.ndarray], dict[str, np.ndarray]]
 
@@ -82,7 +83,7 @@ def inverse_dynamics_guess(scene: Scene, robot: Robot, T: float) -> Guess:
     base = hermite_guess(scene, robot, T)
     q0, dq0 = np.asarray(scene.task.initial.q), np.asarray(scene.task.initial.dq)
     result = integrate(robot, _PassivePath(hermite_motion(scene, robot, T), robot.passive), T,
-                       ActiveState(q=q0[robot.active].tolist(), dq=dq0[robot.active].tolist()),
+                       JointState(q=q0[robot.active].tolist(), dq=dq0[robot.active].tolist()),
                        ID_SAMPLES, scene.task.coupling_margin or ID_THRESHOLD,
                        wall_time=min(WALL_TIME, scene.solver.max_wall_time))
     reached = np.asarray(result.t) / T

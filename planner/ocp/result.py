@@ -127,7 +127,7 @@ class Verification(_Out):
         description="[rad] open-loop behaviour: max |q_sim - q_plan| with the delivered "
                     "torque fed to CVODES (rtol 1e-10) from the plan's initial state over "
                     "the whole horizon, at the breakpoints and 3 points between each two "
-                    "(POST /v1/simulate with samples_per_interval 4 gives the same)")
+                    "(a simulation with samples_per_interval 4 gives the same)")
     resimulation_status: str
     growth_factor: float | None = Field(
         default=None,
@@ -156,6 +156,15 @@ class Verification(_Out):
     waveless_min_sigma: float | None = Field(
         description="min sigma_min(M_pa) along the plan for the robot without waves")
     waveless_singular_crossings: list[Crossing]
+    sigma_min: list[float | None] = Field(
+        default_factory=list,
+        description="[kg m^2] sigma_min(M_pa) at every time of dense.t (the smallest "
+                    "singular value, which task.coupling_margin bounds); null where it is "
+                    "undefined (no passive joint). Empty in plans that could not be "
+                    "verified or were stored before the field existed")
+    waveless_sigma_min: list[float | None] = Field(
+        default_factory=list,
+        description="[kg m^2] the same for the robot without waves")
 
 
 class WaveOut(_Out):

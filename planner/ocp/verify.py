@@ -9,16 +9,17 @@
   replay (planner.ocp.feedback);
 - the dynamics defect of the interpolant, integral of |M ddq + h - B tau|_2 dt by
   5-point Gauss-Legendre quadrature per interval;
-- sigma_min(M_pa) along the plan, with and without waves, and the configurations that are
-  singular for the waveless robot (sign changes of det refined by root finding in the
-  square case, near-zero minima of sigma_min otherwise).
+- sigma_min(M_pa) at the dense samples, with and without waves, and the configurations
+  that are singular for the waveless robot (zeros of det in the square case,
+  `planner.coupling_block.zeros_along`; near-zero minima of sigma_min otherwise).
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import brentq, minimize_scalar
+from scipy.optimize import minimize_scalar
 
+from planner import coupling_block
 from planner.dynamics import functions
 from planner.model import Robot, Structure, parameters
 from planner.ocp.feedback import PERTURBATION, gains, growth_factor, linearise, replay
@@ -30,15 +31,11 @@ _GAUSS_S, _GAUSS_W = np.polynomial.legendre.leggauss(5)
 
 
 def coupling_along(robot: Robot, q: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-    """sigma_min (K,) and det (K,) or None of M_pa at the configurations q (K, n)."""
-    s = Structure.of(robot)
-    blocks = np.array(functions(s)["Mpa"].map(len(q))(q.T, parameters(robot, s)))
-    rows, cols = len(s.passive_idx), len(s.active_idx)
-    if rows == 0:
-        return np.full(len(q), np.inf), None
-    mpa = blocks.reshape(rows, len(q), cols).transpose(1, 0, 2)
-    sv = np.linalg.svd(mpa, compute_uv=False)[:, -1]
-    return sv, (np.linalg.det(mpa) if rows == cols else None)
+    """The plan's sigma_min (K,) of M_pa, its smallest singular value (what the coupling
+    margin bounds; NaN without passive joints), and det (K,) or None, at the
+    configurations q (K, n)."""
+    m = coupling_block.along(robot, q)
+    return m.least, m.det
 
 
 def open_loop(robot: Robot, interp: Interpolant,
@@ -63,18 +60,17 @@ def defect(robot: Robot, interp: Interpolant) -> float:
     return float(np.sum(norms * (_GAUSS_W[None, :] / 2) * h[:, None]))
 
 
-def singular_crossings(robot: Robot, interp: Interpolant, t: np.ndarray) -> tuple[list[Crossing], float | None]:
-    """Configurations along the plan where the waveless M_pa is singular, and its min sigma."""
+def singular_crossings(robot: Robot, interp: Interpolant,
+                       t: np.ndarray) -> tuple[list[Crossing], np.ndarray]:
+    """Configurations along the plan where the waveless M_pa is singular, and the waveless
+    sigma_min at the times t (see `coupling_along`)."""
     waveless = robot.without_waves()
     sigma, det = coupling_along(waveless, interp.q(t))
     if not np.all(np.isfinite(sigma)):
-        return [], None
+        return [], sigma
     times: list[float] = []
     if det is not None:
-        det_at = lambda x: coupling_along(waveless, interp.q(np.array([x])))[1][0]
-        for k in np.flatnonzero(np.sign(det[:-1]) * np.sign(det[1:]) < 0):
-            times.append(brentq(det_at, t[k], t[k + 1], xtol=1e-12))
-        times += [float(t[k]) for k in np.flatnonzero(det == 0.0)]
+        times += coupling_block.zeros_along(waveless, interp.q, t).tolist()
     else:
         floor = 1e-3 * float(sigma.max())
         sig_at = lambda x: coupling_along(waveless, interp.q(np.array([x])))[0][0]
@@ -87,7 +83,7 @@ def singular_crossings(robot: Robot, interp: Interpolant, t: np.ndarray) -> tupl
         q = interp.q(np.array([time]))
         crossings.append(Crossing(time=time, q=q[0].tolist(),
                                   sigma_min=float(coupling_along(waveless, q)[0][0])))
-    return crossings, float(sigma.min())
+    return crossings, sigma
 
 
 def torque_excess(tau: np.ndarray, limit: list[float] | float | None) -> float | None:
@@ -127,8 +123,7 @@ def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.nd
     linearisation failed)."""
     error, status = replayed
     sigma, _ = coupling_along(robot, interp.q(t_dense))
-    crossings, waveless_min = singular_crossings(robot, interp, t_dense)
-    finite = np.isfinite(sigma)
+    crossings, waveless = singular_crossings(robot, interp, t_dense)
     local = float(errors.max())
     fb, measured = _feedback(robot, interp, torque_limit, compiled)
     return Verification(
@@ -141,11 +136,24 @@ def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.nd
         resimulation_status=status,
         defect=defect(robot, interp),
         torque_excess=torque_excess(interp.tau(t_dense), torque_limit),
-        min_sigma=float(sigma[finite].min()) if finite.any() else None,
-        waveless_min_sigma=waveless_min,
+        min_sigma=_minimum(sigma),
+        waveless_min_sigma=_minimum(waveless),
         waveless_singular_crossings=crossings,
+        sigma_min=_samples(sigma),
+        waveless_sigma_min=_samples(waveless),
         **measured,
     ), fb
+
+
+def _minimum(values: np.ndarray) -> float | None:
+    """The smallest finite value, None without one."""
+    finite = values[np.isfinite(values)]
+    return float(finite.min()) if finite.size else None
+
+
+def _samples(values: np.ndarray) -> list[float | None]:
+    """Values as a list, None where not finite."""
+    return [float(v) if np.isfinite(v) else None for v in values]
 
 
 def unverified_reason(v: Verification) -> str | None:

@@ -1,0 +1,113 @@
+"""The design loop: screen the candidates, then from the best starts solve the NLP,
+certify, and exchange samples until the certificate meets the NLP's bound; the best
+certified design wins."""
+
+from __future__ import annotations
+
+import math
+from typing import Protocol
+
+import numpy as np
+
+from planner import budget
+from planner.model import Robot
+from planner.waves.certificate import EXCHANGE_TOL, Certificate
+from planner.waves.motion import MotionProblem
+from planner.waves.nlp import WHAT, wave_structure
+from planner.waves.region import RegionProblem
+from planner.waves.schemas import WaveDesignRequest, WaveDesignResult, WaveSpec
+from planner.waves.screening import Candidate, candidates, diverse, phases_per_joint
+
+AMPLITUDE_FRACTION = 0.95
+"""Largest amplitude as a fraction of the link length (r stays >= 5 % of l)."""
+EXCHANGE_ROUNDS = 6
+"""Largest number of NLP solves per starting point (exchange iterations)."""
+
+
+class Problem(Protocol):
+    """What the loop asks of the region or the motion problem."""
+
+    SAMPLES: str
+    """What the NLP's samples are, in words."""
+
+    def screen(self, cands: list[Candidate]) -> list[float]:
+        """A score per candidate: the larger, the better a start."""
+
+    def optimise(self, c: Candidate, upper: np.ndarray) -> Candidate:
+        """The NLP from c, amplitudes below `upper` [m]."""
+
+    def certify(self, c: Candidate) -> Certificate:
+        """The dense check of c's waves."""
+
+    def exchange(self, cert: Certificate) -> None:
+        """Add samples where the certificate fell short."""
+
+
+def design(request: WaveDesignRequest, *, deadline: float | None = None) -> WaveDesignResult:
+    """Waves that keep sigma_min(M_pa) >= margin, certified on dense samples.
+
+    Past `deadline` (a `time.monotonic()` value) it raises BudgetExceeded: between starts
+    and exchange rounds, between chunks of evaluations, inside the inverse dynamics, and
+    at the next Ipopt iteration."""
+    with budget.part_of(WHAT):
+        return _design(request, deadline)
+
+
+def _design(request: WaveDesignRequest, deadline: float | None) -> WaveDesignResult:
+    base = request.robot.without_waves()
+    s = wave_structure(base)
+    upper = np.array([min(request.amplitude_max, AMPLITUDE_FRACTION * base.links[j].length)
+                      for j in base.active])
+    kind = RegionProblem if request.region is not None else MotionProblem
+    problem: Problem = kind(request, s, base, deadline)
+
+    phases = phases_per_joint(len(upper))
+    cands = candidates(len(upper), request.frequency_max, upper, phases)
+    scores = problem.screen(cands)
+    order = diverse(cands, scores, request.starts)
+
+    best: tuple[Candidate, Certificate] | None = None
+    for i, k in enumerate(order):
+        budget.check(deadline, f"{WHAT} (after {i} of {len(order)} starts)")
+        start = cands[k]
+        start.bound = float(scores[k])
+        floor = max(request.margin, best[1].value if best else -math.inf)
+        c, cert = _exchange(problem, start, upper, floor)
+        if cert.beats(best[1] if best else None):
+            best = (c, cert)
+    c, cert = best
+    status = "certified" if cert.value >= request.margin else "infeasible"
+    certified = max(cert.value, 0.0)
+    method = (f"From the {len(order)} best of {len(cands)} screened starts (integer "
+              f"frequencies 1..{request.frequency_max}, {phases} phases "
+              f"per joint), Ipopt maximised a lower bound on sigma_min(M_pa) at the "
+              f"{problem.SAMPLES}; certified: {cert.describe}.")
+    return WaveDesignResult(status=status, waves=_specs(c, base), certified_sigma_min=certified,
+                            method=method, robot=c.robot(base))
+
+
+def _specs(c: Candidate, base: Robot) -> list[WaveSpec]:
+    """The candidate's waves on the base robot's active joints."""
+    return [WaveSpec(joint=j, amplitude=float(a), frequency=int(n), phase=float(e))
+            for j, a, n, e in zip(base.active, c.amplitude, c.frequency, c.phase)]
+
+
+def _exchange(problem: Problem, start: Candidate, upper: np.ndarray,
+              floor: float) -> tuple[Candidate, Certificate]:
+    """Solve the NLP, certify, add the failing samples, solve again; keep the best certified.
+
+    Stops early when the NLP's bound falls below `floor` (the margin, or the best value
+    certified so far): more samples would only lower it further."""
+    c, previous = start, math.inf
+    best: tuple[Candidate, Certificate] | None = None
+    for _ in range(EXCHANGE_ROUNDS):
+        c = problem.optimise(c, upper)
+        cert = problem.certify(c)
+        if cert.beats(best[1] if best else None):
+            best = (c, cert)
+        stalled = c.bound > previous * (1 - EXCHANGE_TOL)  # the added samples changed nothing
+        if cert.converged or not c.solved or stalled or c.bound < floor:
+            break
+        previous = c.bound
+        problem.exchange(cert)
+    return best
