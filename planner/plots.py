@@ -12,7 +12,8 @@ marked by a vertical line.
 
 Figures are built with `matplotlib.figure.Figure` directly (no pyplot state). Drawing text
 goes through FreeType and the rc parameters, which matplotlib shares between threads, so
-one figure is rendered at a time (`_RENDERING`); callers may run in several threads.
+one figure is built and rendered at a time (`_RENDERING`); callers may run in several
+threads.
 Drawing convention: the model's x axis points along gravity, drawn downwards; y to the
 right.
 """
@@ -40,7 +41,7 @@ from planner.ocp.result import Plan, Verification
 Format = Literal["png", "svg"]
 FORMATS: tuple[Format, ...] = ("png", "svg")
 MEDIA_TYPES = {"png": "image/png", "svg": "image/svg+xml"}
-_RENDERING = threading.Lock()  # FreeType's glyph cache and rcParams are process-wide
+_RENDERING = threading.RLock()  # FreeType's glyph cache and rcParams are process-wide
 
 CROSSING_GID = "waveless-crossing"
 """gid prefix of the vertical lines marking waveless singular crossings."""
@@ -150,14 +151,16 @@ def render(fig: Figure, fmt: Format = "png", dpi: int = 110) -> bytes:
 
 
 def plan_plot(plan: Plan, robot: Robot, fmt: Format = "png") -> bytes:
-    """`render(plan_figure(plan, robot), fmt)`."""
-    return render(plan_figure(plan, robot), fmt)
+    """`render(plan_figure(plan, robot), fmt)`, the figure built and drawn in one turn."""
+    with _RENDERING:
+        return render(plan_figure(plan, robot), fmt)
 
 
 def inverse_plot(result: InverseDynamicsResult, request: InverseDynamicsRequest | None = None,
                  fmt: Format = "png") -> bytes:
-    """`render(inverse_figure(result, request), fmt)`."""
-    return render(inverse_figure(result, request), fmt)
+    """`render(inverse_figure(result, request), fmt)`, built and drawn in one turn."""
+    with _RENDERING:
+        return render(inverse_figure(result, request), fmt)
 
 
 def format_of(path: str | Path) -> Format:

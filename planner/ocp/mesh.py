@@ -11,6 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from planner.errors import InputError
+
 
 @dataclass(frozen=True, eq=False)
 class Mesh:
@@ -21,7 +23,7 @@ class Mesh:
     def __post_init__(self) -> None:
         b = np.asarray(self.breaks, dtype=float)
         if b.ndim != 1 or b.size < 2 or b[0] != 0.0 or b[-1] != 1.0 or np.any(np.diff(b) <= 0):
-            raise ValueError("a mesh needs strictly increasing breakpoints from 0 to 1")
+            raise InputError("breaks: a mesh needs strictly increasing breakpoints from 0 to 1")
         object.__setattr__(self, "breaks", b)
 
     @classmethod

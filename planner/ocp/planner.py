@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from planner.dynamics import Dynamics
+from planner.errors import InputError
 from planner.model import Robot, Wave
 from planner.ocp.accuracy import interval_errors
 from planner.ocp.feedback import REPLAY_SAMPLES
@@ -227,7 +228,7 @@ def _guess(scene: Scene, robot: Robot, T: float, warm_start: Plan | None) -> tup
     if warm_start is not None:
         shape = (len(warm_start.q[0]), len(warm_start.tau[0]))
         if shape != (robot.n, len(robot.active)):
-            raise ValueError(f"warm_start: the earlier plan is of an arm with {shape[0]} joints, "
+            raise InputError(f"warm_start: the earlier plan is of an arm with {shape[0]} joints, "
                              f"{shape[1]} of them active; this one has {robot.n}, "
                              f"{len(robot.active)}")
         return plan_guess(warm_start), "warm start"
