@@ -1,16 +1,18 @@
 """Up-front estimate of the memory a plan's NLP needs, to refuse plans that cannot fit
-in a solver worker (UNDERTOW_WORKER_MEMORY_MB) before a worker spends minutes building them.
+in a solver worker (UNDERTOW_WORKER_MEMORY_MB) before a worker spends minutes on them.
 
 The estimate is the address space a worker grows by to build the NLP and run Ipopt's
-first iterations (the quantity the worker limit caps), fitted to
-`bench/capacity.py`'s measurements (bench/results/capacity.csv). Building the NLP expands
-the robot's dynamics at every dynamics knot into one symbolic graph, so memory grows with
-the knots times the size of one evaluation of the dynamics: about n^2 nodes for the
-implicit form (M(q) ddq + h = B tau, n links), about n^3 for the explicit one (solving M
-ddq = ...). Multiple shooting keeps one integrator function for every interval and grows
-with the links alone. The constants are rounded so that every measured point needs at
-least its estimate: the estimate refuses only plans that would certainly not fit, and the
-worker limit stops the rest. Re-fit them with `bench/capacity.py` when the planner changes.
+first iterations (the quantity the worker limit caps), fitted to `bench/capacity.py`'s
+measurements (bench/results/capacity.csv). The NLP is written stage by stage: collocation,
+trapezoidal and Hermite-Simpson grow with their dynamics knots (Ipopt's matrices and the
+derivative blocks scattered per stage), each knot costing about n^1.5 (n links) and more
+for a higher collocation degree; multiple shooting with RK4 expands every step of one
+stage into one symbolic graph of the explicit dynamics, whatever the number of intervals,
+each step costing about n^3.5. The constants are rounded so that every measured point
+needs at least its estimate: the estimate refuses only plans that would certainly not fit,
+and the worker limit stops the rest (a refined mesh, up to
+transcription.refinement.max_intervals, can need more than the first one estimated here).
+Re-fit them with `bench/capacity.py` when the planner changes.
 """
 
 from __future__ import annotations
@@ -19,14 +21,16 @@ from app.errors import FieldError, field_error
 from app.settings import Settings
 from planner.scene import Scene, Transcription
 
-FIXED_MB = 280.0
-"""Ipopt and MUMPS loaded and first allocations, whatever the plan."""
-IMPLICIT_MB = 0.11
-"""Per dynamics knot and per squared link count, implicit form."""
-EXPLICIT_MB = 0.05
-"""Per dynamics knot and per cubed link count, explicit form."""
-SHOOTING_MB = 0.25
-"""Per cubed link count, multiple shooting (any number of intervals and steps)."""
+FIXED_MB = 270.0
+"""Ipopt and MUMPS loaded and their first allocations, whatever the plan."""
+KNOT_MB = 0.0195
+"""Per dynamics knot, per link count to the power KNOT_EXPONENT."""
+KNOT_EXPONENT = 1.5
+DEGREE_SHARE = 0.053
+"""Extra share of a knot's cost per collocation degree (the denser per-interval blocks)."""
+SHOOTING_MB = 0.18
+"""Per RK4 step of a shooting interval, per link count to the power SHOOTING_EXPONENT."""
+SHOOTING_EXPONENT = 3.5
 
 
 def dynamics_knots(transcription: Transcription) -> int:
@@ -44,22 +48,28 @@ def dynamics_knots(transcription: Transcription) -> int:
 
 
 def estimate_mb(scene: Scene) -> float:
-    """The memory [MB] a worker needs for the scene's NLP (at least; see the module)."""
-    n, transcription = scene.robot.n, scene.transcription
-    if transcription.method == "multiple-shooting":
-        return FIXED_MB + SHOOTING_MB * n**3
-    per_knot = IMPLICIT_MB * n**2 if transcription.form == "implicit" else EXPLICIT_MB * n**3
-    return FIXED_MB + per_knot * dynamics_knots(transcription)
+    """The memory [MB] a worker needs for the scene's first NLP (at least; see the module)."""
+    n, tr = scene.robot.n, scene.transcription
+    if tr.method == "multiple-shooting":
+        steps = tr.steps if tr.integrator == "rk4" else 0  # CVODES: one integrator call
+        return FIXED_MB + SHOOTING_MB * n**SHOOTING_EXPONENT * steps
+    degree = tr.degree if tr.method in ("legendre", "radau") else 1
+    per_knot = KNOT_MB * n**KNOT_EXPONENT * (1 + DEGREE_SHARE * degree)
+    return FIXED_MB + per_knot * dynamics_knots(tr)
 
 
 def capacity_errors(scene: Scene, settings: Settings) -> list[FieldError]:
-    """A field error at `transcription.intervals` when the scene's NLP cannot fit in a
-    solver worker."""
+    """A field error when the scene's NLP cannot fit in a solver worker: at
+    `transcription.steps` for RK4 shooting (its memory grows with the steps), else at
+    `transcription.intervals`."""
     needed = estimate_mb(scene)
     if needed <= settings.worker_memory_mb:
         return []
-    return [field_error(["body", "transcription", "intervals"],
+    if scene.transcription.method == "multiple-shooting":
+        field, advice = "steps", "fewer RK4 steps per interval, or fewer links"
+    else:
+        field, advice = "intervals", "fewer intervals, a lower degree, or fewer links"
+    return [field_error(["body", "transcription", field],
                         f"this plan's NLP needs about {needed:.0f} MB, more than the "
                         f"{settings.worker_memory_mb} MB a solver worker may use on this server "
-                        "(UNDERTOW_WORKER_MEMORY_MB): use fewer intervals, a lower degree or "
-                        "fewer links", "limit")]
+                        f"(UNDERTOW_WORKER_MEMORY_MB): use {advice}", "limit")]
