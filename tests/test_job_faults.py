@@ -5,6 +5,7 @@ runs on real worker processes."""
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import time
@@ -15,8 +16,10 @@ import pytest
 from fake_solvers import fake_plan
 from service_fixtures import LiveServer, client, two_link_scene, wait_final
 
+from app.capacity import estimate_mb
 from app.store import SqliteJobStore, StoreDamaged
 from app.supervisor import CANCELLED_STOPPED, died, over_budget
+from planner.scene import Scene
 
 
 def chain(n: int) -> dict:
@@ -52,6 +55,13 @@ def wait_idle(api, timeout: float = 30.0) -> None:
         time.sleep(0.05)
 
 
+def fake_server(folder: Path) -> LiveServer:
+    """A live uvicorn with one worker running the fake solver."""
+    return LiveServer(folder / "jobs.sqlite3", UNDERTOW_WORKERS="1",
+                      UNDERTOW_SOLVE_FUNCTION="fake_solvers:fake_plan",
+                      PYTHONPATH=str(Path(__file__).parent))
+
+
 def wait_gone(group: int, timeout: float = 30.0) -> None:
     """Until no process of the process group is left."""
     deadline = time.monotonic() + timeout
@@ -75,23 +85,24 @@ def api(tmp_path_factory):
         yield c
 
 
-def test_a_plan_too_big_for_a_worker_is_refused_at_intervals(api):
+def test_a_plan_too_big_for_a_worker_is_refused_before_it_runs(api):
     scene = {"robot": chain(8), "task": {
         "duration": 1.0, "initial": {"q": [0.0] * 8, "dq": [0.0] * 8},
         "final": {"q": [0.5] * 8, "dq": [0.0] * 8}},
-        "transcription": {"method": "radau", "degree": 9, "intervals": 200}}
+        "transcription": {"method": "multiple-shooting", "intervals": 10, "steps": 20}}
+    needed = estimate_mb(Scene.model_validate(scene))
+    assert needed > 4096
     r = api.post("/v1/plans", json=scene)
     assert r.status_code == 422, r.text
     [error] = r.json()["errors"]
-    assert error["loc"] == ["body", "transcription", "intervals"] and error["type"] == "limit"
-    assert error["msg"] == ("this plan's NLP needs about 12952 MB, more than the 4096 MB a "
-                            "solver worker may use on this server (UNDERTOW_WORKER_MEMORY_MB): "
-                            "use fewer intervals, a lower degree or fewer links")
-    scene["transcription"]["intervals"] = 20  # 4 links: fits
-    scene["robot"] = chain(4)
-    for state in ("initial", "final"):
-        scene["task"][state] = {"q": scene["task"][state]["q"][:4], "dq": [0.0] * 4}
-    assert api.post("/v1/plans", json=scene).status_code == 202
+    assert error["loc"] == ["body", "transcription", "steps"] and error["type"] == "limit"
+    assert error["msg"] == (f"this plan's NLP needs about {needed:.0f} MB, more than the 4096 MB "
+                            "a solver worker may use on this server (UNDERTOW_WORKER_MEMORY_MB): "
+                            "use fewer RK4 steps per interval, or fewer links")
+    scene["transcription"] = {"method": "radau", "degree": 9, "intervals": 200}
+    r = api.post("/v1/plans", json=scene)
+    assert r.status_code == 202, r.text  # 1800 knots of 8 links fit
+    api.delete(f"/v1/plans/{r.json()['id']}")
 
 
 def test_a_dead_worker_fails_only_its_own_job(api):
@@ -156,9 +167,7 @@ def test_no_state_of_one_job_leaks_into_the_next(tmp_path):
 
 
 def test_sigterm_interrupts_running_jobs_and_keeps_queued_ones_queued(tmp_path):
-    live = LiveServer(tmp_path / "jobs.sqlite3", UNDERTOW_WORKERS="1",
-                      UNDERTOW_SOLVE_FUNCTION="fake_solvers:fake_plan",
-                      PYTHONPATH=str(Path(__file__).parent))
+    live = fake_server(tmp_path)
     with live, httpx.Client(base_url=live.url, timeout=30) as api:
         running = post(api, iterations=1000)
         queued = [post(api) for _ in range(3)]
@@ -172,6 +181,20 @@ def test_sigterm_interrupts_running_jobs_and_keeps_queued_ones_queued(tmp_path):
             ("queued", None)] * 3
     with live, httpx.Client(base_url=live.url, timeout=30) as api:
         assert [wait_final(api, j)["status"] for j in queued] == ["succeeded"] * 3
+
+
+def test_ctrl_c_stops_server_and_workers_with_json_log_lines_only(tmp_path):
+    live = fake_server(tmp_path)
+    with live, httpx.Client(base_url=live.url, timeout=30) as api:
+        running = post(api, iterations=1000)
+        wait_for(api, running, solving)
+        os.killpg(live.proc.pid, signal.SIGINT)  # a terminal's Ctrl-C reaches every process
+        live.proc.wait(30)
+        wait_gone(live.proc.pid)
+    store = SqliteJobStore(tmp_path / "jobs.sqlite3")
+    assert (store.get(running).status, store.get(running).error) == ("failed", "interrupted")
+    for line in live.log.read_text().splitlines():
+        assert json.loads(line)["level"] in ("INFO", "WARNING"), line
 
 
 def test_a_deleted_store_answers_503_everywhere(tmp_path):

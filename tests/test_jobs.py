@@ -148,25 +148,26 @@ def test_the_budget_counts_the_build_and_stops_the_solver(runner):
     assert record.plan["solver"]["iterations"] < 100
 
 
-def test_the_queue_refuses_jobs_beyond_capacity(runner):
+def fill(runner: JobRunner, prefix: str, iterations: int) -> list[str]:
+    """Submit as many jobs as the runner holds; one more is refused and not stored."""
     # earlier tests' jobs must have ended: the capacity counts the store's unfinished jobs
     wait_until(lambda: unfinished(runner.store) == 0)
-    ids = [f"cap{k}" for k in range(runner.capacity)]
+    ids = [f"{prefix}{k}" for k in range(runner.capacity)]
     for job_id in ids:
-        runner.submit(scene(iterations=25), job_id)
+        runner.submit(scene(iterations=iterations), job_id)
     with pytest.raises(QueueFull):
-        runner.submit(scene(), "one-too-many")
-    assert runner.store.get("one-too-many") is None
+        runner.submit(scene(), f"{prefix}-refused")
+    assert runner.store.get(f"{prefix}-refused") is None
+    return ids
+
+
+def test_the_queue_refuses_jobs_beyond_capacity(runner):
+    ids = fill(runner, "cap", iterations=25)
     assert {wait_final(runner.store, j).status for j in ids} == {"succeeded"}
 
 
 def test_cancelled_queued_jobs_free_their_places(runner):
-    wait_until(lambda: unfinished(runner.store) == 0)
-    ids = [f"place{k}" for k in range(runner.capacity)]
-    for job_id in ids:
-        runner.submit(scene(iterations=1000), job_id)
-    with pytest.raises(QueueFull):
-        runner.submit(scene(), "refused")
+    ids = fill(runner, "place", iterations=1000)
     queued = [j for j in ids if runner.store.get(j).status == "queued"]
     assert len(queued) >= 2
     for job_id in queued:

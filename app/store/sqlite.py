@@ -260,12 +260,16 @@ class SqliteJobStore(JobStore):
             (error, time.time(), job_id))
         return bool(rows)
 
-    def fail_claimed(self, worker: str, error: str) -> list[str]:
+    def _fail_running(self, condition: str, params: tuple, error: str) -> list[str]:
+        """Mark the running jobs that meet `condition` failed with `error`; their ids."""
         rows = self._write(
             "UPDATE jobs SET status = 'failed', error = ?, finished = ? "
-            "WHERE worker = ? AND status = 'running' RETURNING id",
-            (error, time.time(), worker))
+            f"WHERE status = 'running' AND {condition} RETURNING id",
+            (error, time.time(), *params))
         return [row[0] for row in rows]
+
+    def fail_claimed(self, worker: str, error: str) -> list[str]:
+        return self._fail_running("worker = ?", (worker,), error)
 
     def request_cancel(self, job_id: str) -> JobRecord | None:
         self._write(
@@ -285,18 +289,10 @@ class SqliteJobStore(JobStore):
         return {job_id: bool(cancel) for job_id, cancel in rows}
 
     def expire(self, now: float) -> list[str]:
-        rows = self._write(
-            "UPDATE jobs SET status = 'failed', error = ?, finished = ? "
-            "WHERE status = 'running' AND lease_until < ? RETURNING id",
-            (INTERRUPTED, time.time(), now))
-        return [row[0] for row in rows]
+        return self._fail_running("lease_until < ?", (now,), INTERRUPTED)
 
     def interrupt(self, owner: str) -> list[str]:
-        rows = self._write(
-            "UPDATE jobs SET status = 'failed', error = ?, finished = ? "
-            "WHERE owner = ? AND status = 'running' RETURNING id",
-            (INTERRUPTED, time.time(), owner))
-        return [row[0] for row in rows]
+        return self._fail_running("owner = ?", (owner,), INTERRUPTED)
 
     def check(self) -> None:
         self._rows("SELECT 1 FROM jobs LIMIT 1")
