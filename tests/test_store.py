@@ -262,3 +262,18 @@ def test_a_store_deleted_under_the_service_is_unavailable_not_recreated(store):
     with pytest.raises(StoreUnavailable):
         store.create("b", SCENE, "host")
     assert not os.path.exists(store.path)
+
+
+def test_check_reads_the_file_not_a_cache(tmp_path):
+    path = tmp_path / "db.sqlite3"
+    store = SqliteJobStore(path)
+    for k in range(50):
+        store.create(f"j{k}", {"pad": "x" * 500}, "host")
+    store.checkpoint(final=True)
+    store.check()
+    assert store.get("j49") is not None  # this connection now holds the pages in its cache
+    data = bytearray(path.read_bytes())
+    data[4096:] = b"\xa5" * (len(data) - 4096)  # every page after the header's
+    path.write_bytes(bytes(data))
+    with pytest.raises(StoreUnavailable, match="malformed"):
+        store.check()

@@ -15,6 +15,7 @@ shutdown, so the `-wal` file never holds more than that interval's jobs.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
@@ -152,19 +153,26 @@ class SqliteJobStore(JobStore):
             raise StoreUnavailable(f"the job store {self.path} could not be migrated: "
                                    f"{exc}") from exc
 
-    def _connection(self) -> sqlite3.Connection:
-        """This thread's connection (a new one after a fork), on the file opened first."""
+    def _open(self) -> sqlite3.Connection:
+        """A new connection to the file opened first (never creating one)."""
         if _identity(self.path) != self._identity:
             raise StoreUnavailable(f"the job store file {self.path} was deleted or replaced "
                                    "while the service ran; restart the service")
+        uri = Path(self.path).absolute().as_uri() + "?mode=rw"
+        conn = sqlite3.connect(uri, uri=True, timeout=self.busy_timeout,
+                               isolation_level=None, check_same_thread=False)
+        conn.execute("PRAGMA journal_mode=WAL")
+        conn.execute("PRAGMA synchronous=NORMAL")
+        return conn
+
+    def _connection(self) -> sqlite3.Connection:
+        """This thread's connection (a new one after a fork); every use checks that the
+        path still names the file opened first."""
         local = self._local
         if getattr(local, "pid", None) != os.getpid():
-            uri = Path(self.path).absolute().as_uri() + "?mode=rw"
-            conn = sqlite3.connect(uri, uri=True, timeout=self.busy_timeout,
-                                   isolation_level=None, check_same_thread=False)
-            conn.execute("PRAGMA journal_mode=WAL")
-            conn.execute("PRAGMA synchronous=NORMAL")
-            local.conn, local.pid = conn, os.getpid()
+            local.conn, local.pid = self._open(), os.getpid()
+        elif _identity(self.path) != self._identity:
+            self._open()  # raises StoreUnavailable
         return local.conn
 
     def _rows(self, sql: str, params: tuple = ()) -> list[tuple]:
@@ -295,7 +303,13 @@ class SqliteJobStore(JobStore):
         return self._fail_running("owner = ?", (owner,), INTERRUPTED)
 
     def check(self) -> None:
-        self._rows("SELECT 1 FROM jobs LIMIT 1")
+        """Read the schema, the newest job and its index through a new connection, whose
+        pages come from the file and not from a cache."""
+        try:
+            with contextlib.closing(self._open()) as conn:
+                conn.execute("SELECT id FROM jobs ORDER BY created DESC LIMIT 1").fetchall()
+        except sqlite3.Error as exc:
+            raise StoreUnavailable(f"the job store {self.path} failed: {exc}") from exc
 
     def checkpoint(self, final: bool = False) -> None:
         self._checkpointed = time.monotonic()
