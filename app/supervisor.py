@@ -1,5 +1,5 @@
-"""Supervision of local solver workers: independent processes (spawn), each claiming jobs
-from the store (`app.worker`), watched by one thread of the service.
+"""Supervision of local solver workers: independent processes (spawn), each of which
+claims jobs from the store (`app.worker`), watched by one thread of the service.
 
 The supervisor starts `workers` processes and replaces any that exits. It learns what each
 worker runs from the worker's own messages and holds it to three bounds:
