@@ -5,8 +5,8 @@ The estimate is the address space a worker grows by to build the NLP and run Ipo
 first iterations (the quantity the worker limit caps), fitted to `bench/capacity.py`'s
 measurements (bench/results/capacity.csv). The NLP is written stage by stage: collocation,
 trapezoidal and Hermite-Simpson grow with their dynamics knots (Ipopt's matrices and the
-derivative blocks scattered per stage), each knot costing about n^1.5 (n links) and more
-for a higher collocation degree; multiple shooting with RK4 expands every step of one
+derivative blocks scattered per stage), each knot costing about n^1.4 (n links) and a
+little more for a higher collocation degree; multiple shooting with RK4 expands every step of one
 stage into one symbolic graph of the explicit dynamics, whatever the number of intervals,
 each step costing about n^3.5. The constants are rounded so that every measured point
 needs at least its estimate: the estimate refuses only plans that would certainly not fit,
@@ -21,12 +21,12 @@ from app.errors import FieldError, field_error
 from app.settings import Settings
 from planner.scene import Scene, Transcription
 
-FIXED_MB = 270.0
+FIXED_MB = 260.0
 """Ipopt and MUMPS loaded and their first allocations, whatever the plan."""
-KNOT_MB = 0.0195
+KNOT_MB = 0.0775
 """Per dynamics knot, per link count to the power KNOT_EXPONENT."""
-KNOT_EXPONENT = 1.5
-DEGREE_SHARE = 0.053
+KNOT_EXPONENT = 1.4
+DEGREE_SHARE = 0.02
 """Extra share of a knot's cost per collocation degree (the denser per-interval blocks)."""
 SHOOTING_MB = 0.18
 """Per RK4 step of a shooting interval, per link count to the power SHOOTING_EXPONENT."""
