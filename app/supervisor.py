@@ -49,6 +49,7 @@ EXPIRE_INTERVAL = 15.0  # [s] between two looks for jobs whose lease ran out
 CANCEL_GRACE = 2.0  # [s] a cancelled job's solver has to stop before its worker is killed
 STOP_WAIT = 5.0  # [s] idle workers have to leave on stop
 MAX_BACKOFF = 30.0  # [s] longest pause before restarting a worker that failed to start
+FAILED_STARTS = 3  # workers in a row that exit before they are ready: the workers are broken
 WORKER_DIED = "the worker process died during the solve"
 
 
@@ -126,7 +127,7 @@ class Supervisor:
         """Why the workers cannot run jobs, or None when they can."""
         if not self._thread.is_alive() and not self._stopping.is_set():
             return "the solver worker supervisor is not running"
-        if self._failed_starts and not any(w and w.ready for w in self._slots):
+        if self._failed_starts >= FAILED_STARTS and not any(w and w.ready for w in self._slots):
             return (f"no solver worker process could start ({self._failed_starts} tries in a "
                     f"row, the last one ended with {_how(self._last_exit)}; see the log)")
         return None

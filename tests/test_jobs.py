@@ -297,3 +297,13 @@ def test_a_deleted_store_is_reported_and_refuses_new_jobs(make_runner):
     assert "was deleted or replaced while the service ran" in runner.problem()
     with pytest.raises(StoreUnavailable, match="was deleted or replaced"):
         runner.submit(scene(), "lost")
+
+
+def test_one_worker_killed_while_starting_is_replaced_without_alarm(make_runner):
+    runner = make_runner()
+    starting = runner.supervisor._slots[0]
+    os.kill(starting.process.pid, signal.SIGKILL)  # before it could report ready
+    wait_until(lambda: runner.supervisor._failed_starts == 1)
+    assert runner.problem() is None  # one lost start is not a broken worker setup
+    runner.submit(scene(), "after")
+    assert wait_final(runner.store, "after").status == "succeeded"
