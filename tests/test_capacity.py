@@ -15,7 +15,7 @@ ROOT = Path(__file__).resolve().parents[1]
 MEASURED = ROOT / "bench" / "results" / "capacity.csv"
 sys.path.insert(0, str(ROOT))
 
-from bench.capacity import scene_of  # noqa: E402
+from bench.capacity import scene_of
 
 
 def measured() -> list[dict]:
