@@ -55,10 +55,13 @@ class JobRunner:
                                      log_level, on_done)
 
     def start(self) -> list[str]:
-        """Recover after a restart and start the workers: running jobs of this owner
-        become failed ("interrupted"); queued ones run. Returns the interrupted ids."""
+        """Recover after a restart: running jobs of this owner become failed
+        ("interrupted"); queued ones run (the workers start now if any job waits, else
+        with the first submitted one). Returns the interrupted ids."""
         interrupted = self.store.interrupt(self.owner)
         self.supervisor.start()
+        if self.store.count_by_status()["queued"]:
+            self.supervisor.wake()
         return interrupted
 
     def submit(self, scene: dict[str, Any], job_id: str) -> None:

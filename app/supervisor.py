@@ -1,8 +1,9 @@
 """Supervision of local solver workers: independent processes (spawn), each of which
 claims jobs from the store (`app.worker`), watched by one thread of the service.
 
-The supervisor starts `workers` processes and replaces any that exits. It learns what each
-worker runs from the worker's own messages and holds it to three bounds:
+The supervisor starts `workers` processes once there is work (the first `wake`) and
+replaces any that exits. It learns what each worker runs from the worker's own messages
+and holds it to three bounds:
 
 - wall time: a job still running `grace` seconds after its budget (`solver.max_wall_time`,
   counted from the claim) has its worker killed and fails, saying so;
@@ -115,11 +116,10 @@ class Supervisor:
         self._thread = threading.Thread(target=self._run, name="supervisor", daemon=True)
         self._next_expiry = 0.0
         self._store_error: str | None = None
+        self._wanted = False
 
     def start(self) -> None:
-        """Start the worker processes and the supervising thread."""
-        for slot in range(self.count):
-            self._spawn(slot)
+        """Start the supervising thread; the workers start with the first `wake`."""
         self._thread.start()
 
     @property
@@ -133,7 +133,8 @@ class Supervisor:
         return None
 
     def wake(self) -> None:
-        """Tell the idle workers that a job was queued."""
+        """Tell the idle workers that a job was queued (starting them the first time)."""
+        self._wanted = True
         for worker in self._slots:
             if worker is not None and worker.job is None:
                 self._send(worker, WAKE)
@@ -211,7 +212,7 @@ class Supervisor:
                 self._drain(worker)
         now = time.monotonic()
         for slot, worker in enumerate(self._slots):
-            if worker is None and now >= self._restart_at[slot]:
+            if worker is None and self._wanted and now >= self._restart_at[slot]:
                 self._spawn(slot)
             elif worker is not None and worker.fate is None and now > worker.deadline:
                 self._kill(worker, "failed", over_budget(worker.budget, self.grace))

@@ -109,10 +109,10 @@ def main() -> None:
          "with `UNDERTOW_WORKERS=2` (default `UNDERTOW_WORKER_MEMORY_MB`); memory as `docker "
          f"stats` reports it, {SETTLE:g} s after /healthz first answers and after each of "
          f"{len(PLANS)} plans of the built-in examples (`POST /v1/plans`, each to its end "
-         "before the next). The idle figure is the server and its two workers with CasADi "
-         "loaded; each plan adds the NLP its worker builds and keeps for the next plan of "
-         "the same structure, so the figure after a few plans is the one to size a "
-         f"container by. Load average at the end: {load()}."),
+         "before the next). The idle figure is the server alone: its workers start with "
+         "the first plan and each loads CasADi; each plan then adds the NLP its worker "
+         "builds and keeps for the next plan of the same structure, so the figure after a "
+         f"few plans is the one to size a container by. Load average at the end: {load()}."),
         table(rows, COLUMNS)])
     print(text)
     write_csv(RESULTS / "container.csv", [{**facts, **row} for row in rows])

@@ -235,6 +235,7 @@ def test_workers_that_cannot_start_make_health_503(tmp_path, monkeypatch):
 
     monkeypatch.setenv("UNDERTOW_TEST_BREAK_WORKERS", "1")  # the workers' import fails
     with client(tmp_path, solve=broken_plan) as api:
+        assert api.post("/v1/plans", json=two_link_scene()).status_code == 202  # workers start
         deadline = time.monotonic() + 60
         while (r := api.get("/healthz")).status_code == 200:
             assert time.monotonic() < deadline, "health stayed 200"

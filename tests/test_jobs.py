@@ -12,7 +12,7 @@ from fake_solvers import fake_plan
 
 from app.jobs import JobRunner, QueueFull
 from app.store import BUILDING, FINAL, INTERRUPTED, SqliteJobStore, StoreUnavailable
-from app.supervisor import CANCELLED_STOPPED, died, over_budget
+from app.supervisor import CANCELLED_STOPPED, TICK, died, over_budget
 from app.worker import Outcome, out_of_memory
 
 ROBOT = {"links": [{"length": 0.5, "mass": 1.0, "joint": "passive"},
@@ -168,6 +168,7 @@ def test_the_queue_refuses_jobs_beyond_capacity(runner):
 
 def test_cancelled_queued_jobs_free_their_places(runner):
     ids = fill(runner, "place", iterations=1000)
+    wait_until(lambda: runner.store.count_by_status()["running"] == 2)  # both workers busy
     queued = [j for j in ids if runner.store.get(j).status == "queued"]
     assert len(queued) >= 2
     for job_id in queued:
@@ -299,11 +300,19 @@ def test_a_deleted_store_is_reported_and_refuses_new_jobs(make_runner):
         runner.submit(scene(), "lost")
 
 
+def test_workers_start_with_the_first_job(make_runner):
+    runner = make_runner()
+    time.sleep(3 * TICK)  # rounds of the supervisor with nothing to do
+    assert runner.supervisor._slots == [None]
+    runner.submit(scene(), "first")
+    assert wait_final(runner.store, "first").status == "succeeded"
+
+
 def test_one_worker_killed_while_starting_is_replaced_without_alarm(make_runner):
     runner = make_runner()
-    starting = runner.supervisor._slots[0]
-    os.kill(starting.process.pid, signal.SIGKILL)  # before it could report ready
+    runner.submit(scene(), "after")
+    wait_until(lambda: runner.supervisor._slots[0] is not None)
+    os.kill(runner.supervisor._slots[0].process.pid, signal.SIGKILL)  # before it is ready
     wait_until(lambda: runner.supervisor._failed_starts == 1)
     assert runner.problem() is None  # one lost start is not a broken worker setup
-    runner.submit(scene(), "after")
     assert wait_final(runner.store, "after").status == "succeeded"
