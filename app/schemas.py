@@ -28,6 +28,8 @@ class JobProgress(BaseModel):
     inf_du: float | None = Field(description="dual infeasibility")
     elapsed: float = Field(description="wall time since the solve started [s] (0 while "
                            "building)")
+    mesh_pass: int = Field(default=0, description="the mesh pass the solve belongs to (0: the "
+                           "first mesh)")
 
 
 class JobSummary(BaseModel):

@@ -128,7 +128,8 @@ def test_progress_says_building_and_a_cancel_stops_the_build(api):
     job_id = post(api, tol=0.85, duration=60.0)
     running = wait_for(api, job_id, lambda j: j["status"] == "running")
     assert running["progress"] == {"phase": "building", "iteration": 0, "objective": None,
-                                   "inf_pr": None, "inf_du": None, "elapsed": 0.0}
+                                   "inf_pr": None, "inf_du": None, "elapsed": 0.0,
+                                   "mesh_pass": 0}
     asked = time.monotonic()
     assert api.delete(f"/v1/plans/{job_id}").status_code == 202
     job = wait_final(api, job_id, timeout=20)

@@ -20,7 +20,7 @@ STATUSES: tuple[JobStatus, ...] = ("queued", "running", "succeeded", "failed", "
 FINAL: frozenset[str] = frozenset({"succeeded", "failed", "cancelled"})
 INTERRUPTED = "interrupted"
 BUILDING: dict[str, Any] = {"phase": "building", "iteration": 0, "objective": None,
-                            "inf_pr": None, "inf_du": None, "elapsed": 0.0}
+                            "inf_pr": None, "inf_du": None, "elapsed": 0.0, "mesh_pass": 0}
 """The progress of a job from its claim until the solver's first iteration."""
 
 
