@@ -219,16 +219,27 @@ def test_writes_checkpoint_the_log_every_interval(tmp_path):
     assert SqliteJobStore(copy).count_by_status()["queued"] == 7
 
 
-def test_a_damaged_store_is_refused_with_a_clear_message(tmp_path):
-    path = tmp_path / "db.sqlite3"
+def filled(path, jobs: int) -> SqliteJobStore:
+    """A store of `jobs` jobs of 500 bytes each, all in its main file."""
     store = SqliteJobStore(path)
-    for k in range(200):
+    for k in range(jobs):
         store.create(f"j{k}", {"pad": "x" * 500}, "host")
     store.checkpoint(final=True)
-    store.close()
+    return store
+
+
+def overwrite(path, start: int, end: int | None = None) -> None:
+    """Overwrite the file's bytes from `start` to `end` (its end) with garbage."""
     data = bytearray(path.read_bytes())
-    data[4096 * 2:4096 * 3] = b"\xff" * 4096  # one page of the table's b-tree
+    end = len(data) if end is None else end
+    data[start:end] = b"\xa5" * (end - start)
     path.write_bytes(bytes(data))
+
+
+def test_a_damaged_store_is_refused_with_a_clear_message(tmp_path):
+    path = tmp_path / "db.sqlite3"
+    filled(path, 200).close()
+    overwrite(path, 4096 * 2, 4096 * 3)  # one page of the table's b-tree
     with pytest.raises(StoreDamaged, match=r"failed its integrity check .*refusing to start"):
         SqliteJobStore(path)
     path.write_bytes(b"not a database at all" * 100)
@@ -266,14 +277,9 @@ def test_a_store_deleted_under_the_service_is_unavailable_not_recreated(store):
 
 def test_check_reads_the_file_not_a_cache(tmp_path):
     path = tmp_path / "db.sqlite3"
-    store = SqliteJobStore(path)
-    for k in range(50):
-        store.create(f"j{k}", {"pad": "x" * 500}, "host")
-    store.checkpoint(final=True)
+    store = filled(path, 50)
     store.check()
     assert store.get("j49") is not None  # this connection now holds the pages in its cache
-    data = bytearray(path.read_bytes())
-    data[4096:] = b"\xa5" * (len(data) - 4096)  # every page after the header's
-    path.write_bytes(bytes(data))
+    overwrite(path, 4096)  # every page after the header's
     with pytest.raises(StoreUnavailable, match="malformed"):
         store.check()
