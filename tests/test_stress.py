@@ -204,16 +204,19 @@ def test_every_badly_scaled_robot_plans_to_finite_numbers(case):
 
 @pytest.mark.slow
 def test_a_killed_worker_fails_its_job_and_the_server_recovers(tmp_path):
+    import signal
+
     import httpx
     from service_fixtures import LiveServer
 
+    from app.supervisor import died
     from bench.stress import kill_worker_case
 
     with LiveServer(tmp_path / "jobs.sqlite3") as live, \
             httpx.Client(base_url=live.url, timeout=60) as http:
         out = kill_worker_case(live, http)
     assert out["workers killed"] >= 1
-    assert (out["job status"], out["job error"]) == ("failed", "the worker process died during the solve")
+    assert (out["job status"], out["job error"]) == ("failed", died(-signal.SIGKILL))
     assert out["healthz"] == 200 and out["next plan"] == "succeeded"
 
 
