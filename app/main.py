@@ -1,29 +1,35 @@
 """The undertow HTTP service: `app.main:app`.
 
-`create_app(settings, solve)` builds an app; its lifespan opens the job store, recovers
-jobs a previous run left behind, and starts the worker pool.
+`create_app(settings, solve)` builds an app; its lifespan opens the job store (refusing
+to start on one that fails its integrity check), recovers jobs a previous run left
+behind, and starts the solver workers; on shutdown it stops them and checkpoints the store.
 """
 
 from __future__ import annotations
 
+import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
 from anyio import CapacityLimiter
-from fastapi import Depends, FastAPI
+from fastapi import Depends, FastAPI, Request
+from fastapi.responses import JSONResponse
 from fastapi_offline import FastAPIOffline
 
 from app import errors, viewer
 from app.auth import ApiKeyMiddleware
 from app.body_limit import BodyLimitMiddleware
 from app.deps import require_api_key
-from app.jobs import JobRunner, SolveFunction, load_function
+from app.jobs import JobRunner
 from app.logging import RequestIdMiddleware, configure
 from app.metrics import Metrics, MetricsMiddleware
 from app.openapi import document
 from app.routes import dynamics, examples, health, plans, plots
 from app.settings import Settings, get_settings
-from app.store import SqliteJobStore
+from app.store import SqliteJobStore, StoreDamaged, StoreUnavailable
+from app.worker import SolveFunction, load_function
+
+log = logging.getLogger("undertow.main")
 
 DESCRIPTION = """Feed-forward torque planning for underactuated planar manipulators whose
 active joints carry a small-amplitude wave. Angles in radians, SI units, 0-based joint
@@ -38,11 +44,17 @@ def create_app(settings: Settings | None = None, solve: SolveFunction | None = N
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        store = SqliteJobStore(settings.db_path)
+        try:
+            store = SqliteJobStore(settings.db_path)
+        except StoreDamaged as exc:
+            log.critical("%s", exc)
+            raise
         app.state.metrics.watch(store)
         runner = JobRunner(store, solve or load_function(settings.solve_function),
                            owner=settings.instance, workers=settings.workers,
                            max_queued=settings.max_queued, retry_after=settings.retry_after,
+                           memory_mb=settings.worker_memory_mb,
+                           grace=settings.wall_time_grace, log_level=settings.log_level,
                            on_done=app.state.metrics.job_done)
         runner.start()
         app.state.store, app.state.runner = store, runner
@@ -58,6 +70,7 @@ def create_app(settings: Settings | None = None, solve: SolveFunction | None = N
     app.state.metrics = Metrics()
     app.state.quick_limiter = CapacityLimiter(settings.quick_threads)
     errors.install(app)
+    app.add_exception_handler(StoreUnavailable, _store_unavailable)
     app.include_router(health.router)
     secured = [Depends(require_api_key)]
     for router in (dynamics.router, plans.router, examples.router, plots.router):
@@ -71,6 +84,12 @@ def create_app(settings: Settings | None = None, solve: SolveFunction | None = N
     app.openapi = lambda: document(app)
     app.router.routes.extend(viewer.routes())
     return app
+
+
+async def _store_unavailable(request: Request, exc: StoreUnavailable) -> JSONResponse:
+    """503 for any request that needed the job store while it could not be used."""
+    log.error("%s", exc)
+    return errors.problem(request, health.unavailable(str(exc), request.app.state.settings))
 
 
 app = create_app()

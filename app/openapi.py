@@ -28,6 +28,10 @@ _DESCRIPTIONS = {
 }
 
 
+UNAVAILABLE = ("the job store or the solver workers cannot be used (type unavailable; "
+               "`detail` says why); retry after the Retry-After header's seconds")
+"""The 503 of the health, metrics and plan endpoints."""
+
 BUDGET = (f"{_DESCRIPTIONS[422]}; or type budget-exceeded: the computation ran out of its "
           "time budget (UNDERTOW_SYNC_WALL_TIME)")
 """The 422 of a synchronous computation."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from datetime import UTC, datetime
+from typing import Literal
 
 from pydantic import BaseModel, Field
 
@@ -15,13 +16,20 @@ def _time(seconds: float | None) -> datetime | None:
 
 
 class JobProgress(BaseModel):
-    """The latest Ipopt iteration of a running job (None where Ipopt gave no finite value)."""
+    """How far a running job is: `building` from its start until Ipopt's first iteration
+    (iteration 0, no figures yet), then `solving` with Ipopt's latest iteration (None
+    where Ipopt gave no finite value)."""
 
+    phase: Literal["building", "solving"] = Field(
+        default="solving", description="building: the NLP is being built; solving: Ipopt runs")
     iteration: int
     objective: float | None
     inf_pr: float | None = Field(description="primal infeasibility")
     inf_du: float | None = Field(description="dual infeasibility")
-    elapsed: float = Field(description="wall time since the solve started [s]")
+    elapsed: float = Field(description="wall time since the solve started [s] (0 while "
+                           "building)")
+    mesh_pass: int = Field(default=0, description="the mesh pass the solve belongs to (0: the "
+                           "first mesh)")
 
 
 class JobSummary(BaseModel):

@@ -16,11 +16,18 @@ class Settings(BaseSettings):
 
     model_config = SettingsConfigDict(env_prefix="UNDERTOW_", frozen=True)
 
-    db_path: str = Field(default="undertow-jobs.sqlite3", description="SQLite job store file")
+    db_path: str = Field(default="var/undertow-jobs.sqlite3",
+                         description="SQLite job store file (relative to the working directory)")
     instance: str = Field(default_factory=socket.gethostname,
                           description="name of this server; jobs it leaves running are "
                                       "marked interrupted when a server of that name starts")
     workers: int = Field(default=2, ge=1, le=64, description="solver worker processes")
+    worker_memory_mb: int = Field(default=4096, ge=64, description=(
+        "memory a solver worker may take beyond its start-up size [MB]: plans estimated "
+        "above it are refused (422), a solve that needs more fails"))
+    wall_time_grace: float = Field(default=30.0, gt=0.0, description=(
+        "seconds a job may run past its wall-time budget (NLP build included) before its "
+        "worker process is stopped"))
     solve_function: str = Field(default="planner.ocp:plan",
                                 description="module:function that plans a scene")
     api_key: str | None = Field(default=None, description="required X-API-Key when set")

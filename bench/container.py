@@ -3,7 +3,8 @@
 Needs the image `.ci/docker` builds (UNDERTOW_IMAGE, default undertow:ci) and a running
 docker daemon; run `bash .ci/docker` first, which leaves both. Starts one container with
 2 solver workers on a loopback port, then records its memory (`docker stats`) when idle
-and after each of two plans of the built-in example `two-link-plan`, one at a time.
+and after each of `len(PLANS)` plans of the built-in examples, one at a time: the
+memory a user sees grows as each worker builds and caches the NLPs of the plans it ran.
 Writes the section "Measured footprint" of docs/deploy.md and bench/results/container.csv.
 
     python -m bench container
@@ -26,7 +27,9 @@ from testbed.service import free_port
 SECTION = "Measured footprint"
 IMAGE = os.environ.get("UNDERTOW_IMAGE", "undertow:ci")
 SETTLE = 10.0  # [s] after /healthz answers, before the idle reading
-COLUMNS = [("moment", "moment"), ("memory", "container memory [MiB]"), ("plan", "plan")]
+PLANS = ("two-link-plan", "seed-arm-plan", "two-link-plan", "seed-arm-plan")
+COLUMNS = [("moment", "moment"), ("memory", "container memory [MiB]"), ("example", "example"),
+           ("plan", "plan")]
 
 
 def docker(*args: str) -> str:
@@ -63,15 +66,16 @@ def measure() -> tuple[dict, list[dict]]:
                     raise RuntimeError("the container's /healthz did not answer within 90 s")
                 time.sleep(0.5)
             time.sleep(SETTLE)
-            rows.append({"moment": "idle", "memory": memory_mib(container), "plan": "–"})
-            scene = http.get("/v1/examples/two-link-plan").json()["request"]
-            for k in (1, 2):
+            rows.append({"moment": "idle", "memory": memory_mib(container), "example": "–",
+                         "plan": "–"})
+            for k, name in enumerate(PLANS, 1):
+                scene = http.get(f"/v1/examples/{name}").json()["request"]
                 job = http.post("/v1/plans?wait=30", json=scene).json()
                 while job.get("status") in ("queued", "running"):
                     time.sleep(0.5)
                     job = http.get(f"/v1/plans/{job['id']}").json()
                 rows.append({"moment": f"after plan {k}", "memory": memory_mib(container),
-                             "plan": job["status"]})
+                             "example": name, "plan": job["status"]})
     finally:
         subprocess.run(["docker", "rm", "-f", container], check=False, capture_output=True)
     facts = {"image": IMAGE, "size_mb": image["Size"] / 1e6, "created": image["Created"][:19]}
@@ -85,10 +89,14 @@ def main(argv: list[str]) -> int:
     facts, rows = measure()
     text = "\n\n".join([
         (f"Image `{facts['image']}` built by `.ci/docker` ({facts['created']} UTC): "
-         f"{facts['size_mb']:.0f} MB. One container with `UNDERTOW_WORKERS=2`; memory as "
-         f"`docker stats` reports it, {SETTLE:g} s after /healthz first answers and after "
-         "each of two plans of the example `two-link-plan` (`POST /v1/plans`, each to its "
-         f"end before the next). Load average at the end: {harness.load()}."),
+         f"{facts['size_mb']:.0f} MB. One container with `UNDERTOW_WORKERS=2` (default "
+         "`UNDERTOW_WORKER_MEMORY_MB`); memory as `docker stats` reports it, "
+         f"{SETTLE:g} s after /healthz first answers and after each of {len(PLANS)} plans of "
+         "the built-in examples (`POST /v1/plans`, each to its end before the next). The "
+         "idle figure is the server alone: its workers start with the first plan and each "
+         "loads CasADi; each plan then adds the NLP its worker builds and keeps for the next "
+         "plan of the same structure, so the figure after a few plans is the one to size a "
+         f"container by. Load average at the end: {harness.load()}."),
         harness.table(rows, COLUMNS),
         f"Rows: `bench/results/container.csv`. "
         f"{harness.manifest('container', argv, started, note)}"])

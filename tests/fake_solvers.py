@@ -3,7 +3,10 @@
 `fake_plan` runs `solver.max_iter` iterations of 20 ms each, reporting progress and
 honouring a stop request like planner.ocp.plan does. `solver.tol` picks the outcome:
 < 0.2 converges, [0.2, 0.25) converges to a plan whose re-simulation departs by 0.5 rad,
-[0.25, 0.5) raises, [0.5, 0.9) fails, >= 0.9 kills the worker process.
+[0.25, 0.5) raises, [0.5, 0.7) fails, [0.7, 0.8) is refused at once (Ipopt's
+"Invalid_Problem_Definition": no iteration, no progress), [0.8, 0.9) first "builds" for
+`task.duration` seconds without reporting progress, then converges, [0.9, 0.95) allocates
+`max_iter` MB, then converges, >= 0.95 kills the worker process.
 """
 
 from __future__ import annotations
@@ -40,9 +43,16 @@ def _plan(scene: Scene, status: str, success: bool, iterations: int, elapsed: fl
 def fake_plan(scene: Scene, progress=None) -> Plan:
     """A plan after `max_iter` fake iterations; stops early when `progress` returns False."""
     tol, start = scene.solver.tol, time.monotonic()
-    if tol >= 0.9:
+    if tol >= 0.95:
         os._exit(3)
-    if tol >= 0.25 and tol < 0.5:
+    if 0.9 <= tol < 0.95:
+        held = bytearray(scene.solver.max_iter * 2**20)
+        return _plan(scene, "Solve_Succeeded", True, len(held) // 2**20, 0.0)
+    if 0.8 <= tol < 0.9:
+        time.sleep(scene.task.duration)
+    if 0.7 <= tol < 0.8:
+        return _plan(scene, "Invalid_Problem_Definition", False, 0, 0.0)
+    if 0.25 <= tol < 0.5:
         raise RuntimeError("the fake solver broke")
     for k in range(scene.solver.max_iter):
         time.sleep(ITERATION)
@@ -50,8 +60,8 @@ def fake_plan(scene: Scene, progress=None) -> Plan:
                         inf_du=None, elapsed=time.monotonic() - start)
         if progress is not None and not progress(step):
             return _plan(scene, "User_Requested_Stop", False, k + 1, time.monotonic() - start)
-    if tol >= 0.5:
+    if 0.5 <= tol < 0.7:
         return _plan(scene, "Maximum_Iterations_Exceeded", False, scene.solver.max_iter,
                      time.monotonic() - start)
     return _plan(scene, "Solve_Succeeded", True, scene.solver.max_iter, time.monotonic() - start,
-                 0.5 if tol >= 0.2 else 0.0)
+                 0.5 if 0.2 <= tol < 0.25 else 0.0)

@@ -26,9 +26,14 @@ TWO_LINK = {"links": [{"length": 0.5, "mass": 1.0, "inertia": 0.01, "joint": "pa
             "gravity": 9.81, "rotational_inertia": "cumulative"}
 
 
-def two_link_scene(iterations: int = 3, tol: float = 1e-8, duration: float = 1.0) -> dict:
-    """A two-link scene (the fake solver runs `iterations` x 20 ms; `tol` picks its outcome)."""
-    return {"robot": TWO_LINK, "solver": {"max_iter": iterations, "tol": tol},
+def two_link_scene(iterations: int = 3, tol: float = 1e-8, duration: float = 1.0,
+                   wall_time: float | None = None) -> dict:
+    """A two-link scene (the fake solver runs `iterations` x 20 ms; `tol` picks its outcome;
+    `wall_time` sets solver.max_wall_time)."""
+    solver = {"max_iter": iterations, "tol": tol}
+    if wall_time is not None:
+        solver["max_wall_time"] = wall_time
+    return {"robot": TWO_LINK, "solver": solver,
             "task": {"duration": duration, "initial": {"q": [0.0, 0.0], "dq": [0.0, 0.0]},
                      "final": {"q": [1.0, None], "dq": [0.0, 0.0]}},
             "transcription": {"intervals": 10}}

@@ -193,3 +193,18 @@ def test_settings_come_from_undertow_environment_variables(monkeypatch):
     monkeypatch.setenv("UNDERTOW_MAX_LINKS", "9")
     with pytest.raises(ValidationError, match="max_links"):
         Settings()
+
+
+def test_the_default_store_lives_in_an_ignored_data_directory():
+    import subprocess
+
+    from app.settings import Settings
+    from service_fixtures import ROOT
+
+    path = Settings().db_path
+    assert path == "var/undertow-jobs.sqlite3"
+    if not (ROOT / ".git").exists():
+        pytest.skip("not a git checkout")
+    for name in (path, path + "-wal", path + "-shm"):
+        ignored = subprocess.run(["git", "-C", str(ROOT), "check-ignore", "-q", name])
+        assert ignored.returncode == 0, f"{name} is not ignored by git"

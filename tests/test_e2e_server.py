@@ -36,11 +36,11 @@ def server(tmp_path_factory):
 
 
 def wait_running(http: httpx.Client, job_id: str, timeout: float = 60.0) -> dict:
-    """Poll until the job reports Ipopt progress."""
+    """Poll until the job reports Ipopt progress (past the NLP build)."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         job = http.get(f"/v1/plans/{job_id}").json()
-        if job["progress"] is not None:
+        if job["progress"] is not None and job["progress"]["phase"] == "solving":
             return job
         assert job["status"] in ("queued", "running"), job
         time.sleep(0.05)

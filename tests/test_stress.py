@@ -211,8 +211,11 @@ def test_every_badly_scaled_robot_plans_to_finite_numbers(case):
 
 @pytest.mark.slow
 def test_a_killed_worker_fails_its_job_and_the_server_recovers(tmp_path):
+    import signal
+
     import httpx
 
+    from app.supervisor import died
     from testbed.probes import kill_worker_case
     from testbed.service import LiveServer
 
@@ -220,7 +223,7 @@ def test_a_killed_worker_fails_its_job_and_the_server_recovers(tmp_path):
             httpx.Client(base_url=live.url, timeout=60) as http:
         out = kill_worker_case(live, http)
     assert out["workers killed"] >= 1
-    assert (out["job status"], out["job error"]) == ("failed", "the worker process died during the solve")
+    assert (out["job status"], out["job error"]) == ("failed", died(-signal.SIGKILL))
     assert out["healthz"] == 200 and out["next plan"] == "succeeded"
 
 

@@ -8,11 +8,12 @@ from typing import Annotated
 from fastapi import APIRouter, Body, Query, Response
 from starlette.concurrency import run_in_threadpool
 
+from app.capacity import capacity_errors
 from app.deps import RunnerDep, SettingsDep, StoreDep
 from app.errors import ApiError, field_error, invalid
 from app.jobs import QueueFull
 from app.limits import check_scene
-from app.openapi import problems
+from app.openapi import UNAVAILABLE, problems
 from app.schema_examples import body_examples
 from app.schemas import Job, JobList, JobSummary
 from app.store import FINAL, JobRecord, JobStatus, JobStore
@@ -32,7 +33,7 @@ def _found(record: JobRecord | None, job_id: str) -> JobRecord:
 @router.post("", status_code=202, summary="Submit a scene for planning",
              responses={200: {"model": Job, "description": "the job ended within `wait`"},
                         202: {"description": "queued; poll the Location", "links": _LINKS},
-                        **problems(429)})
+                        **problems(429, 503, s503=UNAVAILABLE)})
 async def create_plan(scene: Annotated[Scene, Body(openapi_examples=body_examples("plan"))],
                       response: Response, settings: SettingsDep,
                       runner: RunnerDep, store: StoreDep,
@@ -43,6 +44,9 @@ async def create_plan(scene: Annotated[Scene, Body(openapi_examples=body_example
         raise invalid([field_error(["query", "wait"], f"at most {settings.max_wait:g} s on "
                                    "this server (UNDERTOW_MAX_WAIT)", "limit")])
     scene = check_scene(scene, settings)
+    too_big = capacity_errors(scene, settings)
+    if too_big:
+        raise invalid(too_big)
     job_id = uuid.uuid4().hex
     try:
         await run_in_threadpool(runner.submit, scene.model_dump(mode="json"), job_id)

@@ -2,6 +2,11 @@
 
 A store must be safe to use from several threads and processes at once, and picklable:
 worker processes receive the store object and reopen it on their side.
+
+Workers take jobs by claiming them: one conditional update turns the oldest queued job
+into a running one that names its worker and holds a lease until a given time. Whoever
+supervises the worker renews the lease while the worker lives; a running job whose lease
+ran out has lost its worker and is marked interrupted by whoever notices (`expire`).
 """
 
 from __future__ import annotations
@@ -14,11 +19,23 @@ JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
 STATUSES: tuple[JobStatus, ...] = ("queued", "running", "succeeded", "failed", "cancelled")
 FINAL: frozenset[str] = frozenset({"succeeded", "failed", "cancelled"})
 INTERRUPTED = "interrupted"
+BUILDING: dict[str, Any] = {"phase": "building", "iteration": 0, "objective": None,
+                            "inf_pr": None, "inf_du": None, "elapsed": 0.0, "mesh_pass": 0}
+"""The progress of a job from its claim until the solver's first iteration."""
+
+
+class StoreUnavailable(Exception):
+    """The store cannot be used (file deleted or replaced, disk error, damaged database)."""
+
+
+class StoreDamaged(StoreUnavailable):
+    """The store failed its integrity check; the service must not start on it."""
 
 
 @dataclass(frozen=True)
 class JobRecord:
-    """One stored job. Times are Unix seconds; scene, progress and plan are JSON objects."""
+    """One stored job. Times are Unix seconds; scene, progress and plan are JSON objects.
+    `worker` names the worker that claimed the job (None until claimed)."""
 
     id: str
     status: JobStatus
@@ -31,15 +48,19 @@ class JobRecord:
     created: float
     started: float | None
     finished: float | None
+    worker: str | None = None
 
 
 class JobStore(ABC):
     """Persistence of plan jobs. Every transition is atomic and conditional on the status,
-    so a late writer (an orphaned worker, a second server) can never overwrite a verdict."""
+    so a late writer (an orphaned worker, a second server) can never overwrite a verdict.
+    Every method raises StoreUnavailable when the store cannot be reached."""
 
     @abstractmethod
-    def create(self, job_id: str, scene: dict[str, Any], owner: str) -> JobRecord:
-        """Store a new queued job."""
+    def create(self, job_id: str, scene: dict[str, Any], owner: str,
+               limit: int | None = None) -> JobRecord | None:
+        """Store a new queued job; None (nothing stored) when `owner` already has `limit`
+        unfinished (queued or running) jobs."""
 
     @abstractmethod
     def get(self, job_id: str) -> JobRecord | None:
@@ -55,8 +76,13 @@ class JobStore(ABC):
         """How many jobs are in each status (every status present, zeros included)."""
 
     @abstractmethod
-    def claim(self, job_id: str) -> JobRecord | None:
-        """queued -> running; None when the job is no longer queued (e.g. cancelled)."""
+    def claim(self, owner: str | None, worker: str, lease_until: float) -> JobRecord | None:
+        """The oldest queued job (of `owner`; of anyone when None) turned running for
+        `worker`, with progress `BUILDING`; None when there is none."""
+
+    @abstractmethod
+    def release(self, job_id: str, worker: str) -> bool:
+        """Give a claim back: running (by `worker`) -> queued, as if never claimed."""
 
     @abstractmethod
     def report_progress(self, job_id: str, progress: dict[str, Any]) -> bool:
@@ -73,17 +99,34 @@ class JobStore(ABC):
         """queued or running -> failed with an error; False if it was already final."""
 
     @abstractmethod
+    def fail_claimed(self, worker: str, error: str) -> list[str]:
+        """Mark the running jobs of `worker` failed with `error`; their ids."""
+
+    @abstractmethod
     def request_cancel(self, job_id: str) -> JobRecord | None:
         """Cancel: a queued job becomes cancelled at once, a running one is flagged for
         its worker to stop; a final job is left as it is. None when there is no such id."""
+
+    @abstractmethod
+    def renew(self, workers: list[str], lease_until: float) -> dict[str, bool]:
+        """Extend the leases of the running jobs of `workers`; {job id: cancel requested}."""
+
+    @abstractmethod
+    def expire(self, now: float) -> list[str]:
+        """Mark running jobs whose lease ended before `now` failed ("interrupted"); ids."""
 
     @abstractmethod
     def interrupt(self, owner: str) -> list[str]:
         """Mark the running jobs of `owner` failed with error "interrupted"; their ids."""
 
     @abstractmethod
-    def queued(self, owner: str) -> list[str]:
-        """Ids of the queued jobs of `owner`, oldest first."""
+    def check(self) -> None:
+        """Raise StoreUnavailable (with the reason) unless the store can be used."""
+
+    @abstractmethod
+    def checkpoint(self, final: bool = False) -> None:
+        """Make every committed change durable in the store's main file (`final`: also
+        when shutting down, leaving nothing in side files)."""
 
     @abstractmethod
     def close(self) -> None:

@@ -1,13 +1,23 @@
 """SQLite job store (stdlib sqlite3, WAL mode): one file shared by threads and processes.
 
 Each thread of each process opens its own connection on first use. Writes are single
-conditional UPDATE statements, so they are atomic without explicit transactions; the
-busy timeout makes concurrent writers queue instead of failing.
+conditional statements, so they are atomic without explicit transactions; the busy
+timeout makes concurrent writers queue instead of failing.
+
+Opening the store checks its integrity (`PRAGMA quick_check`) and brings its schema up to
+date (`PRAGMA user_version` counts the migrations applied). Connections open the file
+read-write without creating it, and every statement first checks that the path still
+names the file opened: a store deleted or replaced under a running service is reported as
+unavailable instead of being silently recreated empty. The write-ahead log is moved into
+the database file at least every `checkpoint_interval` seconds of writes and entirely on
+shutdown, so the `-wal` file never holds more than that interval's jobs.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
+import logging
 import os
 import sqlite3
 import threading
@@ -15,28 +25,46 @@ import time
 from pathlib import Path
 from typing import Any
 
-from app.store.base import INTERRUPTED, STATUSES, JobRecord, JobStatus, JobStore
+from app.store.base import (
+    BUILDING,
+    INTERRUPTED,
+    STATUSES,
+    JobRecord,
+    JobStatus,
+    JobStore,
+    StoreDamaged,
+    StoreUnavailable,
+)
 
-_SCHEMA = """
-CREATE TABLE IF NOT EXISTS jobs (
-    id               TEXT PRIMARY KEY,
-    status           TEXT NOT NULL,
-    scene            TEXT NOT NULL,
-    progress         TEXT,
-    plan             TEXT,
-    error            TEXT,
-    cancel_requested INTEGER NOT NULL DEFAULT 0,
-    owner            TEXT NOT NULL,
-    created          REAL NOT NULL,
-    started          REAL,
-    finished         REAL
-);
-CREATE INDEX IF NOT EXISTS jobs_status ON jobs (status);
-CREATE INDEX IF NOT EXISTS jobs_created ON jobs (created);
-"""
+log = logging.getLogger("undertow.store")
+
+_MIGRATIONS: tuple[tuple[str, ...], ...] = (
+    (  # 1: the jobs table (stores made before versioning have it already)
+        """CREATE TABLE IF NOT EXISTS jobs (
+            id               TEXT PRIMARY KEY,
+            status           TEXT NOT NULL,
+            scene            TEXT NOT NULL,
+            progress         TEXT,
+            plan             TEXT,
+            error            TEXT,
+            cancel_requested INTEGER NOT NULL DEFAULT 0,
+            owner            TEXT NOT NULL,
+            created          REAL NOT NULL,
+            started          REAL,
+            finished         REAL)""",
+        "CREATE INDEX IF NOT EXISTS jobs_status ON jobs (status)",
+        "CREATE INDEX IF NOT EXISTS jobs_created ON jobs (created)",
+    ),
+    (  # 2: claims name their worker and hold a lease
+        "ALTER TABLE jobs ADD COLUMN worker TEXT",
+        "ALTER TABLE jobs ADD COLUMN lease_until REAL",
+        "CREATE INDEX IF NOT EXISTS jobs_owner_status ON jobs (owner, status, created)",
+    ),
+)
+SCHEMA_VERSION = len(_MIGRATIONS)
 
 _COLUMNS = ("id, status, scene, progress, plan, error, cancel_requested, owner, "
-            "created, started, finished")
+            "created, started, finished, worker")
 
 
 def _loads(text: str | None) -> Any:
@@ -45,123 +73,251 @@ def _loads(text: str | None) -> Any:
 
 def _record(row: tuple) -> JobRecord:
     (id_, status, scene, progress, plan, error, cancel, owner, created, started,
-     finished) = row
+     finished, worker) = row
     return JobRecord(id=id_, status=status, scene=_loads(scene), progress=_loads(progress),
                      plan=_loads(plan), error=error, cancel_requested=bool(cancel),
-                     owner=owner, created=created, started=started, finished=finished)
+                     owner=owner, created=created, started=started, finished=finished,
+                     worker=worker)
 
 
 def _dumps(value: Any) -> str | None:
     return None if value is None else json.dumps(value, allow_nan=False, separators=(",", ":"))
 
 
-class SqliteJobStore(JobStore):
-    """Jobs in one SQLite file (created with its directory if missing)."""
+def _identity(path: str) -> tuple[int, int] | None:
+    """(device, inode) of the file at `path`; None when there is none."""
+    try:
+        stat = os.stat(path)
+    except FileNotFoundError:
+        return None
+    return stat.st_dev, stat.st_ino
 
-    def __init__(self, path: str | os.PathLike, busy_timeout: float = 30.0):
+
+class SqliteJobStore(JobStore):
+    """Jobs in one SQLite file (created with its directory if missing).
+
+    Raises StoreDamaged when the file fails its integrity check."""
+
+    def __init__(self, path: str | os.PathLike, busy_timeout: float = 30.0,
+                 checkpoint_interval: float = 60.0):
         self.path = str(path)
-        self.busy_timeout = busy_timeout
-        self._local = threading.local()
+        self.busy_timeout, self.checkpoint_interval = busy_timeout, checkpoint_interval
         Path(self.path).parent.mkdir(parents=True, exist_ok=True)
-        self._connection().executescript(_SCHEMA)
+        sqlite3.connect(self.path).close()  # creates an empty file if there is none
+        self._identity = _identity(self.path)
+        self._local = threading.local()
+        self._checkpointed = time.monotonic()
+        self._verify()
+        self._migrate()
 
     def __getstate__(self) -> dict[str, Any]:
-        return {"path": self.path, "busy_timeout": self.busy_timeout}
+        return {"path": self.path, "busy_timeout": self.busy_timeout,
+                "checkpoint_interval": self.checkpoint_interval, "identity": self._identity}
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.path, self.busy_timeout = state["path"], state["busy_timeout"]
+        self.checkpoint_interval, self._identity = state["checkpoint_interval"], state["identity"]
         self._local = threading.local()
+        self._checkpointed = time.monotonic()
+
+    def _verify(self) -> None:
+        """StoreDamaged unless the file is a database that passes PRAGMA quick_check."""
+        try:
+            rows = self._rows("PRAGMA quick_check")
+        except StoreUnavailable as exc:
+            raise StoreDamaged(self._damaged(str(exc.__cause__ or exc))) from exc
+        findings = [" ".join(row[0].split()) for row in rows]
+        if findings != ["ok"]:
+            raise StoreDamaged(self._damaged("; ".join(findings[:5])))
+
+    def _damaged(self, finding: str) -> str:
+        return (f"the job store {self.path} failed its integrity check ({finding}); "
+                "refusing to start on it. Move the file (with its -wal and -shm files) "
+                "aside, keep it for recovery (`sqlite3 FILE .recover`), and start again "
+                "to begin with an empty store")
+
+    def _migrate(self) -> None:
+        """Apply the migrations this file has not had yet, in one transaction."""
+        conn = self._connection()
+        try:
+            conn.execute("BEGIN IMMEDIATE")
+            version = conn.execute("PRAGMA user_version").fetchone()[0]
+            for statements in _MIGRATIONS[version:]:
+                for statement in statements:
+                    conn.execute(statement)
+            conn.execute(f"PRAGMA user_version = {max(version, SCHEMA_VERSION)}")
+            conn.execute("COMMIT")
+        except sqlite3.Error as exc:
+            if conn.in_transaction:
+                conn.execute("ROLLBACK")
+            raise StoreUnavailable(f"the job store {self.path} could not be migrated: "
+                                   f"{exc}") from exc
+
+    def _open(self) -> sqlite3.Connection:
+        """A new connection to the file opened first (never creating one)."""
+        if _identity(self.path) != self._identity:
+            raise StoreUnavailable(f"the job store file {self.path} was deleted or replaced "
+                                   "while the service ran; restart the service")
+        uri = Path(self.path).absolute().as_uri() + "?mode=rw"
+        conn = sqlite3.connect(uri, uri=True, timeout=self.busy_timeout,
+                               isolation_level=None, check_same_thread=False)
+        conn.execute("PRAGMA journal_mode=WAL")
+        conn.execute("PRAGMA synchronous=NORMAL")
+        return conn
 
     def _connection(self) -> sqlite3.Connection:
-        """This thread's connection (a new one after a fork)."""
+        """This thread's connection (a new one after a fork); every use checks that the
+        path still names the file opened first."""
         local = self._local
         if getattr(local, "pid", None) != os.getpid():
-            conn = sqlite3.connect(self.path, timeout=self.busy_timeout,
-                                   isolation_level=None, check_same_thread=False)
-            conn.execute("PRAGMA journal_mode=WAL")
-            conn.execute("PRAGMA synchronous=NORMAL")
-            local.conn, local.pid = conn, os.getpid()
+            local.conn, local.pid = self._open(), os.getpid()
+        elif _identity(self.path) != self._identity:
+            self._open()  # raises StoreUnavailable
         return local.conn
 
-    def _execute(self, sql: str, params: tuple = ()) -> sqlite3.Cursor:
-        return self._connection().execute(sql, params)
+    def _rows(self, sql: str, params: tuple = ()) -> list[tuple]:
+        """Every row of one statement (fetched at once, so a write is complete)."""
+        try:
+            return self._connection().execute(sql, params).fetchall()
+        except sqlite3.IntegrityError:
+            raise
+        except sqlite3.Error as exc:
+            raise StoreUnavailable(f"the job store {self.path} failed: {exc}") from exc
+
+    def _write(self, sql: str, params: tuple = ()) -> list[tuple]:
+        """Rows of a writing statement (its RETURNING clause); checkpoints when due."""
+        rows = self._rows(sql, params)
+        if time.monotonic() - self._checkpointed >= self.checkpoint_interval:
+            self.checkpoint()
+        return rows
 
     @property
     def journal_mode(self) -> str:
         """The journal mode in force ("wal")."""
-        return self._execute("PRAGMA journal_mode").fetchone()[0]
+        return self._rows("PRAGMA journal_mode")[0][0]
 
-    def create(self, job_id: str, scene: dict[str, Any], owner: str) -> JobRecord:
-        self._execute(
-            "INSERT INTO jobs (id, status, scene, owner, created) VALUES (?, 'queued', ?, ?, ?)",
-            (job_id, _dumps(scene), owner, time.time()))
-        record = self.get(job_id)
-        assert record is not None
-        return record
+    def create(self, job_id: str, scene: dict[str, Any], owner: str,
+               limit: int | None = None) -> JobRecord | None:
+        values = (job_id, _dumps(scene), owner, time.time())
+        if limit is None:
+            rows = self._write("INSERT INTO jobs (id, status, scene, owner, created) "
+                               f"VALUES (?, 'queued', ?, ?, ?) RETURNING {_COLUMNS}", values)
+        else:
+            rows = self._write(
+                "INSERT INTO jobs (id, status, scene, owner, created) "
+                "SELECT ?, 'queued', ?, ?, ? WHERE (SELECT COUNT(*) FROM jobs "
+                "WHERE owner = ? AND status IN ('queued', 'running')) < ? "
+                f"RETURNING {_COLUMNS}", (*values, owner, limit))
+        return _record(rows[0]) if rows else None
 
     def get(self, job_id: str) -> JobRecord | None:
-        row = self._execute(f"SELECT {_COLUMNS} FROM jobs WHERE id = ?", (job_id,)).fetchone()
-        return None if row is None else _record(row)
+        rows = self._rows(f"SELECT {_COLUMNS} FROM jobs WHERE id = ?", (job_id,))
+        return _record(rows[0]) if rows else None
 
     def list(self, status: JobStatus | None = None, limit: int = 50,
              offset: int = 0) -> list[JobRecord]:
         where, params = ("WHERE status = ?", (status,)) if status else ("", ())
-        rows = self._execute(
+        rows = self._rows(
             f"SELECT {_COLUMNS} FROM jobs {where} ORDER BY created DESC, id LIMIT ? OFFSET ?",
-            (*params, limit, offset)).fetchall()
+            (*params, limit, offset))
         return [_record(row) for row in rows]
 
     def count_by_status(self) -> dict[str, int]:
         counts = dict.fromkeys(STATUSES, 0)
-        for status, count in self._execute("SELECT status, COUNT(*) FROM jobs GROUP BY status"):
+        for status, count in self._rows("SELECT status, COUNT(*) FROM jobs GROUP BY status"):
             counts[status] = count
         return counts
 
-    def claim(self, job_id: str) -> JobRecord | None:
-        cursor = self._execute(
-            "UPDATE jobs SET status = 'running', started = ? WHERE id = ? AND status = 'queued'",
-            (time.time(), job_id))
-        return self.get(job_id) if cursor.rowcount == 1 else None
+    def claim(self, owner: str | None, worker: str, lease_until: float) -> JobRecord | None:
+        mine, params = ("AND owner = ?", (owner,)) if owner is not None else ("", ())
+        rows = self._write(
+            "UPDATE jobs SET status = 'running', started = ?, worker = ?, lease_until = ?, "
+            "progress = ? WHERE status = 'queued' AND id = (SELECT id FROM jobs "
+            f"WHERE status = 'queued' {mine} ORDER BY created, id LIMIT 1) "
+            f"RETURNING {_COLUMNS}",
+            (time.time(), worker, lease_until, _dumps(BUILDING), *params))
+        return _record(rows[0]) if rows else None
+
+    def release(self, job_id: str, worker: str) -> bool:
+        rows = self._write(
+            "UPDATE jobs SET status = CASE WHEN cancel_requested THEN 'cancelled' "
+            "ELSE 'queued' END, finished = CASE WHEN cancel_requested THEN ? END, "
+            "started = NULL, worker = NULL, lease_until = NULL, progress = NULL "
+            "WHERE id = ? AND worker = ? AND status = 'running' RETURNING id",
+            (time.time(), job_id, worker))
+        return bool(rows)
 
     def report_progress(self, job_id: str, progress: dict[str, Any]) -> bool:
-        row = self._execute(
+        rows = self._write(
             "UPDATE jobs SET progress = ? WHERE id = ? AND status = 'running' "
-            "RETURNING cancel_requested", (_dumps(progress), job_id)).fetchone()
-        return row is not None and not row[0]
+            "RETURNING cancel_requested", (_dumps(progress), job_id))
+        return bool(rows) and not rows[0][0]
 
     def finish(self, job_id: str, status: JobStatus, plan: dict[str, Any] | None,
                error: str | None) -> bool:
-        cursor = self._execute(
+        rows = self._write(
             "UPDATE jobs SET status = ?, plan = ?, error = ?, finished = ? "
-            "WHERE id = ? AND status = 'running'",
+            "WHERE id = ? AND status = 'running' RETURNING id",
             (status, _dumps(plan), error, time.time(), job_id))
-        return cursor.rowcount == 1
+        return bool(rows)
 
     def fail(self, job_id: str, error: str) -> bool:
-        cursor = self._execute(
+        rows = self._write(
             "UPDATE jobs SET status = 'failed', error = ?, finished = ? "
-            "WHERE id = ? AND status IN ('queued', 'running')", (error, time.time(), job_id))
-        return cursor.rowcount == 1
+            "WHERE id = ? AND status IN ('queued', 'running') RETURNING id",
+            (error, time.time(), job_id))
+        return bool(rows)
+
+    def _fail_running(self, condition: str, params: tuple, error: str) -> list[str]:
+        """Mark the running jobs that meet `condition` failed with `error`; their ids."""
+        rows = self._write(
+            "UPDATE jobs SET status = 'failed', error = ?, finished = ? "
+            f"WHERE status = 'running' AND {condition} RETURNING id",
+            (error, time.time(), *params))
+        return [row[0] for row in rows]
+
+    def fail_claimed(self, worker: str, error: str) -> list[str]:
+        return self._fail_running("worker = ?", (worker,), error)
 
     def request_cancel(self, job_id: str) -> JobRecord | None:
-        self._execute(
+        self._write(
             "UPDATE jobs SET status = 'cancelled', cancel_requested = 1, finished = ? "
             "WHERE id = ? AND status = 'queued'", (time.time(), job_id))
-        self._execute("UPDATE jobs SET cancel_requested = 1 WHERE id = ? AND status = 'running'",
-                      (job_id,))
+        self._write("UPDATE jobs SET cancel_requested = 1 WHERE id = ? AND status = 'running'",
+                    (job_id,))
         return self.get(job_id)
 
-    def interrupt(self, owner: str) -> list[str]:
-        rows = self._execute(
-            "UPDATE jobs SET status = 'failed', error = ?, finished = ? "
-            "WHERE owner = ? AND status = 'running' RETURNING id",
-            (INTERRUPTED, time.time(), owner)).fetchall()
-        return [row[0] for row in rows]
+    def renew(self, workers: list[str], lease_until: float) -> dict[str, bool]:
+        if not workers:
+            return {}
+        marks = ", ".join("?" * len(workers))
+        rows = self._write(
+            f"UPDATE jobs SET lease_until = ? WHERE status = 'running' AND worker IN ({marks}) "
+            "RETURNING id, cancel_requested", (lease_until, *workers))
+        return {job_id: bool(cancel) for job_id, cancel in rows}
 
-    def queued(self, owner: str) -> list[str]:
-        rows = self._execute("SELECT id FROM jobs WHERE owner = ? AND status = 'queued' "
-                             "ORDER BY created, id", (owner,)).fetchall()
-        return [row[0] for row in rows]
+    def expire(self, now: float) -> list[str]:
+        return self._fail_running("lease_until < ?", (now,), INTERRUPTED)
+
+    def interrupt(self, owner: str) -> list[str]:
+        return self._fail_running("owner = ?", (owner,), INTERRUPTED)
+
+    def check(self) -> None:
+        """Read the schema, the newest job and its index through a new connection, whose
+        pages come from the file and not from a cache."""
+        try:
+            with contextlib.closing(self._open()) as conn:
+                conn.execute("SELECT id FROM jobs ORDER BY created DESC LIMIT 1").fetchall()
+        except sqlite3.Error as exc:
+            raise StoreUnavailable(f"the job store {self.path} failed: {exc}") from exc
+
+    def checkpoint(self, final: bool = False) -> None:
+        self._checkpointed = time.monotonic()
+        mode = "TRUNCATE" if final else "PASSIVE"
+        busy, _, _ = self._rows(f"PRAGMA wal_checkpoint({mode})")[0]
+        if busy:
+            log.warning("the job store's write-ahead log could not be moved into %s "
+                        "entirely (busy); it stays in %s-wal", self.path, self.path)
 
     def close(self) -> None:
         conn = getattr(self._local, "conn", None)

@@ -1,0 +1,292 @@
+"""Supervision of local solver workers: independent processes (spawn), each of which
+claims jobs from the store (`app.worker`), watched by one thread of the service.
+
+The supervisor starts `workers` processes once there is work (the first `wake`) and
+replaces any that exits. It learns what each worker runs from the worker's own messages
+and holds it to three bounds:
+
+- wall time: a job still running `grace` seconds after its budget (`solver.max_wall_time`,
+  counted from the claim) has its worker killed and fails, saying so;
+- cancellation: a job whose cancel flag has been set for `CANCEL_GRACE` seconds without
+  the solver stopping (e.g. during the NLP build) has its worker killed and is cancelled;
+- the worker's death: its job alone fails ("the worker process died ...").
+
+It also renews the leases of its workers' jobs (reading their cancel flags in the same
+statement) and marks jobs whose lease ran out, of any server sharing the store, interrupted.
+On stop, idle workers leave at once and running jobs are marked interrupted before their
+workers are killed; queued jobs stay queued for the next start.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing
+import signal
+import threading
+import time
+import uuid
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from multiprocessing.connection import Connection, wait
+from multiprocessing.process import BaseProcess
+
+from app.store import INTERRUPTED, JobStatus, JobStore, StoreUnavailable
+from app.worker import (
+    READY,
+    STOP,
+    WAKE,
+    Claimed,
+    Outcome,
+    SolveFunction,
+    WorkerSpec,
+    serve,
+)
+
+log = logging.getLogger("undertow.supervisor")
+
+TICK = 0.25  # [s] between two rounds of checks
+LEASE = 60.0  # [s] a claim holds without renewal
+EXPIRE_INTERVAL = 15.0  # [s] between two looks for jobs whose lease ran out
+CANCEL_GRACE = 2.0  # [s] a cancelled job's solver has to stop before its worker is killed
+STOP_WAIT = 5.0  # [s] idle workers have to leave on stop
+MAX_BACKOFF = 30.0  # [s] longest pause before restarting a worker that failed to start
+FAILED_STARTS = 3  # workers in a row that exit before they are ready: the workers are broken
+WORKER_DIED = "the worker process died during the solve"
+
+
+def _how(exitcode: int | None) -> str:
+    """How a process ended: "killed by signal SIGKILL", "exit status 1"."""
+    if exitcode is not None and exitcode < 0:
+        return f"killed by signal {signal.Signals(-exitcode).name}"
+    return f"exit status {exitcode}"
+
+
+def died(exitcode: int | None) -> str:
+    """The error of a job whose worker process died: how, and the likely cause."""
+    return f"{WORKER_DIED} ({_how(exitcode)}; out of memory?)"
+
+
+def over_budget(budget: float, grace: float) -> str:
+    """The error of a job whose worker was stopped for running past its budget."""
+    return (f"the job ran past its wall-time budget of {budget:g} s (solver.max_wall_time, "
+            f"NLP build included) plus {grace:g} s grace (UNDERTOW_WALL_TIME_GRACE); its "
+            "worker process was stopped")
+
+
+CANCELLED_STOPPED = (f"cancelled on request; the solver did not stop within {CANCEL_GRACE:g} s "
+                     "(e.g. during the NLP build), so its worker process was stopped")
+
+
+@dataclass
+class _Worker:
+    """One worker process as the supervisor sees it."""
+
+    name: str
+    process: BaseProcess
+    channel: Connection
+    ready: bool = False
+    job: str | None = None
+    job_started: float = 0.0
+    deadline: float = float("inf")
+    budget: float = 0.0
+    cancel_seen: float | None = None
+    fate: tuple[str, JobStatus, str] | None = field(default=None)
+    """(job id, status, error) the job gets once the killed process is gone."""
+
+
+class Supervisor:
+    """Runs `workers` solver processes claiming jobs of `owner` from `store`.
+
+    `on_done(outcome)` runs in the supervising thread whenever a job ends, by its worker's
+    report or by the supervisor's verdict."""
+
+    def __init__(self, store: JobStore, solve: SolveFunction, owner: str, workers: int,
+                 memory_mb: float | None, grace: float, log_level: str = "INFO",
+                 on_done: Callable[[Outcome], None] | None = None):
+        self.store, self.solve, self.owner = store, solve, owner
+        self.count, self.memory_mb, self.grace = workers, memory_mb, grace
+        self.log_level, self.on_done = log_level, on_done
+        self._context = multiprocessing.get_context("spawn")
+        self._slots: list[_Worker | None] = [None] * workers
+        self._restart_at = [0.0] * workers
+        self._failed_starts = 0
+        self._last_exit: int | None = None
+        self._send_lock = threading.Lock()
+        self._stopping = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="supervisor", daemon=True)
+        self._next_expiry = 0.0
+        self._store_error: str | None = None
+        self._wanted = False
+
+    def start(self) -> None:
+        """Start the supervising thread; the workers start with the first `wake`."""
+        self._thread.start()
+
+    @property
+    def problem(self) -> str | None:
+        """Why the workers cannot run jobs, or None when they can."""
+        if not self._thread.is_alive() and not self._stopping.is_set():
+            return "the solver worker supervisor is not running"
+        if self._failed_starts >= FAILED_STARTS and not any(w and w.ready for w in self._slots):
+            return (f"no solver worker process could start ({self._failed_starts} tries in a "
+                    f"row, the last one ended with {_how(self._last_exit)}; see the log)")
+        return None
+
+    def wake(self) -> None:
+        """Tell the idle workers that a job was queued (starting them the first time)."""
+        self._wanted = True
+        for worker in self._slots:
+            if worker is not None and worker.job is None:
+                self._send(worker, WAKE)
+
+    def stop(self) -> None:
+        """Stop every worker: queued jobs stay queued, running ones end interrupted."""
+        self._stopping.set()
+        if self._thread.is_alive():
+            self._thread.join()
+        workers = [w for w in self._slots if w is not None]
+        for worker in workers:
+            self._send(worker, STOP)
+            self._drain(worker)
+        deadline = time.monotonic() + STOP_WAIT
+        for worker in workers:
+            if worker.job is None:
+                worker.process.join(max(0.0, deadline - time.monotonic()))
+        for worker in workers:
+            try:
+                self._end_claims(worker, INTERRUPTED)
+            except StoreUnavailable as exc:
+                log.error("stopping worker %s: %s", worker.name, exc)
+            if worker.process.is_alive():
+                worker.process.kill()
+            worker.process.join()
+            worker.channel.close()
+
+    def _spawn(self, slot: int) -> None:
+        name = f"{self.owner}/{slot}/{uuid.uuid4().hex[:8]}"
+        spec = WorkerSpec(self.store, self.solve, self.owner, name, self.memory_mb, LEASE,
+                          self.log_level)
+        ours, theirs = self._context.Pipe()
+        process = self._context.Process(target=serve, args=(spec, theirs), name=name,
+                                        daemon=True)
+        process.start()
+        theirs.close()
+        self._slots[slot] = _Worker(name, process, ours)
+
+    def _send(self, worker: _Worker, message: str) -> None:
+        with self._send_lock:
+            try:
+                worker.channel.send(message)
+            except OSError:
+                pass  # the worker is gone; its sentinel tells the supervisor
+
+    def _run(self) -> None:
+        while not self._stopping.is_set():
+            try:
+                self._step()
+                if self._store_error is not None:
+                    log.info("the job store is available again")
+                    self._store_error = None
+            except StoreUnavailable as exc:
+                if str(exc) != self._store_error:
+                    log.error("supervisor: %s", exc)
+                    self._store_error = str(exc)
+                self._stopping.wait(TICK)
+            except Exception:  # the supervisor must outlive any one error
+                log.exception("supervisor step failed")
+                self._stopping.wait(TICK)
+
+    def _step(self) -> None:
+        """Wait for messages and exits, then enforce budgets, cancels and leases."""
+        waitables: dict[object, tuple[int, _Worker]] = {}
+        for slot, worker in enumerate(self._slots):
+            if worker is not None:
+                waitables[worker.channel] = waitables[worker.process.sentinel] = (slot, worker)
+        for ready in wait(list(waitables), timeout=TICK):
+            slot, worker = waitables[ready]
+            if self._slots[slot] is not worker:
+                continue  # reaped in this round already
+            if ready is worker.process.sentinel:
+                self._reap(slot, worker)
+            else:
+                self._drain(worker)
+        now = time.monotonic()
+        for slot, worker in enumerate(self._slots):
+            if worker is None and self._wanted and now >= self._restart_at[slot]:
+                self._spawn(slot)
+            elif worker is not None and worker.fate is None and now > worker.deadline:
+                self._kill(worker, "failed", over_budget(worker.budget, self.grace))
+        self._enforce_cancels(now)
+        if now >= self._next_expiry:
+            self._next_expiry = now + EXPIRE_INTERVAL
+            for job_id in self.store.expire(time.time()):
+                log.warning("job %s lost its worker (lease ran out): interrupted", job_id)
+
+    def _drain(self, worker: _Worker) -> None:
+        """Handle every message the worker has sent."""
+        try:
+            while worker.channel.poll():
+                self._handle(worker, worker.channel.recv())
+        except (EOFError, OSError):
+            pass  # the process ended; its sentinel tells the supervisor
+
+    def _handle(self, worker: _Worker, message: object) -> None:
+        if message == READY:
+            worker.ready, self._failed_starts = True, 0
+        elif isinstance(message, Claimed):
+            now = time.monotonic()
+            worker.job, worker.job_started, worker.budget = message.job_id, now, message.budget
+            worker.deadline, worker.cancel_seen = now + message.budget + self.grace, None
+        elif isinstance(message, Outcome):
+            worker.job, worker.deadline = None, float("inf")
+            self._done(message)
+
+    def _done(self, outcome: Outcome) -> None:
+        if self.on_done is not None:
+            self.on_done(outcome)
+
+    def _enforce_cancels(self, now: float) -> None:
+        """Renew the leases of running jobs; kill workers that ignore a cancel."""
+        busy = {w.job: w for w in self._slots if w is not None and w.job is not None}
+        if not busy:
+            return
+        flags = self.store.renew([w.name for w in busy.values()], time.time() + LEASE)
+        for job_id, cancelled in flags.items():
+            worker = busy.get(job_id)
+            if worker is None or not cancelled or worker.fate is not None:
+                continue
+            if worker.cancel_seen is None:
+                worker.cancel_seen = now
+            elif now - worker.cancel_seen > CANCEL_GRACE:
+                self._kill(worker, "cancelled", CANCELLED_STOPPED)
+
+    def _kill(self, worker: _Worker, status: JobStatus, error: str) -> None:
+        log.warning("job %s: %s", worker.job, error)
+        worker.fate = (worker.job, status, error)
+        worker.process.kill()
+
+    def _reap(self, slot: int, worker: _Worker) -> None:
+        """A worker process ended: settle its job, schedule its replacement."""
+        self._drain(worker)
+        worker.process.join()
+        exitcode = worker.process.exitcode
+        self._slots[slot] = None
+        worker.channel.close()
+        if not worker.ready:
+            self._failed_starts += 1
+            self._last_exit = exitcode
+            backoff = min(MAX_BACKOFF, 0.5 * 2 ** (self._failed_starts - 1))
+            self._restart_at[slot] = time.monotonic() + backoff
+            log.error("worker %s exited during start-up (%s); restarting in %g s",
+                      worker.name, _how(exitcode), backoff)
+        if worker.fate is not None:
+            job_id, status, error = worker.fate
+            if self.store.finish(job_id, status, None, error):
+                self._done(Outcome(job_id, status, time.monotonic() - worker.job_started))
+        self._end_claims(worker, died(exitcode))
+
+    def _end_claims(self, worker: _Worker, error: str) -> None:
+        """Fail the jobs the worker still holds (none when it ended them itself)."""
+        for job_id in self.store.fail_claimed(worker.name, error):
+            log.warning("job %s: %s", job_id, error)
+            self._done(Outcome(job_id, "failed", time.monotonic() - worker.job_started))

@@ -1,0 +1,250 @@
+"""A solver worker: a process that claims queued plan jobs from the store and solves them,
+one at a time, until it is told to stop.
+
+The worker writes everything about its job to the store itself: the claim (with progress
+`{"phase": "building"}`), Ipopt's iterations (throttled; a cancel flag or a lost claim
+stops the solve at the next iteration), and the verdict. Each job gets its own progress
+reporter and its own scene; nothing of one job is kept for the next. A job's wall-time
+budget, `solver.max_wall_time`, counts from the claim, NLP build included: once it is
+spent, the next iteration stops the solve.
+
+Its supervisor (`app.supervisor`) talks to it over a pipe: WAKE when a job was queued,
+STOP to end; the worker answers READY once started, CLAIMED when it takes a job and the
+job's `Outcome` when it ends. The worker limits its own memory (UNDERTOW_WORKER_MEMORY_MB)
+and leaves after a job that ran out of it, so a fresh process takes its place. A watchdog
+thread marks its job interrupted and exits when the supervising process is gone.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import logging
+import math
+import os
+import signal
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from multiprocessing.connection import Connection
+from typing import Any
+
+from app.logging import configure
+from app.procmem import limit_growth
+from app.store import INTERRUPTED, JobRecord, JobStatus, JobStore, StoreUnavailable
+from planner.ocp.result import Plan, Progress
+from planner.ocp.verify import unverified_reason
+from planner.scene import Scene
+
+log = logging.getLogger("undertow.worker")
+
+SolveFunction = Callable[..., Plan]
+"""solve(scene, progress=callback) -> Plan; never raises for a solver failure."""
+
+PROGRESS_INTERVAL = 0.2  # [s] between two progress writes of one job
+IDLE_POLL = 1.0  # [s] an idle worker looks for queued jobs at least this often
+WATCH_INTERVAL = 0.25  # [s] between two checks that the supervising process still runs
+WAKE, STOP, READY = "wake", "stop", "ready"
+
+
+def load_function(spec: str) -> SolveFunction:
+    """The function named "package.module:function"."""
+    module, _, name = spec.partition(":")
+    if not name:
+        raise ValueError(f"solve_function: expected 'module:function', got {spec!r}")
+    return getattr(importlib.import_module(module), name)
+
+
+def out_of_memory(limit_mb: float | None) -> str:
+    """The error of a job whose solve ran out of memory."""
+    where = (f"the {limit_mb:g} MB a solver worker may use (UNDERTOW_WORKER_MEMORY_MB)"
+             if limit_mb is not None else "the memory available")
+    return (f"out of memory: the NLP needed more than {where}; use fewer intervals, a "
+            "lower degree or fewer links")
+
+
+@dataclass(frozen=True)
+class Claimed:
+    """Worker -> supervisor: the worker took a job whose budget is `budget` seconds."""
+
+    job_id: str
+    budget: float
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """Worker -> supervisor: a job ended with this stored status after `elapsed` seconds;
+    `exhausted` when it ran out of memory (the worker then leaves)."""
+
+    job_id: str
+    status: str
+    elapsed: float
+    exhausted: bool = False
+
+
+@dataclass(frozen=True)
+class WorkerSpec:
+    """What a worker needs; picklable (the store reopens itself in the worker).
+    `owner` None claims the jobs of every server sharing the store."""
+
+    store: JobStore
+    solve: SolveFunction
+    owner: str | None
+    name: str
+    memory_mb: float | None
+    lease: float
+    log_level: str = "INFO"
+
+
+def _finite(value: Any) -> Any:
+    return value if not isinstance(value, float) or math.isfinite(value) else None
+
+
+class _Reporter:
+    """The progress callback of one job: throttled writes, cancel checks, the budget."""
+
+    def __init__(self, store: JobStore, job_id: str, deadline: float):
+        self.store, self.job_id, self.deadline = store, job_id, deadline
+        self.last, self.go_on, self.expired = -math.inf, True, False
+        self.latest: dict[str, Any] | None = None
+        self.written = True
+
+    def __call__(self, progress: Progress) -> bool:
+        self.latest = {"phase": "solving",
+                       **{k: _finite(v) for k, v in dataclasses.asdict(progress).items()}}
+        self.written = False
+        if time.monotonic() - self.last >= PROGRESS_INTERVAL:
+            self.flush()
+        if time.monotonic() > self.deadline:
+            self.expired = True
+        return self.go_on and not self.expired
+
+    def flush(self) -> None:
+        """Write the latest progress and read the cancel flag (a store that cannot be
+        written stops the solve too)."""
+        if not self.written and self.latest is not None:
+            try:
+                self.go_on = self.store.report_progress(self.job_id, self.latest)
+            except StoreUnavailable:
+                self.go_on = False
+            self.last, self.written = time.monotonic(), True
+
+
+def _verdict(plan: Plan, cancel_requested: bool, expired: bool,
+             budget: float) -> tuple[JobStatus, str | None]:
+    """Final status and error of a returned plan: an optimal plan that fails its
+    re-simulation check has failed too."""
+    if plan.solver.success:
+        reason = unverified_reason(plan.verification)
+        return ("succeeded", None) if reason is None else ("failed", f"unverified: {reason}")
+    if cancel_requested:
+        return "cancelled", "cancelled on request"
+    if expired:
+        return "failed", (f"Maximum_WallTime_Exceeded: the job's wall-time budget of "
+                          f"{budget:g} s (solver.max_wall_time, NLP build included) ran out")
+    message = plan.solver.message
+    return "failed", f"{plan.solver.status}: {message}" if message else plan.solver.status
+
+
+_current: tuple[JobStore, str] | None = None
+"""The job this worker process is solving, for the orphan watchdog."""
+
+
+def run_job(store: JobStore, job_id: str, scene: Scene, solve: SolveFunction,
+            memory_mb: float | None = None) -> Outcome:
+    """Solve one claimed job and store its verdict."""
+    global _current
+    start, budget = time.monotonic(), scene.solver.max_wall_time
+    _current = (store, job_id)
+    reporter = _Reporter(store, job_id, start + budget)
+    try:
+        plan = solve(scene, progress=reporter)
+    except MemoryError:
+        return _failed(store, job_id, out_of_memory(memory_mb), start, exhausted=True)
+    except Exception as exc:  # noqa: BLE001 - any error fails the job, the worker lives
+        if "bad_alloc" in str(exc):  # C++ allocation failure, raised through CasADi
+            return _failed(store, job_id, out_of_memory(memory_mb), start, exhausted=True)
+        return _failed(store, job_id, f"solver error: {type(exc).__name__}: {exc}", start)
+    finally:
+        _current = None
+    reporter.flush()
+    current = store.get(job_id)
+    status, error = _verdict(plan, bool(current and current.cancel_requested),
+                             reporter.expired, budget)
+    store.finish(job_id, status, plan.model_dump(mode="json"), error)
+    return Outcome(job_id, status, time.monotonic() - start)
+
+
+def _failed(store: JobStore, job_id: str, error: str, start: float,
+            exhausted: bool = False) -> Outcome:
+    store.finish(job_id, "failed", None, error)
+    return Outcome(job_id, "failed", time.monotonic() - start, exhausted)
+
+
+def _stop_requested(channel: Connection, wait: float) -> bool:
+    """Read the supervisor's messages, waiting up to `wait` s for one; True on STOP or
+    when the supervisor is gone."""
+    try:
+        while channel.poll(wait):
+            if channel.recv() == STOP:
+                return True
+            wait = 0.0
+    except (EOFError, OSError):
+        return True
+    return False
+
+
+def _watch(parent: int) -> None:
+    """Exit this worker when its supervising process is gone (e.g. killed with SIGKILL),
+    first marking its job interrupted: an orphan must not keep solving."""
+    while os.getppid() == parent:
+        time.sleep(WATCH_INTERVAL)
+    current = _current
+    if current is not None:
+        try:
+            current[0].fail(current[1], INTERRUPTED)
+        except StoreUnavailable:
+            pass
+    os._exit(0)
+
+
+def _take(spec: WorkerSpec, channel: Connection, record: JobRecord) -> Outcome | None:
+    """Run a claimed job; None when it was given back (STOP arrived meanwhile)."""
+    if _stop_requested(channel, 0.0):
+        spec.store.release(record.id, spec.name)
+        return None
+    try:
+        scene = Scene.model_validate(record.scene)
+    except ValueError as exc:  # a scene stored by another version of the service
+        return _failed(spec.store, record.id, f"invalid stored scene: {exc}", time.monotonic())
+    channel.send(Claimed(record.id, scene.solver.max_wall_time))
+    return run_job(spec.store, record.id, scene, spec.solve, spec.memory_mb)
+
+
+def serve(spec: WorkerSpec, channel: Connection) -> None:
+    """The worker process: claim and run jobs until STOP, a lost supervisor, or a job
+    that ran out of memory."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is for the supervisor to handle
+    configure(spec.log_level)
+    threading.Thread(target=_watch, args=(os.getppid(),), daemon=True,
+                     name="orphan-watch").start()
+    if spec.memory_mb is not None:
+        limit_growth(spec.memory_mb)
+    channel.send(READY)
+    wait = 0.0
+    while not _stop_requested(channel, wait):
+        try:
+            record = spec.store.claim(spec.owner, spec.name, time.time() + spec.lease)
+            outcome = None if record is None else _take(spec, channel, record)
+        except StoreUnavailable as exc:
+            log.error("worker %s: %s", spec.name, exc)
+            wait = IDLE_POLL
+            continue
+        if record is not None and outcome is None:
+            return
+        wait = IDLE_POLL if record is None else 0.0
+        if outcome is not None:
+            channel.send(outcome)
+            if outcome.exhausted:
+                return
