@@ -8,11 +8,15 @@ import sys
 BENCHES = {
     "build": ("bench.build", "building an NLP against the number of links, now and at an "
                              "earlier commit"),
+    "capacity": ("bench.capacity", "the memory of one plan's NLP against app/capacity.py's "
+                                   "estimate"),
     "container": ("bench.container", "the container image: its size and a running container's "
                                      "memory, idle and after plans"),
     "dynamics_size": ("bench.dynamics_size", "the derived dynamics: expression size, build time "
                                              "and evaluation cost"),
     "examples": ("bench.examples", "the built-in plan examples, now and at an earlier commit"),
+    "faults": ("bench.faults", "process and store faults against a live server: does an "
+                               "accepted job get lost"),
     "initial_guess": ("bench.initial_guess", "interpolation against inverse-dynamics initial "
                                              "guesses on the underactuated scenes"),
     "ipopt_settings": ("bench.ipopt_settings", "MUMPS ordering and scaling and the barrier "

@@ -4,34 +4,26 @@ Each point builds one NLP from a cold cache in a fresh process and runs Ipopt fo
 `ITERATIONS` iterations, recording how far the process grew beyond its size after the
 imports: address space (VmPeak - VmSize, what UNDERTOW_WORKER_MEMORY_MB caps) and
 resident memory (VmHWM - VmRSS), after the build and after the iterations, with the build
-time. Robots: bench/stress.py `chain(n, under=True)` (0.4 m, 1 kg links, even joints
-passive, waves on the odd active ones), each joint moving +0.5 rad rest to rest in 1 s;
-`extra` adds a coupling margin (0.001) or wave co-design (amplitudes up to 0.05 m).
+time. Robots: `testbed.robots.chain_scene` (0.4 m, 1 kg links, even joints passive,
+waves on the odd active ones), each joint moving +0.5 rad rest to rest in 1 s; `extra`
+adds a coupling margin (0.001) or wave co-design (amplitudes up to 0.05 m).
 
 Compares app/capacity.py's estimate with each point and writes
-bench/results/capacity.csv and the section "Memory of one plan" of docs/deploy.md.
+bench/results/capacity.csv (which tests/test_capacity.py checks the estimate against) and
+the section "Memory of one plan" of docs/deploy.md.
 
-    .venv/bin/python bench/capacity.py
+    python -m bench capacity [--points 27]
 """
 
 from __future__ import annotations
 
-import sys
+import argparse
 import time
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from bench.common import (
-    DOCS,
-    RESULTS,
-    isolated,
-    load,
-    machine_note,
-    table,
-    write_csv,
-    write_section,
-)
+from app.capacity import dynamics_knots, estimate_mb
+from bench import harness
+from planner.scene import Scene
+from testbed.robots import chain_scene
 
 SECTION = "Memory of one plan"
 ITERATIONS = 3
@@ -69,27 +61,16 @@ POINTS = [  # links, method, degree, intervals, integrator, steps, form, extra
 
 
 def scene_of(links: int, method: str, degree: int, intervals: int, integrator: str, steps: int,
-             form: str, extra: str, max_iter: int = ITERATIONS):
-    from bench.stress import chain
-    from planner.scene import Scene
-
-    start = [0.1 * k for k in range(links)]
-    task = {"duration": 1.0, "initial": {"q": start, "dq": [0.0] * links},
-            "final": {"q": [s + 0.5 for s in start], "dq": [0.0] * links}}
-    if extra == "margin":
-        task["coupling_margin"] = 1e-3
-    elif extra == "co-design":
-        task["co_design"] = {"amplitude_max": 0.05, "frequency": [3.0] * (links // 2)}
-    return Scene.model_validate({
-        "robot": chain(links, under=True),
-        "transcription": {"method": method, "degree": degree, "intervals": intervals,
-                          "integrator": integrator, "steps": steps, "form": form},
-        "solver": {"max_iter": max_iter}, "task": task})
+             form: str, extra: str) -> Scene:
+    """The scene of one point, stopped after `ITERATIONS` Ipopt iterations."""
+    return chain_scene(links, extra=extra, solver={"max_iter": ITERATIONS}, method=method,
+                       degree=degree, intervals=intervals, integrator=integrator, steps=steps,
+                       form=form)
 
 
 def point(links: int, method: str, degree: int, intervals: int, integrator: str, steps: int,
           form: str, extra: str) -> dict:
-    """One point in this (fresh) process."""
+    """One point in this (fresh) process: memory [MB] and build time [s]."""
     from app.procmem import limit_growth, status_mb
     from planner.ocp import plan
     from planner.ocp.problem import ProblemKey, problem
@@ -116,40 +97,39 @@ COLUMNS = [("links", "links"), ("method", "method"), ("degree", "degree"),
            ("ratio", "measured / estimate"), ("failure", "failure")]
 
 
-def main() -> None:
-    from app.capacity import dynamics_knots, estimate_mb
-
-    note, started, rows = machine_note(), time.perf_counter(), []
-    for links, method, degree, intervals, integrator, steps, form, extra in POINTS:
-        args = {"links": links, "method": method, "degree": degree, "intervals": intervals,
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench capacity", description=__doc__)
+    parser.add_argument("--points", type=int, default=len(POINTS),
+                        help="measure the first this many points")
+    args = parser.parse_args(argv)
+    started, note, rows = time.perf_counter(), harness.machine_note(), []
+    for links, method, degree, intervals, integrator, steps, form, extra in POINTS[:args.points]:
+        spec = {"links": links, "method": method, "degree": degree, "intervals": intervals,
                 "integrator": integrator, "steps": steps, "form": form, "extra": extra}
-        out = isolated("capacity", "point", args, TIMEOUT)
-        scene = scene_of(**args)
-        row = {**args, "knots": dynamics_knots(scene.transcription),
-               "estimate": estimate_mb(scene), "load": load(), **out}
+        out = harness.isolated("capacity", "point", spec, TIMEOUT)
+        scene = scene_of(**spec)
+        row = {**spec, "knots": dynamics_knots(scene.transcription),
+               "estimate": estimate_mb(scene), "load": harness.load(), **out}
         if "vm_solve" in row:
             row["ratio"] = row["vm_solve"] / row["estimate"]
         rows.append(row)
         print(row, flush=True)
-    write_csv(RESULTS / "capacity.csv", [{k: r.get(k) for k in [
+    harness.write_csv(harness.RESULTS / "capacity.csv", [{k: r.get(k) for k in [
         "links", "method", "degree", "intervals", "integrator", "steps", "form", "extra",
         "knots", "status", "build", "vm_build", "rss_build", "vm_solve", "rss_solve",
         "estimate", "ratio", "vm_imports", "rss_imports", "load", "failure"]} for r in rows])
     text = "\n\n".join([
-        (f"Generated by `.venv/bin/python bench/capacity.py` in "
-         f"{(time.perf_counter() - started) / 60:.0f} min on {note}. Each point builds one "
-         f"NLP in a fresh process and runs {ITERATIONS} Ipopt iterations; the memory is "
-         "how far the process grew beyond its size after the imports: address space (what "
-         "`UNDERTOW_WORKER_MEMORY_MB` caps) and resident. Robots: chains of 0.4 m, 1 kg "
-         "links, even joints passive, waves on the odd active ones. *Estimate*: "
-         "`app/capacity.py`, whose constants keep it at or below every measured point, so "
-         "it refuses (422) only plans that certainly do not fit; a plan's refined meshes "
-         "(up to `transcription.refinement.max_intervals`) can need more, which the "
-         "worker limit catches."),
-        table(rows, COLUMNS)])
+        (f"Each point builds one NLP in a fresh process and runs {ITERATIONS} Ipopt "
+         "iterations; the memory is how far the process grew beyond its size after the "
+         "imports: address space (what `UNDERTOW_WORKER_MEMORY_MB` caps) and resident. "
+         "Robots: chains of 0.4 m, 1 kg links, even joints passive, waves on the odd active "
+         "ones. *Estimate*: `app/capacity.py`, whose constants keep it at or below every "
+         "measured point, so it refuses (422) only plans that certainly do not fit; a "
+         "plan's refined meshes (up to `transcription.refinement.max_intervals`) can need "
+         "more, which the worker limit catches."),
+        harness.table(rows, COLUMNS),
+        f"Rows: `bench/results/capacity.csv`. "
+        f"{harness.manifest('capacity', argv, started, note)}"])
     print(text)
-    write_section(DOCS / "deploy.md", SECTION, text)
-
-
-if __name__ == "__main__":
-    main()
+    harness.write_section(harness.DOCS / "deploy.md", SECTION, text)
+    return 0

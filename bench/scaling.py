@@ -3,8 +3,8 @@
 - N from 10 to 2000, Legendre degree 3, the fully actuated 2-link arm with its 1 s task
   (bench/scenes.py "arm-2");
 - links from 1 to 8 at N = 50, Legendre degree 3: a chain of 0.4 m, 1 kg links, every
-  joint active, g = 9.81, waves on odd joints (`testbed.robots.chain`), each joint moving
-  +0.5 rad rest to rest in 1 s.
+  joint active, g = 9.81, waves on odd joints, each joint moving +0.5 rad rest to rest in
+  1 s (`testbed.robots.chain_scene`).
 
 Each point runs in a fresh process, one solve per plan (mesh refinement and retries off,
 so that N stays what the point says): build time, median Ipopt wall and CPU time of 3
@@ -27,8 +27,7 @@ from pathlib import Path
 from bench import harness
 from bench.scenes import ONE_SOLVE, make_scene
 from planner.ocp import plan
-from planner.scene import Scene
-from testbed.robots import chain
+from testbed.robots import chain_scene
 
 SECTION = "Scaling"
 N_GRID = [10, 20, 50, 100, 200, 500, 1000, 2000]
@@ -43,23 +42,13 @@ def _maxrss() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
-def chain_scene(n: int, N: int) -> Scene:
-    """The fully actuated n-link chain, every joint +0.5 rad rest to rest in 1 s, one solve
-    on N intervals."""
-    transcription, solver = ONE_SOLVE
-    start = [0.1 * k for k in range(n)]
-    return Scene.model_validate({
-        "robot": chain(n, under=False), "transcription": {"intervals": N, **transcription},
-        "solver": solver,
-        "task": {"duration": 1.0, "initial": {"q": start, "dq": [0.0] * n},
-                 "final": {"q": [s + 0.5 for s in start], "dq": [0.0] * n}}})
-
-
 def point(kind: str, size: int) -> dict:
     """One point in this (fresh) process: kind "N" (arm-2 at N = size) or "links"."""
     base = _maxrss()
+    transcription, solver = ONE_SOLVE
     scene = (make_scene("arm-2", N=size, one_solve=True) if kind == "N"
-             else chain_scene(size, LINKS_N))
+             else chain_scene(size, under=False, solver=solver, intervals=LINKS_N,
+                              **transcription))
     build_time, solver = harness.build_instrumented(scene)
     after_build = _maxrss()
     walls, cpus, plans = [], [], []

@@ -1,11 +1,12 @@
 """Robots for tests and benchmarks: random robots and states (seeded by the caller's
-generator), and chains of links."""
+generator), and chains of links with their rest-to-rest task."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from planner.model import Robot
+from planner.scene import Scene
 
 
 def random_robot(rng: np.random.Generator, n: int, *, waves: bool = True,
@@ -61,3 +62,20 @@ def chain(n: int, under: bool, masses: list[float] | None = None,
             link["wave"] = {"amplitude": 0.1 * lengths[k], "frequency": frequency, "phase": 0.3}
         links.append(link)
     return {"links": links, "gravity": gravity}
+
+
+def chain_scene(links: int, under: bool = True, extra: str = "", solver: dict | None = None,
+                **transcription: object) -> Scene:
+    """`chain(links, under)` moving every joint +0.5 rad rest to rest in 1 s from
+    q_k = 0.1 k rad; `extra` "margin" adds a coupling margin of 1e-3, "co-design" wave
+    co-design (amplitudes up to 0.05 m, frequency 3); the transcription's fields as
+    keywords, and solver settings."""
+    start = [0.1 * k for k in range(links)]
+    task: dict = {"duration": 1.0, "initial": {"q": start, "dq": [0.0] * links},
+                  "final": {"q": [s + 0.5 for s in start], "dq": [0.0] * links}}
+    if extra == "margin":
+        task["coupling_margin"] = 1e-3
+    elif extra == "co-design":
+        task["co_design"] = {"amplitude_max": 0.05, "frequency": [3.0] * (links // 2)}
+    return Scene.model_validate({"robot": chain(links, under), "task": task,
+                                 "transcription": transcription, "solver": solver or {}})

@@ -3,19 +3,25 @@
 from __future__ import annotations
 
 import csv
-import sys
 from pathlib import Path
 
 import pytest
 
 from app.capacity import capacity_errors, estimate_mb
 from app.settings import Settings
+from planner.scene import Scene
+from testbed.robots import chain_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 MEASURED = ROOT / "bench" / "results" / "capacity.csv"
-sys.path.insert(0, str(ROOT))
+"""What `python -m bench capacity` measured: one row per scene of `testbed.robots.chain_scene`."""
 
-from bench.capacity import scene_of
+
+def scene_of(row: dict) -> Scene:
+    """The scene a row of the measurements was measured on."""
+    return chain_scene(int(row["links"]), extra=row["extra"], method=row["method"],
+                       degree=int(row["degree"]), intervals=int(row["intervals"]),
+                       integrator=row["integrator"], steps=int(row["steps"]), form=row["form"])
 
 
 def measured() -> list[dict]:
@@ -28,14 +34,11 @@ def measured() -> list[dict]:
                    "extra") if r[k]))
 def test_no_measured_plan_needs_less_than_its_estimate(row):
     """The estimate refuses only plans that would certainly not fit."""
-    scene = scene_of(int(row["links"]), row["method"], int(row["degree"]),
-                     int(row["intervals"]), row["integrator"], int(row["steps"]), row["form"],
-                     row["extra"])
-    assert estimate_mb(scene) <= float(row["vm_solve"])
+    assert estimate_mb(scene_of(row)) <= float(row["vm_solve"])
 
 
 def test_the_limit_is_the_worker_memory_setting():
-    scene = scene_of(8, "multiple-shooting", 3, 10, "rk4", 20, "implicit", "")
+    scene = chain_scene(8, method="multiple-shooting", intervals=10, steps=20)
     needed = estimate_mb(scene)
     assert capacity_errors(scene, Settings(worker_memory_mb=int(needed) + 1)) == []
     [error] = capacity_errors(scene, Settings(worker_memory_mb=int(needed)))

@@ -1,6 +1,6 @@
 """Plan jobs through the app when things go wrong: plans too big for a worker, workers
 that die, hang or ignore a cancel, a full queue, shutdown with queued jobs, a store that
-is deleted, damaged or left with its write-ahead log. The fake solver (tests/fake_solvers)
+is deleted, damaged or left with its write-ahead log. The fake solver (testbed/fake_solvers.py)
 runs on real worker processes."""
 
 from __future__ import annotations
@@ -13,13 +13,14 @@ from pathlib import Path
 
 import httpx
 import pytest
-from fake_solvers import fake_plan
-from service_fixtures import LiveServer, client, two_link_scene, wait_final
+from service_fixtures import client, two_link_scene
 
 from app.capacity import estimate_mb
 from app.store import SqliteJobStore, StoreDamaged
 from app.supervisor import CANCELLED_STOPPED, died, over_budget
 from planner.scene import Scene
+from testbed.fake_solvers import fake_plan
+from testbed.service import LiveServer, wait_final
 
 
 def chain(n: int) -> dict:
@@ -58,8 +59,7 @@ def wait_idle(api, timeout: float = 30.0) -> None:
 def fake_server(folder: Path) -> LiveServer:
     """A live uvicorn with one worker running the fake solver."""
     return LiveServer(folder / "jobs.sqlite3", UNDERTOW_WORKERS="1",
-                      UNDERTOW_SOLVE_FUNCTION="fake_solvers:fake_plan",
-                      PYTHONPATH=str(Path(__file__).parent))
+                      UNDERTOW_SOLVE_FUNCTION="testbed.fake_solvers:fake_plan")
 
 
 def wait_gone(group: int, timeout: float = 30.0) -> None:

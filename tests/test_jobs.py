@@ -1,4 +1,4 @@
-"""The job runner on real worker processes, with a fake solve function (tests/fake_solvers)."""
+"""The job runner on real worker processes, with a fake solve function (testbed/fake_solvers.py)."""
 
 from __future__ import annotations
 
@@ -8,12 +8,12 @@ import signal
 import time
 
 import pytest
-from fake_solvers import fake_plan
 
 from app.jobs import JobRunner, QueueFull
 from app.store import BUILDING, FINAL, INTERRUPTED, SqliteJobStore, StoreUnavailable
 from app.supervisor import CANCELLED_STOPPED, TICK, died, over_budget
 from app.worker import Outcome, out_of_memory
+from testbed.fake_solvers import fake_plan
 
 ROBOT = {"links": [{"length": 0.5, "mass": 1.0, "joint": "passive"},
                    {"length": 0.4, "mass": 0.5, "joint": "active"}]}
@@ -22,7 +22,7 @@ ROBOT = {"links": [{"length": 0.5, "mass": 1.0, "joint": "passive"},
 def scene(iterations: int = 3, tol: float = 1e-8, duration: float = 1.0,
           wall_time: float = 60.0) -> dict:
     """A scene the fake solver runs for `iterations` x 20 ms; `tol` picks the outcome
-    (tests/fake_solvers.py), `duration` is a fake build's time."""
+    (testbed/fake_solvers.py), `duration` is a fake build's time."""
     return {"robot": ROBOT,
             "solver": {"max_iter": iterations, "tol": tol, "max_wall_time": wall_time},
             "task": {"duration": duration, "initial": {"q": [0.0, 0.0], "dq": [0.0, 0.0]},

@@ -9,7 +9,6 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import pytest
 from conftest import point_mass_dynamics
-from fake_solvers import fake_plan
 from matplotlib.figure import Figure
 from service_fixtures import client, two_link_scene
 
@@ -20,6 +19,7 @@ from planner.inverse import InverseDynamicsRequest, solve
 from planner.ocp import Plan, plan
 from planner.ocp.verify import coupling_along
 from planner.scene import Scene
+from testbed.fake_solvers import fake_plan
 from testbed.service import wait_final
 
 PNG = b"\x89PNG\r\n\x1a\n"

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import pytest
-from fake_solvers import fake_plan
 from service_fixtures import client, two_link_scene
+
+from testbed.fake_solvers import fake_plan
 
 
 @pytest.fixture(scope="module")

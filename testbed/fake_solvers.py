@@ -1,4 +1,5 @@
-"""Stand-in solve functions for testing the job machinery without Ipopt.
+"""Stand-in solve functions for the job machinery without Ipopt (tests, and the fault
+benchmark's servers: UNDERTOW_SOLVE_FUNCTION=testbed.fake_solvers:fake_plan).
 
 `fake_plan` runs `solver.max_iter` iterations of 20 ms each, reporting progress and
 honouring a stop request like planner.ocp.plan does. `solver.tol` picks the outcome:
