@@ -33,7 +33,7 @@ from typing import Any
 from app.logging import configure
 from app.procmem import limit_growth
 from app.store import INTERRUPTED, JobRecord, JobStatus, JobStore, StoreUnavailable
-from planner.ocp.result import Plan, Progress
+from planner.ocp.result import NlpSolution, Plan, Progress
 from planner.ocp.verify import unverified_reason
 from planner.scene import Scene
 
@@ -159,7 +159,8 @@ def run_job(store: JobStore, job_id: str, scene: Scene, solve: SolveFunction,
     _current = (store, job_id)
     reporter = _Reporter(store, job_id, start + budget)
     try:
-        plan = solve(scene, progress=reporter)
+        earlier = _earlier(store, scene.solver.warm_start)
+        plan = solve(scene, progress=reporter, **({"warm_start": earlier} if earlier else {}))
     except MemoryError:
         return _failed(store, job_id, out_of_memory(memory_mb), start, exhausted=True)
     except Exception as exc:  # noqa: BLE001 - any error fails the job, the worker lives
@@ -172,8 +173,21 @@ def run_job(store: JobStore, job_id: str, scene: Scene, solve: SolveFunction,
     current = store.get(job_id)
     status, error = _verdict(plan, bool(current and current.cancel_requested),
                              reporter.expired, budget)
-    store.finish(job_id, status, plan.model_dump(mode="json"), error)
+    solution = plan.solution.model_dump(mode="json") if plan.solution is not None else None
+    store.finish(job_id, status, plan.model_dump(mode="json"), error, solution)
     return Outcome(job_id, status, time.monotonic() - start)
+
+
+def _earlier(store: JobStore, job_id: str | None) -> Plan | None:
+    """The plan of an earlier job with the NLP solution it came from, to warm-start from."""
+    record = store.get(job_id) if job_id else None
+    if record is None or record.plan is None:
+        return None
+    solution = store.solution(job_id)
+    plan = Plan.model_validate(record.plan)
+    if solution is None:
+        return plan
+    return plan.model_copy(update={"solution": NlpSolution.model_validate(solution)})
 
 
 def _failed(store: JobStore, job_id: str, error: str, start: float,

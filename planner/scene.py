@@ -208,6 +208,13 @@ class SolverSettings(BaseModel):
     jit: bool = Field(default=False, description="compile the NLP's derivative kernels and the "
                                                  "verification's dynamics to C (once per "
                                                  "structure, cached on disk)")
+    warm_start: str | None = Field(
+        default=None, max_length=64,
+        description="the service's id of an earlier plan job to start from: the same problem "
+                    "on a mesh at least as fine starts from its NLP solution, primal and dual "
+                    "(a goal moved a little converges in a few iterations); otherwise its "
+                    "trajectory is the initial guess. The library's plan() takes the earlier "
+                    "Plan itself (warm_start=)")
     retries: int = Field(default=4, ge=0, le=4,
                          description="further attempts after one that gives no accurate plan: "
                                      "a restart from its last iterate, the inverse dynamics "

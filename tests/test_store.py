@@ -18,6 +18,7 @@ from app.store import (
     StoreDamaged,
     StoreUnavailable,
 )
+from app.store.sqlite import SCHEMA_VERSION
 
 SCENE = {"robot": {"links": []}, "note": "stored verbatim"}
 
@@ -261,7 +262,9 @@ def test_a_store_of_the_first_schema_is_migrated(tmp_path):
     store = SqliteJobStore(path)
     assert store.get("old").worker is None
     assert claim(store) == "old" and store.get("old").worker == "w1"
-    assert store._rows("PRAGMA user_version")[0][0] == 2
+    assert store.finish("old", "succeeded", {"plan": 1}, None, {"x": [1.0]})
+    assert store.solution("old") == {"x": [1.0]}
+    assert store._rows("PRAGMA user_version")[0][0] == SCHEMA_VERSION == 3
 
 
 def test_a_store_deleted_under_the_service_is_unavailable_not_recreated(store):

@@ -91,8 +91,13 @@ class JobStore(ABC):
 
     @abstractmethod
     def finish(self, job_id: str, status: JobStatus, plan: dict[str, Any] | None,
-               error: str | None) -> bool:
-        """running -> a final status with its plan or error; False if it was not running."""
+               error: str | None, solution: dict[str, Any] | None = None) -> bool:
+        """running -> a final status with its plan or error, and the NLP solution behind
+        the plan (for warm starts); False if it was not running."""
+
+    @abstractmethod
+    def solution(self, job_id: str) -> dict[str, Any] | None:
+        """The NLP solution a finished job's plan came from, None when it kept none."""
 
     @abstractmethod
     def fail(self, job_id: str, error: str) -> bool:

@@ -60,6 +60,9 @@ _MIGRATIONS: tuple[tuple[str, ...], ...] = (
         "ALTER TABLE jobs ADD COLUMN lease_until REAL",
         "CREATE INDEX IF NOT EXISTS jobs_owner_status ON jobs (owner, status, created)",
     ),
+    (  # 3: the NLP solution behind a plan, for warm starts (kept out of the plan's JSON)
+        "ALTER TABLE jobs ADD COLUMN solution TEXT",
+    ),
 )
 SCHEMA_VERSION = len(_MIGRATIONS)
 
@@ -254,12 +257,16 @@ class SqliteJobStore(JobStore):
         return bool(rows) and not rows[0][0]
 
     def finish(self, job_id: str, status: JobStatus, plan: dict[str, Any] | None,
-               error: str | None) -> bool:
+               error: str | None, solution: dict[str, Any] | None = None) -> bool:
         rows = self._write(
-            "UPDATE jobs SET status = ?, plan = ?, error = ?, finished = ? "
+            "UPDATE jobs SET status = ?, plan = ?, error = ?, finished = ?, solution = ? "
             "WHERE id = ? AND status = 'running' RETURNING id",
-            (status, _dumps(plan), error, time.time(), job_id))
+            (status, _dumps(plan), error, time.time(), _dumps(solution), job_id))
         return bool(rows)
+
+    def solution(self, job_id: str) -> dict[str, Any] | None:
+        rows = self._rows("SELECT solution FROM jobs WHERE id = ?", (job_id,))
+        return _loads(rows[0][0]) if rows else None
 
     def fail(self, job_id: str, error: str) -> bool:
         rows = self._write(
