@@ -31,6 +31,8 @@ BENCHES = {
                                              "scene, and where a solve's time goes"),
     "refinement": ("bench.refinement", "mesh refinement on the two-link example at other "
                                        "numbers of intervals; what each retry recovers"),
+    "replan": ("bench.replan", "warm replanning: a moved goal on the seed arm, warm against "
+                               "cold, in the library and through the service"),
     "reliability": ("bench.reliability", "a live server under bad input, slow clients and long "
                                          "synchronous requests"),
     "scaling": ("bench.scaling", "build time, solve time and memory against intervals and "
