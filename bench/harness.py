@@ -27,7 +27,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from planner.ocp.problem import IPOPT_OPTIONS, ProblemKey, problem
+from planner.ocp.problem import IPOPT_OPTIONS, ProblemKey, cached_problem, problem
 from planner.scene import Scene
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -61,7 +61,7 @@ class CpuTimed:
 def build_instrumented(scene: Scene) -> tuple[float, CpuTimed]:
     """Build (or fetch) the NLP of the scene's first mesh; its build time [s] and its
     solver, wrapped to record the CPU time of each solve."""
-    prob = problem(ProblemKey.of(scene))
+    prob = problem(ProblemKey.of(scene), wait=True)
     if not isinstance(prob.solver, CpuTimed):
         prob.solver = CpuTimed(prob.solver)
     return prob.build_time, prob.solver
@@ -73,13 +73,13 @@ def ipopt_options(options: dict) -> Iterator[None]:
     cache of built NLPs is cleared on entry and on exit (a solver holds its options)."""
     saved = dict(IPOPT_OPTIONS)
     IPOPT_OPTIONS.update(options)
-    problem.cache_clear()
+    cached_problem.cache_clear()
     try:
         yield
     finally:
         IPOPT_OPTIONS.clear()
         IPOPT_OPTIONS.update(saved)
-        problem.cache_clear()
+        cached_problem.cache_clear()
 
 
 def load() -> str:

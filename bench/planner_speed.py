@@ -40,7 +40,7 @@ from bench import harness
 from bench.peers import opti as baseline_opti
 from bench.scenes import make_scene
 from planner.ocp import Plan, plan
-from planner.ocp.problem import problem, stages
+from planner.ocp.problem import cached_problem, stages
 
 OUTPUTS = {"seed-hang": ("Planner vs a plain Opti script: seed arm hanging",
                          "planner_speed_hanging.csv"),
@@ -66,7 +66,7 @@ def planner_rows(name: str, N: int, repeats: int, form: str,
     """Cold and warm rows of the planner on scene `name` at N (form: implicit or explicit;
     jit: compiled NLP), and the CasADi statistics of its last solve."""
     scene = make_scene(name, N=N, form=form, one_solve=True, solver={"jit": jit, **BUDGET})
-    problem.cache_clear()
+    cached_problem.cache_clear()
     stages.cache_clear()
     started = time.perf_counter()
     build_time, solver = harness.build_instrumented(scene)

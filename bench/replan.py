@@ -53,8 +53,11 @@ def _row(kind: str, result, elapsed: float) -> dict:
 
 def library(requests: list[dict], base: dict) -> list[dict]:
     """Warm and cold plans of each moved goal, in this process."""
+    from planner import compiled
     from planner.ocp import plan
 
+    first = plan(Scene.model_validate(base))
+    compiled.wait()  # solver.jit: the structure's compiled kernels, built in the background
     first = plan(Scene.model_validate(base))
     rows = []
     for request in requests:

@@ -12,6 +12,9 @@ is the wall time of the whole plan (build, every solve, mesh pass and retry, err
 estimates and verification), counted only for verified plans.
 
     python -m bench suite [--count 48] [--seed 20261123] [--configs undertow,...]
+
+`--seed` other than the suite's own writes its own section and CSV (suite-seed-N.csv):
+tasks the planner was not tuned on.
 """
 
 from __future__ import annotations
@@ -248,14 +251,17 @@ def main(argv: list[str]) -> int:
     for config in configs:
         print(f"running {config} on {args.count} tasks ...", flush=True)
         rows += _run(config, args.count, args.seed)
-    harness.write_csv(harness.RESULTS / "suite.csv", rows)
+    own = args.seed == SEED
+    csv = "suite.csv" if own else f"suite-seed-{args.seed}.csv"
+    harness.write_csv(harness.RESULTS / csv, rows)
     summary = [_summary(rows, c) for c in configs]
     ours = next((r for r in summary if r["config"] == "undertow"), None)
     ratios = [f"{r['config']}: {r['median_all'] / ours['median_all']:.1f}x"
               for r in summary if ours and r is not ours and isinstance(r["median_all"], float)
               and isinstance(ours["median_all"], float)]
-    _plot(rows, configs)
-    text = "\n\n".join([
+    if own:
+        _plot(rows, configs)
+    text = "\n\n".join(part for part in [
         f"{args.count} rest-to-rest tasks of `planner.suite` (seed {args.seed}): 2, 3 and 4 "
         "links, every passive/active split with at least as many active as passive joints, "
         "waves on about half of the active joints, g = 0 and g = 9.81 in turn, moves of up "
@@ -273,15 +279,16 @@ def main(argv: list[str]) -> int:
                                 ("median_solves", "median solves")]),
         ("Median time to a verified plan (unverified counted as never) against the default "
          "planner's: " + "; ".join(ratios) + "." if ratios else ""),
-        "![Share of the suite verified within a time](img/suite.png)",
+        "![Share of the suite verified within a time](img/suite.png)" if own else "",
         "Per task, the default planner: the interval error is what `verified` judges; the "
         "open-loop replay runs the delivered torque from the planned start over the whole "
         "horizon, the growth factor is the largest norm of the state transition matrix "
         "along the plan, and the closed-loop replays add the plan's LQR feedback, from the "
         "planned start and from one perturbed by 1e-3 on every angle and rate.",
         _task_table(rows),
-        f"Rows: `bench/results/suite.csv`. {harness.manifest('suite', argv, started, note)}"])
-    harness.write_section(DOC, SECTION, text)
+        f"Rows: `bench/results/{csv}`. {harness.manifest('suite', argv, started, note)}"]
+        if part)
+    harness.write_section(DOC, SECTION if own else f"{SECTION}, seed {args.seed}", text)
     for row in summary:
         print(row)
     return 0

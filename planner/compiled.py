@@ -3,22 +3,29 @@
 A library is named by a digest of what decides its code; it is built on first use (gcc,
 in a temporary folder) and renamed into place atomically, so processes sharing the cache
 folder never load a partial one. $UNDERTOW_CACHE_DIR names the folder (default
-~/.cache/undertow).
+~/.cache/undertow). A caller that need not wait has the library built in the background,
+by a process of its own (`python -m planner.compiled`), and goes on with the interpreted
+functions meanwhile.
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
+import shutil
 import subprocess
+import sys
 import tempfile
 import threading
+import time
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 import casadi as ca
 
-_CODEGEN = threading.Lock()  # one compilation at a time per process
+_CODEGEN = threading.Lock()  # one compilation at a time per process, and guards the dicts below
+_LOADED: dict[Path, dict[str, ca.Function]] = {}  # libraries loaded by this process
+_BUILDING: dict[Path, subprocess.Popen] = {}  # background builds started by this process
 
 
 def cache_dir() -> Path:
@@ -38,20 +45,84 @@ def source_digest(*parts: str, sources: Iterable[Path] = ()) -> str:
     return digest.hexdigest()[:20]
 
 
-def library(name: str, functions: Sequence[ca.Function],
-            flags: str = "-O1") -> dict[str, ca.Function]:
+def library(name: str, functions: Sequence[ca.Function], flags: str = "-O1",
+            background: bool = False) -> dict[str, ca.Function] | None:
     """`functions` compiled into the library `name` (a digest-bearing file name without
-    suffix), loaded as external functions by name."""
+    suffix), loaded as external functions by name.
+
+    background: when the library is not on disk yet, start building it in a process of
+    its own and return None at once (the caller uses the interpreted functions until a
+    later call finds it); otherwise build it here and wait.
+    """
     folder = cache_dir()
     path = folder / f"{name}.so"
-    if not path.exists():
-        folder.mkdir(parents=True, exist_ok=True)
-        with _CODEGEN, tempfile.TemporaryDirectory(dir=folder) as work:
-            generator = ca.CodeGenerator("lib.c", {"with_header": False})
-            for function in functions:
-                generator.add(function)
-            generator.generate(work + os.sep)
-            subprocess.run(["gcc", flags, "-fPIC", "-shared", "lib.c", "-o", "lib.so"],
-                           cwd=work, check=True, capture_output=True)
-            os.replace(Path(work) / "lib.so", path)
-    return {f.name(): ca.external(f.name(), str(path)) for f in functions}
+    with _CODEGEN:
+        if path in _LOADED:
+            return _LOADED[path]
+        if not path.exists():
+            folder.mkdir(parents=True, exist_ok=True)
+            if background:
+                _start(folder, name, functions, flags)
+                return None
+            _build(folder, name, functions, flags)
+        _LOADED[path] = {f.name(): ca.external(f.name(), str(path)) for f in functions}
+        return _LOADED[path]
+
+
+def _build(folder: Path, name: str, functions: Sequence[ca.Function], flags: str) -> None:
+    """Generate C for `functions`, compile it and rename the library into place."""
+    with tempfile.TemporaryDirectory(dir=folder) as work:
+        generator = ca.CodeGenerator("lib.c", {"with_header": False})
+        for function in functions:
+            generator.add(function)
+        generator.generate(work + os.sep)
+        subprocess.run(["gcc", flags, "-fPIC", "-shared", "lib.c", "-o", "lib.so"],
+                       cwd=work, check=True, capture_output=True)
+        os.replace(Path(work) / "lib.so", folder / f"{name}.so")
+
+
+def _start(folder: Path, name: str, functions: Sequence[ca.Function], flags: str) -> None:
+    """Build the library in a child process, unless this process already is or its build
+    failed (then the functions stay interpreted here); call under _CODEGEN. The functions
+    travel as CasADi's serialised files."""
+    path = folder / f"{name}.so"
+    started = _BUILDING.get(path)
+    if started is not None and started.poll() != 0:
+        return
+    work = Path(tempfile.mkdtemp(prefix=f"{name}.", dir=folder))
+    files = []
+    for function in functions:
+        files.append(str(work / f"{function.name()}.casadi"))
+        function.save(files[-1])
+    _BUILDING[path] = subprocess.Popen(
+        [sys.executable, "-m", "planner.compiled", str(folder), name, flags, str(work), *files],
+        stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+
+def building() -> list[str]:
+    """Names of the libraries this process is building in the background."""
+    with _CODEGEN:
+        return [path.stem for path, proc in _BUILDING.items() if proc.poll() is None]
+
+
+def wait(timeout: float = 600.0) -> None:
+    """Wait until the background builds this process started have ended [s]."""
+    deadline = time.monotonic() + timeout
+    with _CODEGEN:
+        running = list(_BUILDING.values())
+    for proc in running:
+        proc.wait(max(deadline - time.monotonic(), 0.0))
+
+
+def main(argv: list[str]) -> None:
+    """Child process: folder name flags work file...: build the library of the saved
+    functions, then remove their folder."""
+    folder, name, flags, work, *files = argv
+    try:
+        _build(Path(folder), name, [ca.Function.load(f) for f in files], flags)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

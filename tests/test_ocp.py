@@ -11,7 +11,7 @@ from planner.model import Robot
 from planner.ocp import Plan, plan
 from planner.ocp import problem as problem_module
 from planner.ocp.guess import hermite_guess, inverse_dynamics_guess
-from planner.ocp.problem import ProblemKey, problem
+from planner.ocp.problem import ProblemKey, cached_problem, problem
 from planner.ocp.verify import coupling_along, unverified_reason
 from planner.scene import Scene
 
@@ -86,10 +86,10 @@ def test_explicit_and_implicit_forms_agree():
 
 def test_same_structure_reuses_the_built_nlp():
     first = plan(scene(N=17, refine=False, final={"q": [0.6, 1.2], "dq": [0.0, 0.0]}))
-    misses = problem.cache_info().misses
+    misses = cached_problem.cache_info().misses
     robot = {**ARM, "links": [{**ARM["links"][0], "mass": 2.0}, ARM["links"][1]], "gravity": 3.0}
     second = plan(scene(robot, N=17, refine=False, final={"q": [-0.3, 0.9], "dq": [0.0, 0.0]}))
-    assert problem.cache_info().misses == misses
+    assert cached_problem.cache_info().misses == misses
     assert second.solver.cache_hit and second.solver.build_time == 0.0
     assert not first.solver.cache_hit or first.solver.build_time == 0.0
     assert second.solver.success and second.q[-1] == pytest.approx([-0.3, 0.9], abs=1e-9)

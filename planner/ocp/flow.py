@@ -39,20 +39,38 @@ def _dae(s: Structure, degree: int) -> ca.Function:
                        [h * f(x, tau, p), none, none, none], ca.dyn_in(), ca.dyn_out())
 
 
-def _compiled_dae(s: Structure, degree: int) -> ca.Function:
-    """`_dae` compiled (`planner.compiled`), with the derivatives CVODES' setup asks for."""
+@lru_cache(maxsize=64)
+def _dae_functions(s: Structure, degree: int) -> tuple[ca.Function, ...]:
+    """`_dae` and the derivatives CVODES' setup asks for."""
     dae = _dae(s, degree)
-    name = f"flow_{source_digest(repr(s), str(degree), sources=_SOURCES)}"
-    return library(name, [dae, dae.forward(1), dae.reverse(1), dae.jacobian()])["flow_ode"]
+    return dae, dae.forward(1), dae.reverse(1), dae.jacobian()
 
 
 @lru_cache(maxsize=64)
+def _library_name(s: Structure, degree: int) -> str:
+    return f"flow_{source_digest(repr(s), str(degree), sources=_SOURCES)}"
+
+
+def _compiled_dae(s: Structure, degree: int) -> ca.Function | None:
+    """`_dae` compiled (`planner.compiled`); None while it is built in the background."""
+    loaded = library(_library_name(s, degree), _dae_functions(s, degree), background=True)
+    return None if loaded is None else loaded["flow_ode"]
+
+
 def integrator(s: Structure, degree: int, outputs: int, tol: float = TOL,
                compiled: bool = False) -> ca.Function:
     """(x0 (2n), p, u) -> xf (2n x outputs) at s = 1/outputs, 2/outputs, ..., 1;
     p = [robot parameters, torque coefficients (degree + 1 by na, power-major), h]; u the
     torque offset, na x outputs (one per output interval; an na vector holds for all).
-    compiled: the right-hand side compiled to C (about twice as fast)."""
+    compiled: the right-hand side compiled to C (about twice as fast) once it is on disk,
+    interpreted while it is built in the background."""
+    ready = compiled and _compiled_dae(s, degree) is not None
+    return _integrator(s, degree, outputs, tol, ready)
+
+
+@lru_cache(maxsize=64)
+def _integrator(s: Structure, degree: int, outputs: int, tol: float,
+                compiled: bool) -> ca.Function:
     dae = _compiled_dae(s, degree) if compiled else _dae(s, degree)
     grid = list(np.linspace(0.0, 1.0, outputs + 1)[1:])
     return ca.integrator("flow", "cvodes", dae, 0.0, grid,

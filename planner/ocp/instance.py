@@ -9,7 +9,7 @@ import numpy as np
 from planner.model import Robot, parameters
 from planner.ocp.guess import Guess
 from planner.ocp.mesh import Mesh
-from planner.ocp.problem import Problem, ProblemKey, problem, torques
+from planner.ocp.problem import Problem, ProblemKey, cached_problem, problem, torques
 from planner.ocp.terms import Numeric
 from planner.scene import Scene
 
@@ -33,9 +33,9 @@ def instance(scene: Scene, robot: Robot, mesh: Mesh, T: float) -> Instance:
     T: the duration [s] (a free duration's starting value).
     """
     key = ProblemKey.of(scene, mesh.intervals)
-    hits = problem.cache_info().hits
+    hits = cached_problem.cache_info().hits
     prob = problem(key)
-    hit = problem.cache_info().hits > hits
+    hit = cached_problem.cache_info().hits > hits
     lbx, ubx = _bounds(scene, prob, robot, mesh)
     return Instance(prob, mesh, parameters_of(scene, prob, robot, mesh, T), lbx, ubx, hit)
 

@@ -326,6 +326,7 @@ def _result(scene: Scene, attempts: list[Attempt], budget: Budget) -> Plan:
                             solve_time=sum(o.solution.time for o in outcomes),
                             total_time=time.perf_counter() - budget.started,
                             cache_hit=outcomes[0].inst.cache_hit,
+                            compiled=outcomes[0].inst.problem.compiled,
                             initial_guess=attempt.start.guess_used,
                             strategy=attempt.start.name + refined_by),
         mesh_passes=[o.record for o in outcomes],

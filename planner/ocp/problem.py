@@ -177,6 +177,7 @@ class Problem:
     structured: bool
     oracle: dict = field(repr=False)
     options: dict = field(repr=False)
+    compiled: bool = False  # its derivative kernels run compiled (planner.compiled)
     _warm: ca.Function | None = field(repr=False, default=None)
 
     @property
@@ -362,8 +363,13 @@ class Stages:
 
 
 @lru_cache(maxsize=32)
-def stages(key: ProblemKey) -> Stages:
-    """The stages of a key (its `intervals` ignored; cached), compiled to C when it asks."""
+def stages(key: ProblemKey, compiled: bool = False) -> Stages:
+    """The stages of a key (its `intervals` ignored; cached); compiled: with the derivative
+    kernels of `compiled_kernels`, which the caller found on disk."""
+    if compiled:
+        plain = stages(key)
+        loaded = None if plain.derivatives is None else compiled_kernels(key, plain.derivatives)
+        return plain if loaded is None else replace(plain, derivatives=loaded)
     s = key.structure
     tr, terms = key.transcription(), key.terms()
     parts = tr.parts(s.n, len(s.active_idx))
@@ -372,9 +378,30 @@ def stages(key: ProblemKey) -> Stages:
     stage, stage_bounds = _stage_function(key, tr, layout, params, terms, False)
     terminal, terminal_bounds = _stage_function(key, tr, layout, params, terms, True)
     kernels = Kernels(stage, terminal, sum(p.size for p in layout.stage if p.name in tr.link))
-    built = Stages(tr, kernels, derivatives(kernels), parts, params,
-                   (stage_bounds, terminal_bounds))
-    return compiled(built, key) if key.jit and built.derivatives is not None else built
+    return Stages(tr, kernels, derivatives(kernels), parts, params,
+                  (stage_bounds, terminal_bounds))
+
+
+def compiled_kernels(key: ProblemKey, derivatives: Derivatives,
+                     wait: bool = False) -> Derivatives | None:
+    """The derivative kernels (what an iteration spends its time in) compiled to C
+    (`planner.compiled`), named by the stage key's digest: every number of intervals of the
+    key, every process and every later run share the library. None while the library is
+    being built in the background (unless wait). The stage functions themselves stay
+    symbolic: nlpsol differentiates them for what it computes once per solve."""
+    loaded = library(f"stages_{key.digest()}", derivatives.functions(), background=not wait)
+    return None if loaded is None else derivatives.replaced(loaded)
+
+
+def _compiled_ready(key: ProblemKey, wait: bool) -> bool:
+    """Whether a key's NLP can have compiled kernels now: it asks for them (`solver.jit`)
+    and they are on disk, or are built here (wait). If they are not, their build starts in
+    the background."""
+    if not key.jit:
+        return False
+    plain = stages(key)
+    return plain.derivatives is not None and \
+        compiled_kernels(key, plain.derivatives, wait) is not None
 
 
 def _stage_key(key: ProblemKey) -> ProblemKey:
@@ -382,10 +409,10 @@ def _stage_key(key: ProblemKey) -> ProblemKey:
     return replace(key, intervals=0)
 
 
-def build(key: ProblemKey) -> Problem:
-    """Build the NLP of a key and its Ipopt solver."""
+def build(key: ProblemKey, compiled: bool = False) -> Problem:
+    """Build the NLP of a key and its Ipopt solver (compiled: with compiled kernels)."""
     start = time.perf_counter()
-    parts = stages(_stage_key(key))
+    parts = stages(_stage_key(key), compiled)
     tr = key.transcription()
     layout = Layout(*parts.parts, _globals(key), key.intervals)
     terms = key.terms()
@@ -409,7 +436,8 @@ def build(key: ProblemKey) -> Problem:
         opts["expand"] = True
     solver = ca.nlpsol("plan", key.solver, assembly.nlp, opts)
     return Problem(key, layout, tr, parts.params, lbg, ubg, solver, monitor,
-                   time.perf_counter() - start, assembly.structured, assembly.nlp, opts)
+                   time.perf_counter() - start, assembly.structured, assembly.nlp, opts,
+                   compiled)
 
 
 def _fatrop_options(key: ProblemKey, parts: Stages, lbg: np.ndarray, ubg: np.ndarray) -> dict:
@@ -428,17 +456,6 @@ def _fatrop_options(key: ProblemKey, parts: Stages, lbg: np.ndarray, ubg: np.nda
             "fatrop": {"print_level": 0, "tol": key.tol, "max_iter": key.max_iter}}
 
 
-def compiled(built: Stages, key: ProblemKey) -> Stages:
-    """The stages with their derivative kernels (what an iteration spends its time in)
-    compiled (`planner.compiled`), named by the key's digest: every number of intervals of
-    the key, every process and every later run share the library. The stage functions
-    themselves stay symbolic: nlpsol differentiates them for what it computes once per
-    solve."""
-    functions = built.derivatives.functions()
-    loaded = library(f"stages_{key.digest()}", functions)
-    return replace(built, derivatives=built.derivatives.replaced(loaded))
-
-
 def _row_bounds(stage: list[tuple[float, float, int]], N: int,
                 terminal: list[tuple[float, float, int]]) -> tuple[np.ndarray, np.ndarray]:
     def expand(groups: list[tuple[float, float, int]], side: int) -> np.ndarray:
@@ -448,8 +465,15 @@ def _row_bounds(stage: list[tuple[float, float, int]], N: int,
             np.concatenate([np.tile(expand(stage, 1), N), expand(terminal, 1)]))
 
 
+def problem(key: ProblemKey, wait: bool = False) -> Problem:
+    """The NLP of a structure, built once and reused (cache keyed by `ProblemKey`). A key
+    with `jit` gets compiled kernels once they are on disk; the first requests of its
+    structure run interpreted while they are built in the background, unless wait."""
+    return cached_problem(key, _compiled_ready(_stage_key(key), wait))
+
+
 @lru_cache(maxsize=32)
-def problem(key: ProblemKey) -> Problem:
-    """The NLP of a structure, built once and reused (cache keyed by `ProblemKey`)."""
-    return build(key)
+def cached_problem(key: ProblemKey, compiled: bool) -> Problem:
+    """`build` of a key, cached."""
+    return build(key, compiled)
 

@@ -52,6 +52,10 @@ class SolverReport(_Out):
         default=None, description="[s] the whole plan: building, solves, error estimates, "
                                   "verification (None in plans stored before the field existed)")
     cache_hit: bool = Field(description="the NLP of the first mesh was already built")
+    compiled: bool = Field(default=False, description=(
+        "the first solve's derivative kernels ran compiled to C (solver.jit, once the "
+        "structure's library is built: the first plans of a structure run interpreted while "
+        "it is built in the background)"))
     initial_guess: str = Field(
         default="not recorded",
         description="where Ipopt started: interpolation, inverse-dynamics or warm start; "
