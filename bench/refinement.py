@@ -9,7 +9,8 @@ each retry strategy recovers on the task suite's failures.
    iterate where the first solve did not converge, the inverse-dynamics start where it
    applies, a first mesh of twice and of half the intervals) and with the default retries.
 
-    python -m bench refinement [--seeds 20261123,1,2,3,4,5] [--intervals 20,30,...]
+    python -m bench refinement [--parts intervals,retries] [--seeds 20261123,1,2,3,4,5]
+        [--intervals 20,30,...]
 """
 
 from __future__ import annotations
@@ -25,7 +26,8 @@ from planner.scene import Scene
 from planner.suite import tasks
 
 DOC = harness.DOCS / "benchmarks.md"
-SECTION = "Mesh refinement and retries"
+SECTION = "Mesh refinement on the two-link example"
+RETRIES_SECTION = "Retries on the suite's failures"
 SEEDS = "20261123,1,2,3,4,5"
 INTERVALS = "20,30,40,50,60,80,100,120"
 
@@ -110,22 +112,9 @@ def retries_table(seeds: list[int]) -> list[dict]:
     return rows
 
 
-def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="python -m bench refinement", description=__doc__)
-    parser.add_argument("--seeds", default=SEEDS)
-    parser.add_argument("--intervals", default=INTERVALS)
-    args = parser.parse_args(argv)
-    started, note = time.perf_counter(), harness.machine_note()
-    by_n = intervals_table([int(n) for n in args.intervals.split(",")])
-    seeds = [int(s) for s in args.seeds.split(",")]
-    failures = retries_table(seeds)
+def _intervals_section(values: list[int], argv: list[str], started: float, note: str) -> None:
+    by_n = intervals_table(values)
     harness.write_csv(harness.RESULTS / "refinement_intervals.csv", by_n)
-    if failures:
-        harness.write_csv(harness.RESULTS / "refinement_retries.csv", failures)
-    count = len(seeds) * len(tasks())
-    recovered = {label: sum(r[label] == "yes" for r in failures)
-                 for label in ("restart", "inverse dynamics", "twice the intervals",
-                               "half the intervals", "all retries")}
     text = "\n\n".join([
         "The built-in `two-link-plan` (passive shoulder, g = 0, coupling margin 0.01) with "
         "only `transcription.intervals` changed: one solve (refinement and retries off) "
@@ -138,8 +127,22 @@ def main(argv: list[str]) -> int:
                              ("default_objective", "objective"),
                              ("default_solves", "solves"), ("default_final", "final intervals"),
                              ("default_strategy", "strategy"), ("default_time", "time [s]")]),
-        f"The task suite over seeds {args.seeds} ({count} tasks) with retries off: "
-        f"{len(failures)} tasks do not verify. Each retry alone, after the same first "
+        "Rows: `bench/results/refinement_intervals.csv`. "
+        f"{harness.manifest('refinement', argv, started, note)}"])
+    harness.write_section(DOC, SECTION, text)
+
+
+def _retries_section(seeds: list[int], argv: list[str], started: float, note: str) -> None:
+    failures = retries_table(seeds)
+    if failures:
+        harness.write_csv(harness.RESULTS / "refinement_retries.csv", failures)
+    count = len(seeds) * len(tasks())
+    recovered = {label: sum(r[label] == "yes" for r in failures)
+                 for label in ("restart", "inverse dynamics", "twice the intervals",
+                               "half the intervals", "all retries")}
+    text = "\n\n".join(part for part in [
+        f"The task suite over seeds {','.join(map(str, seeds))} ({count} tasks) with retries "
+        f"off: {len(failures)} tasks do not verify. Each retry alone, after the same first "
         "attempt, recovers: " + ", ".join(f"{k} {v}" for k, v in recovered.items()
                                           if k != "all retries")
         + f"; the default retries in order recover {recovered['all retries']}.",
@@ -148,8 +151,23 @@ def main(argv: list[str]) -> int:
                                  ("twice the intervals", "twice the intervals"),
                                  ("half the intervals", "half the intervals"),
                                  ("all retries", "all retries")]) if failures else "",
-        "Rows: `bench/results/refinement_intervals.csv`, "
-        f"`bench/results/refinement_retries.csv`. "
-        f"{harness.manifest('refinement', argv, started, note)}"])
-    harness.write_section(DOC, SECTION, text)
+        "Rows: `bench/results/refinement_retries.csv`. "
+        f"{harness.manifest('refinement', argv, started, note)}"] if part)
+    harness.write_section(DOC, RETRIES_SECTION, text)
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench refinement", description=__doc__)
+    parser.add_argument("--parts", default="intervals,retries",
+                        help="comma-separated, from: intervals, retries")
+    parser.add_argument("--seeds", default=SEEDS)
+    parser.add_argument("--intervals", default=INTERVALS)
+    args = parser.parse_args(argv)
+    parts = args.parts.split(",")
+    if "intervals" in parts:
+        started, note = time.perf_counter(), harness.machine_note()
+        _intervals_section([int(n) for n in args.intervals.split(",")], argv, started, note)
+    if "retries" in parts:
+        started, note = time.perf_counter(), harness.machine_note()
+        _retries_section([int(s) for s in args.seeds.split(",")], argv, started, note)
     return 0

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
+from planner import compiled as compiled_code
 from planner.dynamics import Dynamics
 from planner.examples import example
 from planner.model import Structure
@@ -116,6 +117,8 @@ def test_the_compiled_dynamics_give_the_same_checks(seed_arm, tmp_path, monkeypa
     monkeypatch.setenv("UNDERTOW_CACHE_DIR", str(tmp_path))
     sc, result, interp = seed_arm
     interpreted, _ = interval_errors(sc.robot, interp)
+    interval_errors(sc.robot, interp, compiled=True)  # interpreted while gcc builds the flow
+    compiled_code.wait(300)
     compiled, status = interval_errors(sc.robot, interp, compiled=True)
     assert status == "completed" and list(tmp_path.glob("flow_*.so"))
     assert np.allclose(compiled, interpreted, rtol=1e-9, atol=1e-14)

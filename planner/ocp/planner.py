@@ -50,6 +50,7 @@ from planner.ocp.verify import open_loop, verify
 from planner.scene import DurationRange, Scene
 from planner.torque import TorquePolynomial
 
+COARSE_INTERVALS = 50  # a uniform mesh finer than this is first solved on this many intervals
 DENSE_POINTS = 2000  # about this many dense samples per plan, at least REPLAY_SAMPLES per
 # interval and a multiple of them, so that the replays' samples are among the dense ones
 NOT_FINITE = "not run: non-finite solution"
@@ -89,14 +90,21 @@ class Start:
     robot: Robot
     point: NlpSolution | None = None
     """An earlier solution of the same problem on the same mesh: the start, primal and dual."""
+    coarse: Mesh | None = None
+    """A coarser mesh solved first, whose plan (if it converged) starts the solve on `mesh`."""
 
 
 @dataclass
 class Attempt:
-    """The solves of one start: the first, then its mesh refinement."""
+    """The solves of one start: on its coarse mesh if it has one (`coarse`), then on its
+    mesh and the refinements of that (`outcomes`)."""
 
     start: Start
+    coarse: list[Outcome]
     outcomes: list[Outcome]
+
+    def solves(self) -> list[Outcome]:
+        return [*self.coarse, *self.outcomes]
 
 
 def plan(scene: Scene, progress: Handler | None = None, warm_start: Plan | None = None) -> Plan:
@@ -113,10 +121,9 @@ def plan(scene: Scene, progress: Handler | None = None, warm_start: Plan | None 
     starts = itertools.islice(_starts(scene, robot, T, warm_start, attempts),
                               1 + scene.solver.retries)
     for start in starts:
-        outcomes = [_solve_on(scene, instance(scene, start.robot, start.mesh, start.T),
-                              start.robot, start.T, start.guess, budget, progress,
-                              _passes(attempts), start.name, start.point)]
-        attempts.append(Attempt(start, outcomes))
+        coarse, first = _first_solves(scene, start, budget, progress, _passes(attempts))
+        outcomes = [first]
+        attempts.append(Attempt(start, coarse, outcomes))
         _refine(scene, outcomes, budget, progress, _passes(attempts))
         last = outcomes[-1]
         settled = last.accurate(tolerance) or not scene.transcription.refinement.enabled
@@ -127,7 +134,23 @@ def plan(scene: Scene, progress: Handler | None = None, warm_start: Plan | None 
 
 
 def _passes(attempts: list[Attempt]) -> int:
-    return sum(len(a.outcomes) for a in attempts)
+    return sum(len(a.solves()) for a in attempts)
+
+
+def _first_solves(scene: Scene, start: Start, budget: Budget, progress: Handler | None,
+                  first_pass: int) -> tuple[list[Outcome], Outcome]:
+    """An attempt's solve on its coarse mesh (if any), and its first solve on its own
+    mesh: from the coarse plan where that converged, else from the start's guess."""
+    guess, robot, T, coarse = start.guess, start.robot, start.T, []
+    if start.coarse is not None:
+        coarse = [_solve_on(scene, instance(scene, robot, start.coarse, T), robot, T, guess,
+                            budget, progress, first_pass, start.name)]
+        if coarse[0].solution.success:
+            guess, robot, T = (interpolant_guess(coarse[0].interp, coarse[0].T),
+                               coarse[0].robot, coarse[0].T)
+    first = _solve_on(scene, instance(scene, robot, start.mesh, T), robot, T, guess, budget,
+                      progress, first_pass + len(coarse), start.name, start.point)
+    return coarse, first
 
 
 def _starts(scene: Scene, robot: Robot, T: float, warm_start: Plan | None,
@@ -135,7 +158,10 @@ def _starts(scene: Scene, robot: Robot, T: float, warm_start: Plan | None,
     """The attempts of a plan, in order, each tried while the ones before it have not
     given a converged plan (with mesh refinement on: an accurate one; docs/planner.md,
     "Retries"): an earlier plan's own NLP solution where it solved the same problem on a
-    mesh at least as fine as the scene's (its refined mesh is kept); the scene's own start; a restart from the last iterate of a solve that did not converge;
+    mesh at least as fine as the scene's (its refined mesh is kept); the scene's own start
+    (with refinement on, a uniform mesh of over COARSE_INTERVALS intervals solved on that
+    many first, unless an earlier plan is the guess); a
+    restart from the last iterate of a solve that did not converge;
     the classical inverse dynamics as the initial guess; a first mesh of twice, then of
     half the intervals."""
     tr = scene.transcription
@@ -147,7 +173,12 @@ def _starts(scene: Scene, robot: Robot, T: float, warm_start: Plan | None,
         same = ProblemKey.of(scene, solved_on.intervals).fingerprint() == earlier.fingerprint
         if same and solved_on.intervals >= mesh.intervals:
             yield Start("warm start", solved_on, guess, used, warm_start.duration, robot, earlier)
-    yield Start("direct", mesh, guess, used, T, robot)
+    if tr.refinement.enabled and warm_start is None and tr.breaks is None \
+            and tr.intervals > COARSE_INTERVALS:
+        yield Start("coarse to fine", mesh, guess, used, T, robot,
+                    coarse=Mesh.uniform(COARSE_INTERVALS))
+    else:
+        yield Start("direct", mesh, guess, used, T, robot)
     last = attempts[-1].outcomes[-1]
     if last.finite and not last.solution.success:
         yield Start("restart from the last iterate", last.inst.mesh,
@@ -293,7 +324,7 @@ def _interpolant(inst: Instance, robot: Robot, T: float, x: np.ndarray) -> Inter
 def _result(scene: Scene, attempts: list[Attempt], budget: Budget) -> Plan:
     ranked = [(o, a) for a in attempts for o in a.outcomes]
     best, attempt = min(ranked, key=lambda pair: _rank(pair[0]))
-    outcomes = [o for o, _ in ranked]
+    outcomes = [o for a in attempts for o in a.solves()]
     sol, interp, robot = best.solution, best.interp, best.robot
     breaks = best.inst.mesh.breaks * best.T
     tolerance = scene.solver.resimulation_tolerance
