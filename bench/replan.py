@@ -77,13 +77,13 @@ def service(requests: list[dict], base: dict) -> list[dict]:
     with tempfile.TemporaryDirectory() as work, \
             LiveServer(Path(work) / "jobs.sqlite3", UNDERTOW_WORKERS="1") as server, \
             httpx.Client(base_url=server.url, timeout=120) as http:
-        first = http.post("/v1/plans?wait=60", json=base).json()
+        first = http.post("/v1/plans?wait=30", json=base).json()
         if first["status"] != "succeeded":
             raise RuntimeError(f"base plan: {first['status']}")
         for request in requests:
             warm = {**request, "solver": {**request["solver"], "warm_start": first["id"]}}
             started = time.perf_counter()
-            job = http.post("/v1/plans?wait=60", json=warm).json()
+            job = http.post("/v1/plans?wait=30", json=warm).json()
             elapsed = time.perf_counter() - started
             plan = job.get("plan") or {}
             solver = plan.get("solver", {})
@@ -131,7 +131,7 @@ def main(argv: list[str]) -> int:
         "`solver.warm_start` = the base plan (its primal-dual solution, the NLP cached); "
         "cold: the same request from the default initial guess. Times are to a verified plan "
         "(solves, mesh passes, interval check, replay, feedback, coupling along the plan); "
-        "the service's from sending `POST /v1/plans?wait=60` to its answer.",
+        "the service's from sending `POST /v1/plans?wait=30` to its answer.",
         harness.table(table, [("kind", "plans"), ("plans", "goals"), ("verified", "verified"),
                               ("median", "median time to a verified plan [s]"),
                               ("p90", "90th percentile [s]"),
