@@ -20,7 +20,9 @@ Methods on the scene's N intervals (50 by default):
 - "multiple shooting": `MultipleShooting(N, M=1, intg="rk")`, one RK4 step per interval.
 Solvers: Ipopt (default options but print level and a wall cap), and CasADi's fatrop
 (`ocp.solver("fatrop", {"structure_detection": "auto"})`, which recognises the stage
-structure of rockit's multiple shooting: x0, u0, x1, ... with gap constraints first).
+structure of rockit's multiple shooting: x0, u0, x1, ... with gap constraints first; it
+rejects rockit's collocation, whose helper states read the previous interval, so fatrop
+runs with multiple shooting only).
 
 The plan is judged by the planner's own code as the Opti peer's: states between the nodes
 are what rockit reports (`sample(..., grid="integrator", refine=4)`: its integrator's or
@@ -65,14 +67,16 @@ def _method(name: str, N: int):
     raise ValueError(f"method: one of {', '.join(METHODS)} (got {name!r})")
 
 
-def _solver_options(solver: str, wall_time: float) -> tuple[dict, dict]:
-    """(CasADi nlpsol options, the solver's own options) of a solver name."""
+def _solver_options(solver: str, wall_time: float) -> dict:
+    """rockit's `ocp.solver` options of a solver name: Ipopt's defaults but its print level
+    and max_wall_time wall_time [s]; fatrop's defaults (it has no wall-time option), the
+    NLP expanded to SX and its stage structure detected."""
     if solver == "ipopt":
-        return ({"print_time": False, "record_time": True, "expand": False,
-                 "ipopt": {"print_level": 0, "sb": "yes", "max_wall_time": wall_time}}, {})
+        return {"print_time": False, "record_time": True,
+                "ipopt": {"print_level": 0, "sb": "yes", "max_wall_time": wall_time}}
     if solver == "fatrop":
-        return ({"print_time": False, "record_time": True, "expand": True,
-                 "structure_detection": "auto", "fatrop": {"print_level": 0}}, {})
+        return {"print_time": False, "record_time": True, "expand": True,
+                "structure_detection": "auto", "fatrop": {"print_level": 0}}
     raise ValueError(f"solver: one of {', '.join(SOLVERS)} (got {solver!r})")
 
 
@@ -117,8 +121,7 @@ def build(scene: Scene, method: str = "collocation", solver: str = "ipopt",
         if square:
             ocp.subject_to(sign * ca.det(mpa) / margin**na - 1 >= 0)
     ocp.method(_method(method, N))
-    options, _ = _solver_options(solver, wall_time)
-    ocp.solver(solver, options)
+    ocp.solver(solver, _solver_options(solver, wall_time))
 
     guess = hermite_guess(scene, robot, T)
     fine = np.linspace(0.0, 1.0, GUESS_POINTS * N + 1)
