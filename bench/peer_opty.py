@@ -58,6 +58,8 @@ from planner.dynamics import Dynamics
 from planner.model import Robot
 from planner.ocp import Plan, plan
 from planner.ocp.guess import hermite_guess
+from planner.ocp.interpolant import PiecewisePolynomial
+from planner.ocp.transcription import Interpolant
 from planner.scene import Scene
 from planner.simulate import SimulationRequest, run
 
@@ -121,8 +123,9 @@ def install_opty() -> dict:
                      f"python3 -m venv .venv-opty; pip install {' '.join(PIP)}"}
 
 
-def call_worker(spec: dict) -> dict:
-    """Run bench.peers.opty's `worker(spec)` in the opty venv; its dict or {"failure": ...}."""
+def call_worker(spec: dict, timeout: float = WORKER_TIMEOUT) -> dict:
+    """Run bench.peers.opty's `worker(spec)` in the opty venv; its dict or {"failure": ...}
+    (the process is stopped after `timeout` [s])."""
     with tempfile.TemporaryDirectory() as tmp:
         src, dst = Path(tmp) / "in.json", Path(tmp) / "out.json"
         src.write_text(json.dumps(spec))
@@ -130,9 +133,9 @@ def call_worker(spec: dict) -> dict:
             done = subprocess.run([str(VENV_PYTHON), "-c",
                                    "from bench.peers.opty import main; main()", str(src),
                                    str(dst)], cwd=harness.ROOT, capture_output=True,
-                                  text=True, check=False, timeout=WORKER_TIMEOUT)
+                                  text=True, check=False, timeout=timeout)
         except subprocess.TimeoutExpired:
-            return {"failure": f"timeout after {WORKER_TIMEOUT:g} s"}
+            return {"failure": f"timeout after {timeout:g} s"}
         if dst.exists():
             return json.loads(dst.read_text())
         return {"failure": f"exit {done.returncode}: {last_error_line(done)}"}
@@ -182,6 +185,33 @@ def check_state(robot: Robot, rng: np.random.Generator) -> dict:
     dyn = Dynamics(robot)
     return {"q": q.tolist(), "dq": dq.tolist(), "M": dyn.mass_matrix(q).tolist(),
             "h": dyn.bias(q, dq).tolist()}
+
+
+def interpolant(scene: Scene, method: str, out: dict) -> Interpolant | None:
+    """opty's plan as the planner's interpolant, None when it has non-finite entries: the
+    torque its method implies (backward Euler: the right-hand sample held; midpoint:
+    linear between the samples), q cubic Hermite from q and dq at both nodes, dq cubic
+    Hermite from dq and the accelerations fd(q, dq, tau) at both nodes."""
+    t, q, dq = np.asarray(out["t"]), np.asarray(out["q"]), np.asarray(out["dq"])
+    tau = np.asarray(out["tau"])
+    if not all(np.all(np.isfinite(a)) for a in (t, q, dq, tau)):
+        return None
+    h = np.diff(t)[:, None, None]
+    if method == "backward euler":
+        torque = tau[1:, None, :]
+    else:
+        torque = np.stack([tau[:-1], tau[1:] - tau[:-1]], axis=1)
+    ddq = Dynamics(scene.robot).forward_many(q, dq, tau)
+    if not np.all(np.isfinite(ddq)):
+        return None
+    hermite = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0],
+                        [-3.0, -2.0, 3.0, -1.0], [2.0, 1.0, -2.0, 1.0]])
+
+    def cubic(y: np.ndarray, dy: np.ndarray) -> PiecewisePolynomial:
+        ends = np.stack([y[:-1], h[:, 0] * dy[:-1], y[1:], h[:, 0] * dy[1:]], axis=1)
+        return PiecewisePolynomial(t, np.einsum("mj,kjd->kmd", hermite, ends))
+
+    return Interpolant(cubic(q, dq), cubic(dq, ddq), PiecewisePolynomial(t, torque))
 
 
 def verify_opty(scene: Scene, method: str, out: dict, ref: Plan) -> dict:

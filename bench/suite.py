@@ -1,15 +1,22 @@
 """The task suite (planner.suite): how often a plan verifies, and how long a verified plan
 takes, against the same planner with mesh refinement off, without retries or with fatrop
-instead of Ipopt, and a plain CasADi Opti script (bench/peers/opti.py, Legendre degree 3
-on the same 50 intervals).
+instead of Ipopt, and its peers on the same 50 intervals: a plain CasADi Opti script
+(bench/peers/opti.py, Legendre degree 3), rockit (bench/peers/rockit.py: direct
+collocation with Ipopt, multiple shooting with fatrop) and opty (bench/peers/opty.py,
+midpoint, in its own virtualenv `.venv-opty`).
 
 Every configuration runs in a process of its own, its tasks one after the other as a
-service worker would (NLPs built once per structure and number of intervals stay cached).
-A plan counts as verified when Ipopt succeeded and every interval, re-integrated from the
-plan's own state with its torque, lands on the plan within solver.resimulation_tolerance
-(1e-3 rad); the Opti script's plans are checked by the same code. Time to a verified plan
-is the wall time of the whole plan (build, every solve, mesh pass and retry, error
-estimates and verification), counted only for verified plans.
+service worker would (NLPs built once per structure and number of intervals stay cached;
+opty derives and compiles each task in a process of its own). A plan counts as verified
+when its solver succeeded and every interval, re-integrated from the plan's own state with
+the torque its transcription delivers, lands on the plan within
+solver.resimulation_tolerance (1e-3 rad); every peer's plans are checked by the same code.
+Every configuration has the same cap on a task, WALL_TIME: the planner stops itself there,
+a peer's Ipopt gets it as max_wall_time (opty: everything from derivation on), and a peer's
+plan that arrives later does not count (fatrop has no wall-time option). Time to a verified
+plan is the wall time of the whole plan (build, every solve, mesh pass and retry, error
+estimates and verification), counted only for verified plans. A peer whose package is
+missing is skipped, with the reason printed and written.
 
     python -m bench suite [--count 48] [--seed 20261123] [--configs undertow,...]
 
@@ -20,6 +27,7 @@ tasks the planner was not tuned on.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import math
 import subprocess
@@ -41,7 +49,16 @@ CONFIGS = {
     "before": f"the planner of {BEFORE}, before plans were refined and checked interval by "
               "interval (verified: the whole-horizon replay within 1e-3 rad)",
     "Opti script": "plain CasADi Opti, Legendre 3, 50 intervals, Ipopt defaults",
+    "rockit": "rockit DirectCollocation, Legendre 3, 50 intervals, piecewise-constant "
+              "torque, Ipopt defaults",
+    "rockit fatrop": "rockit MultipleShooting, one RK4 step on each of 50 intervals, "
+                     "piecewise-constant torque, CasADi's fatrop",
+    "opty": "opty midpoint, 50 intervals, torque linear between nodes, Ipopt (L-BFGS)",
 }
+ROCKIT = {"rockit": ("collocation", "ipopt"), "rockit fatrop": ("multiple shooting", "fatrop")}
+PEERS = ("Opti script", *ROCKIT)  # run in this project's environment
+OPTY_METHOD = "midpoint"
+OPTY_GRACE = 30.0  # [s] past WALL_TIME before an opty process is stopped (its cap is its own)
 WALL_TIME = 60.0  # [s] every configuration's cap on one task (the planner's default)
 DOC = harness.DOCS / "benchmarks.md"
 SECTION = "Task suite: verified plans and time to a verified plan"
@@ -85,27 +102,95 @@ def run_planner(config: str, count: int, seed: int) -> dict:
     return {"rows": rows}
 
 
-def run_opti(count: int, seed: int) -> dict:
-    """Every task with the plain Opti script (in this process)."""
-    from bench.peers import opti
+def _peer_row(name: str, config: str, scene, out: dict, elapsed: float) -> dict:
+    """A peer's row: verified when its solver succeeded, its plan passes the planner's
+    interval check and it came within the cap WALL_TIME."""
+    ok = bool(out["success"] and out["local_error"] <= scene.solver.resimulation_tolerance
+              and elapsed <= WALL_TIME)
+    return {"task": name, "config": config, "verified": ok, "status": out["status"],
+            "iterations": out["iterations"], "solves": 1,
+            "intervals": scene.transcription.intervals, "time": elapsed,
+            "time_to_verified": elapsed if ok else math.nan, "local_error": out["local_error"],
+            "resimulation_error": out["resimulation_error"], "growth_factor": math.nan,
+            "closed_loop_error": math.nan, "perturbed_closed_loop_error": math.nan,
+            "objective": out["objective"], "strategy": "direct"}
+
+
+def run_peer(config: str, count: int, seed: int) -> dict:
+    """Every task with the Opti script or rockit (in this process)."""
+    from bench.peers import opti, rockit
 
     rows = []
     for name, scene in tasks(count, seed):
-        scene = scene.model_copy(update={"solver": scene.solver.model_copy(
-            update={"max_wall_time": WALL_TIME})})
         started = time.perf_counter()
-        out = opti.solve(scene)
-        elapsed = time.perf_counter() - started
-        ok = bool(out["success"] and out["local_error"] <= scene.solver.resimulation_tolerance)
-        rows.append({"task": name, "config": "Opti script", "verified": ok,
-                     "status": out["status"], "iterations": out["iterations"], "solves": 1,
-                     "intervals": scene.transcription.intervals, "time": elapsed,
-                     "time_to_verified": elapsed if ok else math.nan,
-                     "local_error": out["local_error"],
-                     "resimulation_error": out["resimulation_error"], "growth_factor": math.nan,
-                     "closed_loop_error": math.nan, "perturbed_closed_loop_error": math.nan,
-                     "objective": out["objective"], "strategy": "direct"})
+        if config == "Opti script":
+            out = opti.solve(scene, wall_time=WALL_TIME)
+        else:
+            out = rockit.solve(scene, *ROCKIT[config], wall_time=WALL_TIME)
+        rows.append(_peer_row(name, config, scene, out, time.perf_counter() - started))
     return {"rows": rows}
+
+
+def run_opty(count: int, seed: int) -> dict:
+    """Every task with opty (midpoint on the same intervals), each in a process of the opty
+    venv that derives, compiles and solves it within WALL_TIME (in this process: the
+    check of its plan)."""
+    from bench import peer_opty
+    from planner.ocp.accuracy import interval_errors
+    from planner.ocp.guess import hermite_guess
+    from planner.ocp.verify import open_loop
+
+    rng = np.random.default_rng(seed)
+    rows = []
+    for name, scene in tasks(count, seed):
+        nodes = scene.transcription.intervals + 1
+        guess = hermite_guess(scene, scene.robot, float(scene.task.duration))(
+            np.linspace(0.0, 1.0, nodes))
+        check = peer_opty.check_state(scene.robot, rng)
+        spec = {"robot": scene.robot.model_dump(), "task": scene.task.model_dump(),
+                "method": OPTY_METHOD, "nodes": nodes, "tol": scene.solver.tol,
+                "repeats": 1, "check": check, "wall_time": WALL_TIME,
+                "guess": {k: guess[k].tolist() for k in ("q", "dq", "tau")}}
+        started = time.perf_counter()
+        out = peer_opty.call_worker(spec, timeout=WALL_TIME + OPTY_GRACE)
+        elapsed = time.perf_counter() - started
+        if "failure" in out:
+            result = {"success": False, "status": out["failure"][:80], "iterations": 0,
+                      "objective": math.nan, "local_error": math.nan,
+                      "resimulation_error": math.nan}
+        else:
+            solve = out["solves"][0]
+            model_ok = (out["M_error"] <= peer_opty.CHECK_TOL * max(1.0, np.abs(check["M"]).max())
+                        and out["h_error"] <= peer_opty.CHECK_TOL
+                        * max(1.0, np.abs(check["h"]).max()))
+            interp = peer_opty.interpolant(scene, OPTY_METHOD, out)
+            local, replay = math.nan, None
+            if interp is not None:
+                local = float(interval_errors(scene.robot, interp)[0].max())
+                replay = open_loop(scene.robot, interp)[0]
+            result = {"success": solve["success"] and model_ok,
+                      "status": solve["status"] if model_ok else "model differs",
+                      "iterations": solve["iterations"], "objective": solve["nlp_objective"],
+                      "local_error": local if math.isfinite(local) else math.nan,
+                      "resimulation_error": math.nan if replay is None else replay}
+        rows.append(_peer_row(name, "opty", scene, result, elapsed))
+    return {"rows": rows}
+
+
+def missing(config: str) -> str:
+    """Why a configuration cannot run here ("" when it can)."""
+    if config in ROCKIT and importlib.util.find_spec("rockit") is None:
+        return "rockit-meco is not installed (pip install -e '.[bench]')"
+    if config == "opty":
+        from bench import peer_opty
+
+        if not peer_opty.opty_ready():
+            print(f"installing opty into {peer_opty.VENV} ...", flush=True)
+            install = peer_opty.install_opty()
+            if "failure" in install:
+                what, error = install["failure"]
+                return f"installing opty failed: `{what}` ended with: {error}"
+    return ""
 
 
 _BEFORE_RUN = """
@@ -161,8 +246,12 @@ def _run(config: str, count: int, seed: int) -> list[dict]:
     timeout = count * (2 * WALL_TIME + 30)
     if config == "before":
         return run_before(count, seed, BEFORE)
-    if config == "Opti script":
-        out = harness.isolated("suite", "run_opti", {"count": count, "seed": seed}, timeout)
+    if config == "opty":
+        timeout = count * (WALL_TIME + OPTY_GRACE + 30)
+        out = harness.isolated("suite", "run_opty", {"count": count, "seed": seed}, timeout)
+    elif config in PEERS:
+        out = harness.isolated("suite", "run_peer", {"config": config, "count": count,
+                                                     "seed": seed}, timeout)
     else:
         out = harness.isolated("suite", "run_planner",
                                {"config": config, "count": count, "seed": seed}, timeout)
@@ -193,12 +282,14 @@ def _plot(rows: list[dict], configs: list[str]) -> None:
 
     fig = Figure(figsize=(6.4, 3.6))
     ax = fig.add_subplot()
-    for colour, config in zip(PALETTE["joints"], configs, strict=False):
+    colours = PALETTE["joints"]
+    for index, config in enumerate(configs):
+        colour, style = colours[index % len(colours)], "-" if index < len(colours) else "--"
         mine = [r for r in rows if r["config"] == config]
         times = np.sort([r["time_to_verified"] for r in mine if r["verified"]])
         share = np.arange(1, len(times) + 1) / len(mine)
         ax.step(np.concatenate([[1e-2], times]), np.concatenate([[0.0], share]), where="post",
-                color=colour, label=config)
+                color=colour, linestyle=style, label=config)
     ax.set_xscale("log")
     ax.set_xlabel("time to a verified plan [s]")
     ax.set_ylabel("share of the tasks verified")
@@ -248,6 +339,13 @@ def main(argv: list[str]) -> int:
     started = time.perf_counter()
     note = harness.machine_note()
     rows = []
+    unknown = [c for c in configs if c not in CONFIGS]
+    if unknown:
+        parser.error(f"unknown configuration(s): {', '.join(unknown)}")
+    skipped = {c: why for c in configs if (why := missing(c))}
+    for config, why in skipped.items():
+        print(f"skipping {config}: {why}", flush=True)
+    configs = [c for c in configs if c not in skipped]
     for config in configs:
         print(f"running {config} on {args.count} tasks ...", flush=True)
         rows += _run(config, args.count, args.seed)
@@ -266,9 +364,14 @@ def main(argv: list[str]) -> int:
         "links, every passive/active split with at least as many active as passive joints, "
         "waves on about half of the active joints, g = 0 and g = 9.81 in turn, moves of up "
         "to 0.6 rad per joint across a waveless singularity where M_pa is square; 2 s, "
-        "|tau| <= 20 N m, effort objective. A plan is verified when Ipopt succeeded and every "
-        "interval re-integrates within 1e-3 rad; time to a verified plan is the wall time of "
-        "the whole plan, counted for verified plans only.",
+        "|tau| <= 20 N m, effort objective. A plan is verified when its solver succeeded and "
+        "every interval, re-integrated from the plan's own state with the torque its "
+        "transcription delivers, lands within 1e-3 rad, within the same cap of "
+        f"{WALL_TIME:g} s a task; time to a verified plan is the wall time of the whole plan, "
+        "counted for verified plans only. Peers: the Opti script (bench/peers/opti.py), "
+        "rockit (bench/peers/rockit.py; its states between the nodes as rockit samples "
+        "them), opty (bench/peers/opty.py; its states cubic Hermite between the nodes).",
+        "".join(f"Not run here: {c}, {why}. " for c, why in skipped.items()).strip(),
         harness.table(summary, [("config", "configuration"), ("what", "settings"),
                                 ("tasks", "tasks"), ("verified", "verified"),
                                 ("share", "share"),

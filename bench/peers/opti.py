@@ -77,8 +77,9 @@ class Baseline:
     value: Callable | None = None  # the last solve's value function (solution or last iterate)
 
 
-def build(scene: Scene) -> Baseline:
-    """The Opti problem of a scene (fixed duration; effort objective; optional margin)."""
+def build(scene: Scene, wall_time: float = WALL_CAP) -> Baseline:
+    """The Opti problem of a scene (fixed duration; effort objective; optional margin);
+    wall_time [s]: Ipopt's max_wall_time."""
     start = time.perf_counter()
     robot, task = scene.robot, scene.task
     N, d = scene.transcription.intervals, scene.transcription.degree
@@ -139,7 +140,7 @@ def build(scene: Scene) -> Baseline:
     opti.subject_to(X[:, N] == np.concatenate([task.final.q, task.final.dq]))
     opti.minimize(cost)
     opti.solver("ipopt", {"print_time": False, "record_time": True},
-                {"print_level": 0, "sb": "yes", "max_wall_time": WALL_CAP})
+                {"print_level": 0, "sb": "yes", "max_wall_time": wall_time})
     set_guess(opti, scene, X, Xc, U, root)
     return Baseline(opti, X, Xc, U, cost, time.perf_counter() - start)
 
@@ -157,8 +158,9 @@ def set_guess(opti: ca.Opti, scene: Scene, X: ca.MX, Xc: list[ca.MX], U: list[ca
         opti.set_initial(U[k], g["tau"].T)
 
 
-def solve(scene: Scene, built: Baseline | None = None) -> dict:
-    """Solve a built problem again from the initial guess, or build it first.
+def solve(scene: Scene, built: Baseline | None = None, wall_time: float = WALL_CAP) -> dict:
+    """Solve a built problem again from the initial guess, or build it first (with Ipopt's
+    max_wall_time wall_time [s]).
 
     Returns build_time (Opti construction plus the nlpsol setup that Opti does inside its
     first solve; 0 for a problem solved before), solve_time and cpu_time (Ipopt's wall and
@@ -166,7 +168,7 @@ def solve(scene: Scene, built: Baseline | None = None) -> dict:
     checks: re-simulation error and dynamics defect of the collocation interpolant.
     """
     first = built is None or not built.solved
-    built = built or build(scene)
+    built = built or build(scene, wall_time)
     if built.solved:
         root = collocation_coefficients(scene.transcription.degree)[0]
         set_guess(built.opti, scene, built.X, built.Xc, built.U, root)

@@ -20,7 +20,8 @@ _FATROP_STATUS = {"SOLVER_RET_SUCCESS": "Solve_Succeeded",
 """fatrop's unified return statuses, named as Ipopt names the same outcome."""
 
 
-def _fatrop_status(stats: dict) -> str:
+def fatrop_status(stats: dict) -> str:
+    """fatrop's outcome in a solver's statistics, named as Ipopt names it."""
     unified = str(stats.get("unified_return_status", "unknown"))
     return _FATROP_STATUS.get(unified, f"fatrop: {unified} (return flag "
                                        f"{stats.get('return_status', '?')})")
@@ -101,7 +102,7 @@ def solve(inst: Instance, x0: np.ndarray, budget: Budget, handler: Handler | Non
         return Solution(x, None, None, monitor.last_f, "Error", False, error, iterations,
                         elapsed)
     status = _STOP_STATUS.get(monitor.reason, stats.get("return_status", "Error")) \
-        if monitored else _fatrop_status(stats)
+        if monitored else fatrop_status(stats)
     success = bool(stats.get("success", False)) and not monitor.reason
     objective = float(out["f"])
     return Solution(np.array(out["x"]).ravel(), np.array(out["lam_x"]).ravel(),
