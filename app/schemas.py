@@ -110,7 +110,8 @@ class Batch(BaseModel):
     counts: dict[str, int] = Field(description="members in each status")
     finished: int = Field(description="members whose job has ended (succeeded, failed or "
                           "cancelled)")
-    verified: int = Field(description="members whose plan passed its re-simulation check")
+    verified: int = Field(description="members that succeeded with a plan that passed its "
+                          "re-simulation check")
     members: list[BatchMember]
 
     @classmethod
@@ -121,7 +122,8 @@ class Batch(BaseModel):
         parameters = record.spec["parameters"]
         return cls(id=record.id, created=_time(record.created), size=len(record.members),
                    counts=counts, finished=sum(counts[s] for s in FINAL),
-                   verified=sum(bool(m.verified) for m in record.members),
+                   verified=sum(m.status == "succeeded" and bool(m.verified)
+                                for m in record.members),
                    members=[BatchMember.of(m, parameters[m.index]) for m in record.members])
 
 

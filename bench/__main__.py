@@ -33,6 +33,8 @@ BENCHES = {
                                        "numbers of intervals; what each retry recovers"),
     "reliability": ("bench.reliability", "a live server under bad input, slow clients and long "
                                          "synchronous requests"),
+    "scale_out": ("bench.scale_out", "plans per second with 1 and 2 worker nodes on one "
+                                     "PostgreSQL, and a 50-member batch sweep"),
     "scaling": ("bench.scaling", "build time, solve time and memory against intervals and "
                                  "links"),
     "seed_errata": ("bench.seed_errata", "energy drift of the seed's printed equations and "

@@ -19,26 +19,22 @@ UNDERTOW = Path(sys.executable).with_name("undertow")
 FAKE_SOLVER = "testbed.fake_solvers:fake_plan"
 
 
-def shared_env(db_url: str, instance: str, **extra: str) -> dict[str, str]:
-    """UNDERTOW_* settings of one process of a deployment on the store at `db_url`."""
-    return {"UNDERTOW_DB_URL": db_url, "UNDERTOW_INSTANCE": instance,
-            "UNDERTOW_LOG_LEVEL": "WARNING", **extra}
-
-
 def api_server(folder: Path, db_url: str, instance: str, **extra: str) -> LiveServer:
-    """An API-only server (no workers of its own) on the shared store; its log in `folder`."""
-    env = shared_env(db_url, instance, UNDERTOW_WORKERS="0", **extra)
+    """An API-only server (no workers of its own) on the PostgreSQL store at `db_url`; its
+    log in `folder`."""
+    env = {"UNDERTOW_DB_URL": db_url, "UNDERTOW_INSTANCE": instance, "UNDERTOW_WORKERS": "0",
+           **extra}
     return LiveServer(folder / f"{instance}.sqlite3", **env)  # the file is never opened
 
 
 class WorkerNode:
-    """`undertow worker --processes N` on the shared store, in its own process group."""
+    """`undertow worker --processes N`, in its own process group."""
 
-    def __init__(self, folder: Path, db_url: str, instance: str, processes: int = 1,
-                 **extra: str):
+    def __init__(self, folder: Path, instance: str, processes: int = 1, **settings: str):
+        """`settings`: UNDERTOW_* variables, the store's among them."""
         self.instance, self.processes = instance, processes
-        self.env = {**os.environ, **shared_env(db_url, instance, **extra),
-                    "PYTHONPATH": str(ROOT)}  # testbed's fake solver, for the console script
+        self.env = {**os.environ, "UNDERTOW_INSTANCE": instance, "UNDERTOW_LOG_LEVEL": "WARNING",
+                    **settings, "PYTHONPATH": str(ROOT)}  # testbed's fake solver
         self.log = folder / f"{instance}.log"
         self.proc: subprocess.Popen | None = None
 

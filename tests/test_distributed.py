@@ -1,4 +1,5 @@
-"""Beyond one machine, on loopback: two API-only servers and two worker nodes sharing one
+"""Roles: an API-only server and a worker node sharing a SQLite store on one machine;
+and beyond one machine, on loopback: two API-only servers and two worker nodes sharing one
 PostgreSQL job store (the fake solver, 20 ms per iteration). Plans submitted to either
 server run on either node; a cancel sent to one server stops the solve a node runs for a
 plan submitted to the other; a node killed with SIGKILL mid-solve loses no plan: its job's
@@ -7,6 +8,7 @@ lease runs out, the job is requeued once and the other node finishes it."""
 from __future__ import annotations
 
 import contextlib
+import signal
 import time
 
 import httpx
@@ -15,7 +17,7 @@ from service_fixtures import two_link_scene
 
 from app.store.postgres import PostgresJobStore
 from testbed.cluster import FAKE_SOLVER, WorkerNode, api_server
-from testbed.service import wait_final
+from testbed.service import LiveServer, wait_final
 
 LEASE = 3.0  # [s] short, so that a lost node's job is requeued quickly
 PLANS = 40
@@ -50,7 +52,8 @@ def cluster(tmp_path, postgres_url):
     with contextlib.ExitStack() as stack:
         apis = [stack.enter_context(api_server(tmp_path, postgres_url, name, **SETTINGS))
                 for name in ("api-a", "api-b")]
-        nodes = [stack.enter_context(WorkerNode(tmp_path, postgres_url, name, **SETTINGS))
+        nodes = [stack.enter_context(WorkerNode(tmp_path, name, UNDERTOW_DB_URL=postgres_url,
+                                                **SETTINGS))
                  for name in ("node-1", "node-2")]
         yield (*apis, *nodes, store)
     store.close()
@@ -90,3 +93,21 @@ def test_two_apis_and_two_workers_lose_no_plan_when_a_worker_is_killed(cluster):
     assert node_2.proc.poll() is None
     for api in (a, b):
         assert api.get("/healthz").status_code == 200
+
+
+def test_an_api_only_server_queues_and_a_worker_node_solves(tmp_path):
+    db = tmp_path / "jobs.sqlite3"
+    with LiveServer(db, UNDERTOW_WORKERS="0", UNDERTOW_SOLVE_FUNCTION=FAKE_SOLVER) as api:
+        http = httpx.Client(base_url=api.url, timeout=10)
+        job = http.post("/v1/plans", json=two_link_scene()).json()["id"]
+        time.sleep(1.0)
+        assert http.get(f"/v1/plans/{job}").json()["status"] == "queued"  # no workers here
+        node = WorkerNode(tmp_path, "node", UNDERTOW_DB_PATH=str(db),
+                          UNDERTOW_SOLVE_FUNCTION=FAKE_SOLVER, UNDERTOW_LOG_LEVEL="INFO")
+        with node:
+            assert wait_final(http, job, timeout=60)["status"] == "succeeded"
+            node.proc.send_signal(signal.SIGTERM)
+            assert node.proc.wait(30) == 0
+        assert http.get("/healthz").status_code == 200
+    log = node.log.read_text()
+    assert f"job {job} succeeded" in log and "stopping" in log
