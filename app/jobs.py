@@ -57,8 +57,8 @@ class JobRunner:
 
     def start(self) -> list[str]:
         """Recover after a restart: running jobs of this owner held by its own workers
-        become failed ("interrupted"); queued ones run (the workers start now if any job waits, else
-        with the first submitted one). Returns the interrupted ids."""
+        become failed ("interrupted"); queued ones run (the workers start now if any job
+        waits, else with the first submitted one). Returns the interrupted ids."""
         interrupted = self.store.interrupt(self.owner)
         self.supervisor.start()
         if self.store.count_by_status()["queued"]:

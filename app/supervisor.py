@@ -15,8 +15,9 @@ It also renews the leases of its workers' jobs (reading their cancel flags in th
 statement) and settles jobs whose lease ran out, of any server or worker sharing the store
 (requeued once, then interrupted: `JobStore.expire`). A supervisor with no workers (an
 API-only server) still does that. A server's supervisor runs workers that claim the
-server's own jobs; `undertow worker` runs one whose workers claim anyone's. On stop, idle workers leave at once and running jobs are marked interrupted before their
-workers are killed; queued jobs stay queued for the next start.
+server's own jobs; `undertow worker` runs one whose workers claim anyone's. On stop, idle
+workers leave at once and running jobs are marked interrupted before their workers are
+killed; queued jobs stay queued for the next start.
 """
 
 from __future__ import annotations

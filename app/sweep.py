@@ -8,7 +8,7 @@ A parameter is named by a path into the scene:
 | `duration` | `task.duration` [s] (a fixed duration) |
 | `initial.q.J` | `task.initial.q[J]` [rad] |
 | `final.q.J` | `task.final.q[J]` [rad] |
-| `wave.I.amplitude`, `wave.I.frequency`, `wave.I.phase` | the wave of link I (which must have one) |
+| `wave.I.amplitude`, `wave.I.frequency`, `wave.I.phase` | the wave of link I (it must have one) |
 
 Each member is validated as a scene of its own and held to the server's limits; an error
 names the member (`overrides.K` or `grid` with the member's values) and the field.
@@ -30,7 +30,8 @@ from app.limits import check_scene
 from app.settings import Settings
 from planner.scene import Scene
 
-_NAME = re.compile(r"^(duration|(initial|final)\.q\.(\d+)|wave\.(\d+)\.(amplitude|frequency|phase))$")
+_NAME = re.compile(r"^(duration|(initial|final)\.q\.(\d+)"
+                   r"|wave\.(\d+)\.(amplitude|frequency|phase))$")
 MAX_PARAMETERS = 16  # names one override or one grid may set
 MAX_MEMBERS = 1000  # hard cap; UNDERTOW_MAX_BATCH_MEMBERS is the server's own
 MAX_ERRORS = 20  # member errors one 422 lists

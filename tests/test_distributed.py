@@ -61,13 +61,18 @@ def cluster(tmp_path, postgres_url):
 
 def test_two_apis_and_two_workers_lose_no_plan_when_a_worker_is_killed(cluster):
     api_a, api_b, node_1, node_2, store = cluster
-    a, b = httpx.Client(base_url=api_a.url, timeout=10), httpx.Client(base_url=api_b.url,
-                                                                      timeout=10)
+    a = httpx.Client(base_url=api_a.url, timeout=10)
+    b = httpx.Client(base_url=api_b.url, timeout=10)
 
     # a cancel sent to one server stops a solve running for a plan sent to the other
     long = a.post("/v1/plans", json=two_link_scene(iterations=3000)).json()["id"]
-    wait_for(lambda: node_1.check() or node_2.check() or (b.get(f"/v1/plans/{long}").json()["progress"] or {}).get(
-        "iteration", 0) > 2, 60, "progress of the long plan, read through the other server")
+
+    def iterating() -> bool:
+        node_1.check()
+        node_2.check()
+        return (b.get(f"/v1/plans/{long}").json()["progress"] or {}).get("iteration", 0) > 2
+
+    wait_for(iterating, 60, "progress of the long plan, read through the other server")
     holder = store.get(long).worker
     assert node_1.owns(holder) or node_2.owns(holder)
     asked = time.monotonic()

@@ -13,8 +13,6 @@ import sqlite3
 import threading
 import time
 
-import pytest
-
 import psycopg
 import pytest
 

@@ -13,8 +13,8 @@ from app.errors import ApiError
 from app.jobs import QueueFull
 from app.openapi import UNAVAILABLE, problems
 from app.routes.plans import check_warm_start
-from app.schemas import Batch
 from app.schema_examples import body_examples
+from app.schemas import Batch
 from app.store import BatchRecord
 from app.sweep import BatchRequest, members, scenes
 

@@ -138,7 +138,11 @@ class PostgresJobStore(JobStore):
         self._lock = threading.Lock()
         self._pool: ConnectionPool | None = None
         self._pid = os.getpid()
-        self._migrate()
+        try:
+            self._migrate()
+        except StoreUnavailable:
+            self.close()  # no pool left retrying in the background
+            raise
 
     def __getstate__(self) -> dict[str, Any]:
         return {"url": self.url, "pool_size": self.pool_size, "timeout": self.timeout}
@@ -153,7 +157,8 @@ class PostgresJobStore(JobStore):
             info = psycopg.conninfo.conninfo_to_dict(self.url)
         except psycopg.Error:
             return "PostgreSQL"
-        return f"PostgreSQL {info.get('host', '')}:{info.get('port', 5432)}/{info.get('dbname', '')}"
+        host, port = info.get("host", ""), info.get("port", 5432)
+        return f"PostgreSQL {host}:{port}/{info.get('dbname', '')}"
 
     def _unavailable(self, exc: Exception) -> StoreUnavailable:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__

@@ -285,7 +285,8 @@ class SqliteJobStore(JobStore):
         mine, params = ("AND owner = ?", (owner,)) if owner is not None else ("", ())
         rows = self._write(
             "UPDATE jobs SET status = 'running', started = ?, worker = ?, lease_until = ?, "
-            "progress = ?, attempts = attempts + 1 WHERE status = 'queued' AND id = (SELECT id FROM jobs "
+            "progress = ?, attempts = attempts + 1 WHERE status = 'queued' AND id = "
+            "(SELECT id FROM jobs "
             f"WHERE status = 'queued' {mine} ORDER BY created, id LIMIT 1) "
             f"RETURNING {_COLUMNS}",
             (time.time(), worker, lease_until, _dumps(BUILDING), *params))
