@@ -45,7 +45,9 @@ WORKDIR /srv/undertow
 # One uvicorn process per container: scale solves with UNDERTOW_WORKERS (processes) and
 # the service with more containers. UNDERTOW_INSTANCE names this server in the job store;
 # it stays fixed across container re-creation so that jobs a stopped container left
-# running are marked interrupted when it comes back.
+# running are marked interrupted when it comes back. The same image runs either role on a
+# shared PostgreSQL store (UNDERTOW_DB_URL): an API-only server (UNDERTOW_WORKERS=0) or,
+# with the command `undertow worker`, a worker node (compose.yaml, docs/deploy.md).
 ENV PATH=/opt/venv/bin:$PATH \
     PYTHONUNBUFFERED=1 \
     PYTHONDONTWRITEBYTECODE=1 \

@@ -7,7 +7,7 @@ HOST   ?= 127.0.0.1
 PORT   ?= 8000
 PYTEST_ARGS ?=
 
-.PHONY: install serve test test-slow openapi screenshot clean
+.PHONY: install serve test test-slow openapi screenshot clean postgres-server
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -20,10 +20,23 @@ install: $(STAMP)
 serve: $(STAMP)
 	$(PY) -m uvicorn app.main:app --host $(HOST) --port $(PORT) --http app.server:HeadTimeoutProtocol
 
-test: $(STAMP)
+# The store tests start a throwaway PostgreSQL server of their own; its binaries come from
+# Debian's postgresql package, installed here when missing and when run as root (else
+# those tests skip, saying why).
+postgres-server:
+	@if ! ls /usr/lib/postgresql/*/bin/initdb >/dev/null 2>&1 && [ -z "$$UNDERTOW_PG_BIN" ]; then \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	    echo "installing Debian's postgresql for the job store tests"; \
+	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq postgresql >/dev/null; \
+	  else \
+	    echo "no PostgreSQL server binaries: the PostgreSQL store tests will be skipped"; \
+	  fi; \
+	fi
+
+test: $(STAMP) postgres-server
 	$(PY) -m pytest -n 2 $(PYTEST_ARGS)
 
-test-slow: $(STAMP)
+test-slow: $(STAMP) postgres-server
 	$(PY) -m pytest -n 2 -m slow $(PYTEST_ARGS)
 
 openapi: $(STAMP)

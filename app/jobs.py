@@ -42,22 +42,23 @@ class JobRunner:
     runs when a job ends, e.g. to update metrics. At most `workers + max_queued` jobs of
     the instance are unfinished at once. `memory_mb` caps each worker's memory growth and
     `grace` is how long a job may run past its wall-time budget before its worker is
-    stopped.
+    stopped; `lease` how long a claim holds without renewal. With no workers the server
+    only accepts jobs, for workers elsewhere (`undertow worker`) to run.
     """
 
     def __init__(self, store: JobStore, solve: SolveFunction, owner: str, workers: int,
                  max_queued: int, retry_after: int = 5, memory_mb: float | None = None,
                  grace: float = 30.0, log_level: str = "INFO",
-                 on_done: Callable[[Outcome], None] | None = None):
+                 on_done: Callable[[Outcome], None] | None = None, lease: float = 60.0):
         self.store, self.owner = store, owner
         self.capacity, self.retry_after = workers + max_queued, retry_after
         self.supervisor = Supervisor(store, solve, owner, workers, memory_mb, grace,
-                                     log_level, on_done)
+                                     log_level, on_done, lease=lease)
 
     def start(self) -> list[str]:
-        """Recover after a restart: running jobs of this owner become failed
-        ("interrupted"); queued ones run (the workers start now if any job waits, else
-        with the first submitted one). Returns the interrupted ids."""
+        """Recover after a restart: running jobs of this owner held by its own workers
+        become failed ("interrupted"); queued ones run (the workers start now if any job
+        waits, else with the first submitted one). Returns the interrupted ids."""
         interrupted = self.store.interrupt(self.owner)
         self.supervisor.start()
         if self.store.count_by_status()["queued"]:
@@ -67,6 +68,15 @@ class JobRunner:
     def submit(self, scene: dict[str, Any], job_id: str) -> None:
         """Store a new queued job; QueueFull when the instance is at capacity."""
         if self.store.create(job_id, scene, self.owner, limit=self.capacity) is None:
+            raise QueueFull(self.retry_after)
+        self.supervisor.wake()
+
+    def submit_batch(self, batch_id: str, spec: dict[str, Any],
+                     members: list[tuple[str, dict[str, Any]]]) -> None:
+        """Store a batch and its member jobs, all or none; QueueFull when they would take
+        the instance past its capacity."""
+        if not self.store.create_batch(batch_id, spec, members, self.owner,
+                                       limit=self.capacity):
             raise QueueFull(self.retry_after)
         self.supervisor.wake()
 

@@ -1,8 +1,10 @@
 """The undertow HTTP service: `app.main:app`.
 
-`create_app(settings, solve)` builds an app; its lifespan opens the job store (refusing
-to start on one that fails its integrity check), recovers jobs a previous run left
-behind, and starts the solver workers; on shutdown it stops them and checkpoints the store.
+`create_app(settings, solve)` builds an app; its lifespan opens the job store (SQLite, or
+PostgreSQL when UNDERTOW_DB_URL is set; refusing to start on one that fails its integrity
+check or cannot be reached), recovers jobs a previous run left behind, and starts the
+solver workers (none on an API-only server); on shutdown it stops them and checkpoints the
+store.
 """
 
 from __future__ import annotations
@@ -24,9 +26,10 @@ from app.jobs import JobRunner
 from app.logging import RequestIdMiddleware, configure
 from app.metrics import Metrics, MetricsMiddleware
 from app.openapi import document
-from app.routes import dynamics, examples, health, plans, plots
+from app.routes import batches, dynamics, examples, health, plans, plots
 from app.settings import Settings, get_settings
-from app.store import SqliteJobStore, StoreDamaged, StoreUnavailable
+from app.store import StoreUnavailable
+from app.store.open import open_store
 from app.worker import SolveFunction, load_function
 
 log = logging.getLogger("undertow.main")
@@ -45,8 +48,8 @@ def create_app(settings: Settings | None = None, solve: SolveFunction | None = N
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         try:
-            store = SqliteJobStore(settings.db_path)
-        except StoreDamaged as exc:
+            store = open_store(settings)
+        except StoreUnavailable as exc:  # damaged or unreachable
             log.critical("%s", exc)
             raise
         app.state.metrics.watch(store)
@@ -55,7 +58,7 @@ def create_app(settings: Settings | None = None, solve: SolveFunction | None = N
                            max_queued=settings.max_queued, retry_after=settings.retry_after,
                            memory_mb=settings.worker_memory_mb,
                            grace=settings.wall_time_grace, log_level=settings.log_level,
-                           on_done=app.state.metrics.job_done)
+                           on_done=app.state.metrics.job_done, lease=settings.lease)
         runner.start()
         app.state.store, app.state.runner = store, runner
         app.state.limiter = CapacityLimiter(settings.compute_threads)
@@ -73,7 +76,8 @@ def create_app(settings: Settings | None = None, solve: SolveFunction | None = N
     app.add_exception_handler(StoreUnavailable, _store_unavailable)
     app.include_router(health.router)
     secured = [Depends(require_api_key)]
-    for router in (dynamics.router, plans.router, examples.router, plots.router):
+    for router in (dynamics.router, plans.router, batches.router, examples.router,
+                   plots.router):
         app.include_router(router, dependencies=secured)
     app.add_middleware(errors.UnexpectedErrorMiddleware)
     app.add_middleware(BodyLimitMiddleware, limit=settings.max_body_bytes,

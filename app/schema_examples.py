@@ -1,7 +1,8 @@
 """Request examples shown in the OpenAPI document, taken from `planner.examples`.
 
 Dynamics and simulation have no library example of their own: theirs use the robot of
-the two-link example at a plain state and a small torque pulse.
+the two-link example at a plain state and a small torque pulse; the batch example sweeps
+the two-link plan over durations and wave amplitudes.
 """
 
 from __future__ import annotations
@@ -29,6 +30,10 @@ def _by_kind() -> dict[str, dict[str, dict[str, Any]]]:
         "value": {"robot": robot, "t": [0.0, 0.5, 1.0], "tau": [[0.0], [0.05], [0.0]],
                   "interpolation": "linear", "initial": {"q": [0.0, 1.6], "dq": [0.0, 0.0]},
                   "samples_per_interval": 10}}}
+    out["batch"] = {"two-link-sweep": {
+        "summary": "Two-link plan: durations against wave amplitudes (6 members)",
+        "value": {"base": library.example("two-link-plan").request,
+                  "grid": {"duration": [1.5, 2.0, 2.5], "wave.1.amplitude": [0.04, 0.05]}}}}
     return out
 
 

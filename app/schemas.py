@@ -7,7 +7,7 @@ from typing import Literal
 
 from pydantic import BaseModel, Field
 
-from app.store import JobRecord, JobStatus
+from app.store import FINAL, STATUSES, BatchRecord, JobRecord, JobStatus, MemberRecord
 from planner.ocp.result import Plan
 
 
@@ -76,6 +76,55 @@ class JobList(BaseModel):
     limit: int
     offset: int
     next_offset: int | None = Field(description="offset of the next page; null on the last")
+
+
+class BatchMember(BaseModel):
+    """One member of a batch: its parameters and how its plan job went."""
+
+    index: int
+    job_id: str = Field(description="the member's plan job, at /v1/plans/{job_id}")
+    parameters: dict[str, float] = Field(description="what the member sets on the base scene")
+    status: JobStatus
+    verified: bool | None = Field(description="the plan passed its re-simulation check "
+                                  "(null until the job has a plan)")
+    objective: float | None = Field(description="the plan's objective (null without a plan)")
+    time: float | None = Field(description="wall time from the job's claim to its verdict "
+                                           "[s] (null until it ends)")
+    error: str | None
+
+    @classmethod
+    def of(cls, member: MemberRecord, parameters: dict[str, float]) -> BatchMember:
+        time = (member.finished - member.started
+                if member.finished is not None and member.started is not None else None)
+        return cls(index=member.index, job_id=member.job_id, parameters=parameters,
+                   status=member.status, verified=member.verified, objective=member.objective,
+                   time=time, error=member.error)
+
+
+class Batch(BaseModel):
+    """A batch sweep: aggregate progress and the summary table of its members."""
+
+    id: str
+    created: datetime
+    size: int = Field(description="members")
+    counts: dict[str, int] = Field(description="members in each status")
+    finished: int = Field(description="members whose job has ended (succeeded, failed or "
+                          "cancelled)")
+    verified: int = Field(description="members that succeeded with a plan that passed its "
+                          "re-simulation check")
+    members: list[BatchMember]
+
+    @classmethod
+    def of(cls, record: BatchRecord) -> Batch:
+        counts = dict.fromkeys(STATUSES, 0)
+        for member in record.members:
+            counts[member.status] += 1
+        parameters = record.spec["parameters"]
+        return cls(id=record.id, created=_time(record.created), size=len(record.members),
+                   counts=counts, finished=sum(counts[s] for s in FINAL),
+                   verified=sum(m.status == "succeeded" and bool(m.verified)
+                                for m in record.members),
+                   members=[BatchMember.of(m, parameters[m.index]) for m in record.members])
 
 
 class Health(BaseModel):

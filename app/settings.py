@@ -5,7 +5,7 @@ from __future__ import annotations
 import socket
 from functools import lru_cache
 
-from pydantic import Field
+from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from planner.model import MAX_LINKS
@@ -16,12 +16,21 @@ class Settings(BaseSettings):
 
     model_config = SettingsConfigDict(env_prefix="UNDERTOW_", frozen=True)
 
+    db_url: str | None = Field(default=None, description=(
+        "PostgreSQL job store, postgresql://user:password@host:port/database; shared by "
+        "servers and workers on any machine (unset: the SQLite file at UNDERTOW_DB_PATH)"))
     db_path: str = Field(default="var/undertow-jobs.sqlite3",
                          description="SQLite job store file (relative to the working directory)")
     instance: str = Field(default_factory=socket.gethostname,
-                          description="name of this server; jobs it leaves running are "
-                                      "marked interrupted when a server of that name starts")
-    workers: int = Field(default=2, ge=1, le=64, description="solver worker processes")
+                          description="name of this server; jobs its own workers leave "
+                                      "running are marked interrupted when a server of that "
+                                      "name starts")
+    workers: int = Field(default=2, ge=0, le=64, description=(
+        "solver worker processes of this server (0: an API-only server, whose jobs "
+        "`undertow worker` processes run)"))
+    lease: float = Field(default=60.0, ge=1.0, le=3600.0, description=(
+        "seconds a worker's claim on a job holds without renewal (renewed every 0.25 s); a "
+        "job whose worker stays silent that long is requeued once, then marked interrupted"))
     worker_memory_mb: int = Field(default=4096, ge=64, description=(
         "memory a solver worker may take beyond its start-up size [MB]: plans estimated "
         "above it are refused (422), a solve that needs more fails"))
@@ -37,6 +46,8 @@ class Settings(BaseSettings):
     max_horizon: float = Field(default=60.0, gt=0.0, description="longest plan duration [s]")
     max_wall_time: float = Field(default=60.0, gt=0.0, description="cap on one solve [s]")
     max_queued: int = Field(default=32, ge=0, description="plans waiting for a worker")
+    max_batch_members: int = Field(default=32, ge=1, le=1000, description=(
+        "plans one batch (POST /v1/batches) may create"))
     max_wait: float = Field(default=30.0, ge=0.0, description="cap on POST /v1/plans?wait= [s]")
     max_points: int = Field(default=20_000, ge=2, description="states, configurations, grid "
                             "points, samples or time steps one request may ask for")
@@ -58,6 +69,14 @@ class Settings(BaseSettings):
                                 "a request's head, and again its body [s]")
     retry_after: int = Field(default=5, ge=1, description="Retry-After [s] when the queue is full")
     log_level: str = Field(default="INFO")
+
+
+    @field_validator("db_url")
+    @classmethod
+    def _postgres_url(cls, url: str | None) -> str | None:
+        if url is not None and not url.startswith(("postgresql://", "postgres://")):
+            raise ValueError("expected postgresql://user:password@host:port/database")
+        return url or None
 
 
 @lru_cache(maxsize=1)

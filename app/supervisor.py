@@ -12,9 +12,12 @@ and holds it to three bounds:
 - the worker's death: its job alone fails ("the worker process died ...").
 
 It also renews the leases of its workers' jobs (reading their cancel flags in the same
-statement) and marks jobs whose lease ran out, of any server sharing the store, interrupted.
-On stop, idle workers leave at once and running jobs are marked interrupted before their
-workers are killed; queued jobs stay queued for the next start.
+statement) and settles jobs whose lease ran out, of any server or worker sharing the store
+(requeued once, then interrupted: `JobStore.expire`). A supervisor with no workers (an
+API-only server) still does that. A server's supervisor runs workers that claim the
+server's own jobs; `undertow worker` runs one whose workers claim anyone's. On stop, idle
+workers leave at once and running jobs are marked interrupted before their workers are
+killed; queued jobs stay queued for the next start.
 """
 
 from __future__ import annotations
@@ -45,8 +48,8 @@ from app.worker import (
 log = logging.getLogger("undertow.supervisor")
 
 TICK = 0.25  # [s] between two rounds of checks
-LEASE = 60.0  # [s] a claim holds without renewal
-EXPIRE_INTERVAL = 15.0  # [s] between two looks for jobs whose lease ran out
+LEASE = 60.0  # [s] a claim holds without renewal (default of UNDERTOW_LEASE)
+EXPIRE_INTERVAL = 15.0  # [s] longest time between two looks for jobs whose lease ran out
 CANCEL_GRACE = 2.0  # [s] a cancelled job's solver has to stop before its worker is killed
 STOP_WAIT = 5.0  # [s] idle workers have to leave on stop
 MAX_BACKOFF = 30.0  # [s] longest pause before restarting a worker that failed to start
@@ -95,17 +98,22 @@ class _Worker:
 
 
 class Supervisor:
-    """Runs `workers` solver processes claiming jobs of `owner` from `store`.
+    """Runs `workers` solver processes claiming jobs of `owner` from `store` (of anyone
+    when `any_owner`; the workers' names start with "owner/" either way).
 
     `on_done(outcome)` runs in the supervising thread whenever a job ends, by its worker's
-    report or by the supervisor's verdict."""
+    report or by the supervisor's verdict. `lease` [s] is how long a claim holds without
+    renewal."""
 
     def __init__(self, store: JobStore, solve: SolveFunction, owner: str, workers: int,
                  memory_mb: float | None, grace: float, log_level: str = "INFO",
-                 on_done: Callable[[Outcome], None] | None = None):
+                 on_done: Callable[[Outcome], None] | None = None, lease: float = LEASE,
+                 any_owner: bool = False):
         self.store, self.solve, self.owner = store, solve, owner
         self.count, self.memory_mb, self.grace = workers, memory_mb, grace
         self.log_level, self.on_done = log_level, on_done
+        self.lease, self.any_owner = lease, any_owner
+        self._expire_interval = min(EXPIRE_INTERVAL, lease / 4)
         self._context = multiprocessing.get_context("spawn")
         self._slots: list[_Worker | None] = [None] * workers
         self._restart_at = [0.0] * workers
@@ -164,8 +172,8 @@ class Supervisor:
 
     def _spawn(self, slot: int) -> None:
         name = f"{self.owner}/{slot}/{uuid.uuid4().hex[:8]}"
-        spec = WorkerSpec(self.store, self.solve, self.owner, name, self.memory_mb, LEASE,
-                          self.log_level)
+        spec = WorkerSpec(self.store, self.solve, None if self.any_owner else self.owner, name,
+                          self.memory_mb, self.lease, self.log_level)
         ours, theirs = self._context.Pipe()
         process = self._context.Process(target=serve, args=(spec, theirs), name=name,
                                         daemon=True)
@@ -218,9 +226,10 @@ class Supervisor:
                 self._kill(worker, "failed", over_budget(worker.budget, self.grace))
         self._enforce_cancels(now)
         if now >= self._next_expiry:
-            self._next_expiry = now + EXPIRE_INTERVAL
-            for job_id in self.store.expire(time.time()):
-                log.warning("job %s lost its worker (lease ran out): interrupted", job_id)
+            self._next_expiry = now + self._expire_interval
+            for job_id, status in self.store.expire(time.time()).items():
+                log.warning("job %s lost its worker (lease ran out): %s", job_id,
+                            "requeued" if status == "queued" else status)
 
     def _drain(self, worker: _Worker) -> None:
         """Handle every message the worker has sent."""
@@ -250,7 +259,7 @@ class Supervisor:
         busy = {w.job: w for w in self._slots if w is not None and w.job is not None}
         if not busy:
             return
-        flags = self.store.renew([w.name for w in busy.values()], time.time() + LEASE)
+        flags = self.store.renew([w.name for w in busy.values()], time.time() + self.lease)
         for job_id, cancelled in flags.items():
             worker = busy.get(job_id)
             if worker is None or not cancelled or worker.fate is not None:
@@ -281,7 +290,7 @@ class Supervisor:
                       worker.name, _how(exitcode), backoff)
         if worker.fate is not None:
             job_id, status, error = worker.fate
-            if self.store.finish(job_id, status, None, error):
+            if self.store.finish(job_id, status, None, error, worker=worker.name):
                 self._done(Outcome(job_id, status, time.monotonic() - worker.job_started))
         self._end_claims(worker, died(exitcode))
 

@@ -32,7 +32,14 @@ from typing import Any
 
 from app.logging import configure
 from app.procmem import limit_growth
-from app.store import INTERRUPTED, JobRecord, JobStatus, JobStore, StoreUnavailable
+from app.store import (
+    CANCELLED_ON_REQUEST,
+    INTERRUPTED,
+    JobRecord,
+    JobStatus,
+    JobStore,
+    StoreUnavailable,
+)
 from planner.ocp.result import NlpSolution, Plan, Progress
 from planner.ocp.verify import unverified_reason
 from planner.scene import Scene
@@ -86,7 +93,8 @@ class Outcome:
 @dataclass(frozen=True)
 class WorkerSpec:
     """What a worker needs; picklable (the store reopens itself in the worker).
-    `owner` None claims the jobs of every server sharing the store."""
+    `owner` None claims the jobs of every server sharing the store (a standalone worker);
+    `lease` [s] is how long a claim holds without renewal."""
 
     store: JobStore
     solve: SolveFunction
@@ -104,8 +112,8 @@ def _finite(value: Any) -> Any:
 class _Reporter:
     """The progress callback of one job: throttled writes, cancel checks, the budget."""
 
-    def __init__(self, store: JobStore, job_id: str, deadline: float):
-        self.store, self.job_id, self.deadline = store, job_id, deadline
+    def __init__(self, store: JobStore, job_id: str, deadline: float, worker: str | None):
+        self.store, self.job_id, self.deadline, self.worker = store, job_id, deadline, worker
         self.last, self.go_on, self.expired = -math.inf, True, False
         self.latest: dict[str, Any] | None = None
         self.written = True
@@ -125,7 +133,7 @@ class _Reporter:
         written stops the solve too)."""
         if not self.written and self.latest is not None:
             try:
-                self.go_on = self.store.report_progress(self.job_id, self.latest)
+                self.go_on = self.store.report_progress(self.job_id, self.latest, self.worker)
             except StoreUnavailable:
                 self.go_on = False
             self.last, self.written = time.monotonic(), True
@@ -139,7 +147,7 @@ def _verdict(plan: Plan, cancel_requested: bool, expired: bool,
         reason = unverified_reason(plan.verification)
         return ("succeeded", None) if reason is None else ("failed", f"unverified: {reason}")
     if cancel_requested:
-        return "cancelled", "cancelled on request"
+        return "cancelled", CANCELLED_ON_REQUEST
     if expired:
         return "failed", (f"Maximum_WallTime_Exceeded: the job's wall-time budget of "
                           f"{budget:g} s (solver.max_wall_time, NLP build included) ran out")
@@ -152,21 +160,24 @@ _current: tuple[JobStore, str] | None = None
 
 
 def run_job(store: JobStore, job_id: str, scene: Scene, solve: SolveFunction,
-            memory_mb: float | None = None) -> Outcome:
-    """Solve one claimed job and store its verdict."""
+            memory_mb: float | None = None, worker: str | None = None) -> Outcome:
+    """Solve one job claimed by `worker` and store its verdict (unless the job was taken
+    from `worker` meanwhile: its lease ran out and another worker holds it)."""
     global _current
     start, budget = time.monotonic(), scene.solver.max_wall_time
     _current = (store, job_id)
-    reporter = _Reporter(store, job_id, start + budget)
+    reporter = _Reporter(store, job_id, start + budget, worker)
     try:
         earlier = _earlier(store, scene.solver.warm_start)
         plan = solve(scene, progress=reporter, **({"warm_start": earlier} if earlier else {}))
     except MemoryError:
-        return _failed(store, job_id, out_of_memory(memory_mb), start, exhausted=True)
+        return _failed(store, job_id, out_of_memory(memory_mb), start, worker, exhausted=True)
     except Exception as exc:  # noqa: BLE001 - any error fails the job, the worker lives
         if "bad_alloc" in str(exc):  # C++ allocation failure, raised through CasADi
-            return _failed(store, job_id, out_of_memory(memory_mb), start, exhausted=True)
-        return _failed(store, job_id, f"solver error: {type(exc).__name__}: {exc}", start)
+            return _failed(store, job_id, out_of_memory(memory_mb), start, worker,
+                           exhausted=True)
+        return _failed(store, job_id, f"solver error: {type(exc).__name__}: {exc}", start,
+                       worker)
     finally:
         _current = None
     reporter.flush()
@@ -174,7 +185,7 @@ def run_job(store: JobStore, job_id: str, scene: Scene, solve: SolveFunction,
     status, error = _verdict(plan, bool(current and current.cancel_requested),
                              reporter.expired, budget)
     solution = plan.solution.model_dump(mode="json") if plan.solution is not None else None
-    store.finish(job_id, status, plan.model_dump(mode="json"), error, solution)
+    store.finish(job_id, status, plan.model_dump(mode="json"), error, solution, worker)
     return Outcome(job_id, status, time.monotonic() - start)
 
 
@@ -190,9 +201,9 @@ def _earlier(store: JobStore, job_id: str | None) -> Plan | None:
     return plan.model_copy(update={"solution": NlpSolution.model_validate(solution)})
 
 
-def _failed(store: JobStore, job_id: str, error: str, start: float,
+def _failed(store: JobStore, job_id: str, error: str, start: float, worker: str | None,
             exhausted: bool = False) -> Outcome:
-    store.finish(job_id, "failed", None, error)
+    store.finish(job_id, "failed", None, error, worker=worker)
     return Outcome(job_id, "failed", time.monotonic() - start, exhausted)
 
 
@@ -231,9 +242,10 @@ def _take(spec: WorkerSpec, channel: Connection, record: JobRecord) -> Outcome |
     try:
         scene = Scene.model_validate(record.scene)
     except ValueError as exc:  # a scene stored by another version of the service
-        return _failed(spec.store, record.id, f"invalid stored scene: {exc}", time.monotonic())
+        return _failed(spec.store, record.id, f"invalid stored scene: {exc}", time.monotonic(),
+                       spec.name)
     channel.send(Claimed(record.id, scene.solver.max_wall_time))
-    return run_job(spec.store, record.id, scene, spec.solve, spec.memory_mb)
+    return run_job(spec.store, record.id, scene, spec.solve, spec.memory_mb, spec.name)
 
 
 def serve(spec: WorkerSpec, channel: Connection) -> None:

@@ -35,6 +35,8 @@ BENCHES = {
                                "cold, in the library and through the service"),
     "reliability": ("bench.reliability", "a live server under bad input, slow clients and long "
                                          "synchronous requests"),
+    "scale_out": ("bench.scale_out", "plans per second with 1 and 2 worker nodes on one "
+                                     "PostgreSQL, and a 50-member batch sweep"),
     "scaling": ("bench.scaling", "build time, solve time and memory against intervals and "
                                  "links"),
     "seed_errata": ("bench.seed_errata", "energy drift of the seed's printed equations and "

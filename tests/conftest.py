@@ -1,5 +1,6 @@
-"""Shared test helpers: seeded randomness, the seed paper's 4-link arm, and an independent
-point-mass reference of M and h (random robots: `testbed.robots`).
+"""Shared test helpers: seeded randomness, the seed paper's 4-link arm, an independent
+point-mass reference of M and h (random robots: `testbed.robots`), and job stores of both
+kinds (a throwaway PostgreSQL server per test process: `testbed.postgres`).
 
 Plain functions (importable from a test module as `from conftest import ...`) with thin
 fixtures around them. Every random draw goes through a `numpy.random.Generator` seeded
@@ -9,13 +10,15 @@ from the test's node id, so a failure reproduces whatever the test order or work
 from __future__ import annotations
 
 import zlib
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 import numpy as np
 import pytest
 
+from app.store import JobStore, SqliteJobStore
 from planner.examples import VERTICAL_SEED_ARM
 from planner.model import Robot
+from testbed import postgres as pg
 from testbed.robots import random_robot
 
 
@@ -79,3 +82,37 @@ def make_robot(rng) -> Callable[..., Robot]:
 def seed_robot() -> Robot:
     """The seed's 4-link arm with its waves, under gravity."""
     return seed_arm()
+
+
+@pytest.fixture(scope="session")
+def postgres() -> Iterator[pg.PostgresServer]:
+    """A throwaway PostgreSQL server for this test process (skips when none can start)."""
+    reason = pg.missing()
+    if reason is not None:
+        pytest.skip(reason)
+    with pg.PostgresServer() as server:
+        yield server
+
+
+@pytest.fixture
+def postgres_url(postgres: pg.PostgresServer) -> str:
+    """The URL of a new empty database of the throwaway server."""
+    return postgres.create_database(pg.unique_name())
+
+
+def open_store(kind: str, request: pytest.FixtureRequest, tmp_path) -> JobStore:
+    """A new empty store of `kind` ("sqlite": a file under `tmp_path`; "postgres": a new
+    database)."""
+    if kind == "sqlite":
+        return SqliteJobStore(tmp_path / "jobs" / "db.sqlite3")
+    from app.store.postgres import PostgresJobStore
+
+    return PostgresJobStore(request.getfixturevalue("postgres_url"))
+
+
+@pytest.fixture(params=["sqlite", "postgres"])
+def store(request: pytest.FixtureRequest, tmp_path) -> Iterator[JobStore]:
+    """An empty job store, once of each kind."""
+    s = open_store(request.param, request, tmp_path)
+    yield s
+    s.close()

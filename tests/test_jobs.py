@@ -277,10 +277,10 @@ def test_shutdown_keeps_queued_jobs_queued_and_interrupts_running_ones(make_runn
 def test_start_interrupts_running_jobs_and_runs_queued_ones(tmp_path):
     store = SqliteJobStore(tmp_path / "db.sqlite3")
     store.create("was-running", scene(), "test")
-    store.claim("test", "old-worker", time.time() + 60)
+    store.claim("test", "test/0/old", time.time() + 60)  # a worker of this server
     store.create("was-queued", scene(), "test")
     store.create("elsewhere", scene(), "other")
-    store.claim("other", "other-worker", time.time() + 60)
+    store.claim("other", "other/0/x", time.time() + 60)
     runner = JobRunner(store, fake_plan, owner="test", workers=1, max_queued=1)
     try:
         assert runner.start() == ["was-running"]

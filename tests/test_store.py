@@ -1,5 +1,8 @@
-"""SQLite job store: persistence, WAL, conditional transitions, claims and leases,
-integrity, migrations, a store deleted under a running service, writers in two processes."""
+"""Job stores, each test against both stores (SQLite and a throwaway PostgreSQL server)
+unless it is about one of them: persistence, conditional transitions, claims and leases,
+requeues, batches, migrations, writers in two processes; SQLite's WAL, checkpoints,
+integrity and a file deleted under a running service; PostgreSQL's concurrent claims and
+an unreachable server."""
 
 from __future__ import annotations
 
@@ -7,51 +10,69 @@ import multiprocessing
 import os
 import pickle
 import sqlite3
+import threading
 import time
 
+import psycopg
 import pytest
 
 from app.store import (
     BUILDING,
     INTERRUPTED,
+    JobStore,
     SqliteJobStore,
     StoreDamaged,
     StoreUnavailable,
 )
-from app.store.sqlite import SCHEMA_VERSION
+from app.store import postgres as pg_store
+from app.store import sqlite as sqlite_store
+from app.store.postgres import PostgresJobStore
 
-SCENE = {"robot": {"links": []}, "note": "stored verbatim"}
+SCENE = {"robot": {"links": []}, "note": "stored verbatim", "x": 0.1, "tiny": 1e-300}
 
 
 @pytest.fixture
-def store(tmp_path) -> SqliteJobStore:
+def sqlite(tmp_path) -> SqliteJobStore:
+    """A SQLite store, for what only a file has (WAL, checkpoints, damage)."""
     s = SqliteJobStore(tmp_path / "jobs" / "db.sqlite3")
     yield s
     s.close()
 
 
-def test_wal_mode_is_on(store):
-    assert store.journal_mode == "wal"
+def reopen(store: JobStore) -> JobStore:
+    """A new store object on the same file or database."""
+    if isinstance(store, SqliteJobStore):
+        return SqliteJobStore(store.path)
+    return PostgresJobStore(store.url)
 
 
-def claim(store: SqliteJobStore, owner: str = "host", worker: str = "w1",
+def test_both_stores_have_had_the_same_migrations():
+    assert sqlite_store.SCHEMA_VERSION == pg_store.SCHEMA_VERSION == 4
+
+
+def test_wal_mode_is_on(sqlite):
+    assert sqlite.journal_mode == "wal"
+
+
+def claim(store: JobStore, owner: str | None = "host", worker: str = "w1",
           lease: float = 60.0) -> str | None:
     """Claim the oldest queued job of `owner`; its id."""
     record = store.claim(owner, worker, time.time() + lease)
     return None if record is None else record.id
 
 
-def test_a_job_survives_reopening_the_file(store, tmp_path):
+def test_a_job_survives_reopening_the_store(store):
     store.create("a", SCENE, "host")
     assert claim(store) == "a"
     assert store.report_progress("a", {"iteration": 3, "objective": 1.5})
     assert store.finish("a", "succeeded", {"t": [0.0, 1.0]}, None)
     store.close()
-    again = SqliteJobStore(tmp_path / "jobs" / "db.sqlite3")
+    again = reopen(store)
     record = again.get("a")
     assert (record.status, record.scene, record.plan, record.progress) == (
         "succeeded", SCENE, {"t": [0.0, 1.0]}, {"iteration": 3, "objective": 1.5})
     assert record.created <= record.started <= record.finished
+    again.close()
 
 
 def test_transitions_are_conditional_on_the_status(store):
@@ -79,16 +100,19 @@ def test_cancel_queued_is_immediate_and_running_is_flagged(store):
     assert store.request_cancel("missing") is None
 
 
-def test_interrupt_marks_only_the_owners_running_jobs(store):
-    for job_id, owner in (("mine", "a"), ("other", "b"), ("waiting", "a")):
+def test_interrupt_marks_only_the_owners_running_jobs_held_by_its_workers(store):
+    for job_id, owner in (("mine", "a"), ("other", "b"), ("waiting", "a"), ("remote", "a")):
         store.create(job_id, SCENE, owner)
-    assert claim(store, "a") == "mine"
-    assert claim(store, "b") == "other"
+    assert claim(store, "a", worker="a/0/x") == "mine"
+    assert claim(store, "b", worker="b/0/x") == "other"
+    assert claim(store, "a", worker="ab/0/x") == "waiting"  # another instance's worker
+    store.create("last", SCENE, "a")
+    assert claim(store, "a", worker="elsewhere/0/x") == "remote"
     assert store.interrupt("a") == ["mine"]
     mine = store.get("mine")
     assert (mine.status, mine.error) == ("failed", INTERRUPTED)
-    assert store.get("other").status == "running"
-    assert store.get("waiting").status == "queued"
+    assert {store.get(j).status for j in ("other", "waiting", "remote")} == {"running"}
+    assert store.get("last").status == "queued"
 
 
 def test_claims_take_the_oldest_queued_job_of_the_owner_and_say_building(store):
@@ -139,10 +163,64 @@ def test_leases_are_renewed_with_cancel_flags_and_expire(store):
     store.request_cancel("b")
     assert store.renew(["w1", "w2"], time.time() + 60) == {"a": False, "b": True}
     assert store.renew([], time.time() + 60) == {}
-    assert store.expire(time.time()) == ["c"]
+    assert store.expire(time.time()) == {"c": "queued"}  # requeued: its first claim
     c = store.get("c")
-    assert (c.status, c.error) == ("failed", INTERRUPTED)
+    assert (c.status, c.worker, c.started, c.progress, c.error) == (
+        "queued", None, None, None, None)
     assert store.get("a").status == "running"
+
+
+def test_an_expired_job_is_requeued_once_then_interrupted_or_cancelled(store):
+    store.create("a", SCENE, "host")
+    store.create("b", SCENE, "host")
+    assert claim(store, worker="w1", lease=-1.0) == "a"
+    assert store.expire(time.time()) == {"a": "queued"}
+    assert not store.finish("a", "succeeded", None, None, worker="w1")  # w1 lost it
+    assert claim(store, worker="w2", lease=-1.0) == "a"  # its second claim
+    assert not store.report_progress("a", {"iteration": 1}, worker="w1")
+    assert store.report_progress("a", {"iteration": 1}, worker="w2")
+    assert store.expire(time.time()) == {"a": "failed"}
+    a = store.get("a")
+    assert (a.status, a.error, a.worker) == ("failed", INTERRUPTED, "w2")
+    assert claim(store, worker="w3", lease=-1.0) == "b"
+    store.request_cancel("b")
+    assert store.expire(time.time()) == {"b": "cancelled"}
+    assert store.get("b").error == "cancelled on request"
+    store.create("c", SCENE, "host")  # a released claim does not count
+    assert claim(store, worker="w4", lease=-1.0) == "c"
+    assert store.release("c", "w4")
+    assert claim(store, worker="w5", lease=-1.0) == "c"
+    assert store.expire(time.time()) == {"c": "queued"}
+
+
+def test_a_verdict_is_written_only_by_the_worker_holding_the_job(store):
+    store.create("a", SCENE, "host")
+    claim(store, worker="w1")
+    assert not store.finish("a", "succeeded", {"k": 1}, None, worker="w2")
+    assert store.finish("a", "succeeded", {"k": 2}, None, worker="w1")
+    assert store.get("a").plan == {"k": 2}
+
+
+def test_a_batch_is_stored_whole_within_the_limit_and_summarised(store):
+    members = [(f"b-{k:03d}", {**SCENE, "k": k}) for k in range(3)]
+    store.create("solo", SCENE, "host")
+    assert not store.create_batch("b", {"base": SCENE}, members, "host", limit=3)
+    assert store.get_batch("b") is None and store.get("b-000") is None  # none stored
+    assert store.create_batch("b", {"base": SCENE, "n": 3}, members, "host", limit=4)
+    assert claim(store) == "solo"
+    assert [claim(store, worker=f"w{k}") for k in range(2)] == ["b-000", "b-001"]
+    plan = {"objective": 2.5, "verification": {"verified": True}}
+    assert store.finish("b-000", "succeeded", plan, None)
+    assert store.finish("b-001", "failed", None, "boom")
+    batch = store.get_batch("b")
+    assert (batch.id, batch.spec, batch.owner) == ("b", {"base": SCENE, "n": 3}, "host")
+    assert [(m.job_id, m.index, m.status, m.verified, m.objective, m.error)
+            for m in batch.members] == [
+        ("b-000", 0, "succeeded", True, 2.5, None), ("b-001", 1, "failed", None, None, "boom"),
+        ("b-002", 2, "queued", None, None, None)]
+    assert batch.members[0].started <= batch.members[0].finished
+    assert store.get("b-002").scene == {**SCENE, "k": 2}
+    assert store.get_batch("missing") is None
 
 
 def test_fail_claimed_fails_only_the_workers_running_jobs(store):
@@ -166,13 +244,13 @@ def test_list_is_newest_first_and_filters_by_status(store):
                                        "failed": 0, "cancelled": 0}
 
 
-def test_the_store_pickles_as_its_path(store):
+def test_the_store_pickles_as_its_address(store):
     clone = pickle.loads(pickle.dumps(store))
     store.create("a", SCENE, "host")
     assert clone.get("a").scene == SCENE
 
 
-def _writer(store: SqliteJobStore, prefix: str, count: int, start) -> None:
+def _writer(store: JobStore, prefix: str, count: int, start) -> None:
     start.wait()
     for k in range(count):
         job_id = f"{prefix}{k}"
@@ -195,6 +273,29 @@ def test_two_processes_write_at_once_without_losing_a_job(store):
         assert p.exitcode == 0
     assert store.count_by_status()["succeeded"] == 2 * count
     assert {store.get(f"b{k}").plan["k"] for k in range(count)} == set(range(count))
+
+
+def test_concurrent_claims_take_every_job_exactly_once(store):
+    jobs = 60
+    for k in range(jobs):
+        store.create(f"j{k:02d}", SCENE, f"owner{k % 3}")
+    taken: list[list[str]] = [[] for _ in range(4)]
+    start = threading.Barrier(len(taken))
+
+    def take(mine: list[str], name: str) -> None:
+        start.wait()
+        while (record := store.claim(None, name, time.time() + 60)) is not None:
+            mine.append(record.id)
+            assert store.finish(record.id, "succeeded", None, None, worker=name)
+
+    threads = [threading.Thread(target=take, args=(t, f"w{i}")) for i, t in enumerate(taken)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(60)
+    every = [job for mine in taken for job in mine]
+    assert sorted(every) == [f"j{k:02d}" for k in range(jobs)]  # none twice, none left
+    assert store.count_by_status()["succeeded"] == jobs
 
 
 def test_a_final_checkpoint_leaves_every_job_in_the_main_file(tmp_path):
@@ -264,18 +365,60 @@ def test_a_store_of_the_first_schema_is_migrated(tmp_path):
     assert claim(store) == "old" and store.get("old").worker == "w1"
     assert store.finish("old", "succeeded", {"plan": 1}, None, {"x": [1.0]})
     assert store.solution("old") == {"x": [1.0]}
-    assert store._rows("PRAGMA user_version")[0][0] == SCHEMA_VERSION == 3
+    assert store._rows("PRAGMA user_version")[0][0] == sqlite_store.SCHEMA_VERSION
 
 
-def test_a_store_deleted_under_the_service_is_unavailable_not_recreated(store):
-    store.create("a", SCENE, "host")
-    store.check()
-    os.unlink(store.path)
+def test_a_postgres_database_of_the_first_schema_is_migrated(postgres_url):
+    with psycopg.connect(postgres_url, autocommit=True) as conn:
+        for statement in pg_store._MIGRATIONS[0]:
+            conn.execute(statement)
+        conn.execute("CREATE TABLE undertow_schema (version integer NOT NULL)")
+        conn.execute("INSERT INTO undertow_schema VALUES (1)")
+        conn.execute("INSERT INTO jobs (id, status, scene, owner, created) "
+                     "VALUES ('old', 'queued', '{}', 'host', 1.0)")
+    store = PostgresJobStore(postgres_url)
+    assert store.get("old").worker is None
+    assert claim(store) == "old" and store.get("old").worker == "w1"
+    assert store.finish("old", "succeeded", {"plan": 1}, None, {"x": [1.0]})
+    assert store.solution("old") == {"x": [1.0]}
+    assert store.schema_version == pg_store.SCHEMA_VERSION
+    store.close()
+    again = PostgresJobStore(postgres_url)  # a second start migrates nothing
+    assert again.schema_version == pg_store.SCHEMA_VERSION and again.get("old") is not None
+    again.close()
+
+
+def test_servers_starting_together_migrate_a_new_database_once(postgres_url):
+    stores: list[JobStore] = []
+    threads = [threading.Thread(target=lambda: stores.append(PostgresJobStore(postgres_url)))
+               for _ in range(4)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(60)
+    assert len(stores) == 4
+    assert stores[0]._rows("SELECT COUNT(*) FROM undertow_schema") == [(1,)]
+    for s in stores:
+        s.close()
+
+
+def test_an_unreachable_postgres_server_is_unavailable_without_its_password():
+    from testbed.service import free_port
+
+    with pytest.raises(StoreUnavailable, match=r"PostgreSQL 127\.0\.0\.1:\d+/x") as caught:
+        PostgresJobStore(f"postgresql://u:secret@127.0.0.1:{free_port()}/x", timeout=1.0)
+    assert "secret" not in str(caught.value)
+
+
+def test_a_store_deleted_under_the_service_is_unavailable_not_recreated(sqlite):
+    sqlite.create("a", SCENE, "host")
+    sqlite.check()
+    os.unlink(sqlite.path)
     with pytest.raises(StoreUnavailable, match="was deleted or replaced"):
-        store.check()
+        sqlite.check()
     with pytest.raises(StoreUnavailable):
-        store.create("b", SCENE, "host")
-    assert not os.path.exists(store.path)
+        sqlite.create("b", SCENE, "host")
+    assert not os.path.exists(sqlite.path)
 
 
 def test_check_reads_the_file_not_a_cache(tmp_path):

@@ -24,12 +24,13 @@ _LINKS = {name: {"operationId": op, "parameters": {"job_id": "$response.body#/id
           for name, op in (("GetPlan", "get_plan"), ("CancelPlan", "cancel_plan"))}
 
 
-def _check_warm_start(store: JobStore, job_id: str) -> None:
-    """422 at solver.warm_start unless it names a job that has a plan."""
+def check_warm_start(store: JobStore, job_id: str,
+                     loc: tuple[str, ...] = ("body",)) -> None:
+    """422 at solver.warm_start (under `loc`) unless it names a job that has a plan."""
     record = store.get(job_id)
     if record is None or record.plan is None:
         what = "there is no plan job" if record is None else "no plan yet in the job"
-        raise invalid([field_error(["body", "solver", "warm_start"], f"{what} {job_id!r}",
+        raise invalid([field_error([*loc, "solver", "warm_start"], f"{what} {job_id!r}",
                                    "value_error")])
 
 
@@ -57,7 +58,7 @@ async def create_plan(scene: Annotated[Scene, Body(openapi_examples=body_example
     if too_big:
         raise invalid(too_big)
     if scene.solver.warm_start is not None:
-        await run_in_threadpool(_check_warm_start, store, scene.solver.warm_start)
+        await run_in_threadpool(check_warm_start, store, scene.solver.warm_start)
     job_id = uuid.uuid4().hex
     try:
         await run_in_threadpool(runner.submit, scene.model_dump(mode="json"), job_id)

@@ -1,17 +1,23 @@
-"""Job stores: the `JobStore` interface and its SQLite implementation."""
+"""Job stores: the `JobStore` interface, its SQLite implementation (the default) and its
+PostgreSQL one (`app.store.postgres`, imported where `app.store.open` chooses it)."""
 
 from app.store.base import (
     BUILDING,
+    CANCELLED_ON_REQUEST,
     FINAL,
     INTERRUPTED,
+    MAX_ATTEMPTS,
     STATUSES,
+    BatchRecord,
     JobRecord,
     JobStatus,
     JobStore,
+    MemberRecord,
     StoreDamaged,
     StoreUnavailable,
 )
 from app.store.sqlite import SqliteJobStore
 
-__all__ = ["BUILDING", "FINAL", "INTERRUPTED", "STATUSES", "JobRecord", "JobStatus", "JobStore",
-           "SqliteJobStore", "StoreDamaged", "StoreUnavailable"]
+__all__ = ["BUILDING", "CANCELLED_ON_REQUEST", "FINAL", "INTERRUPTED", "MAX_ATTEMPTS", "STATUSES",
+           "BatchRecord", "JobRecord", "JobStatus", "JobStore", "MemberRecord", "SqliteJobStore",
+           "StoreDamaged", "StoreUnavailable"]

@@ -6,7 +6,13 @@ worker processes receive the store object and reopen it on their side.
 Workers take jobs by claiming them: one conditional update turns the oldest queued job
 into a running one that names its worker and holds a lease until a given time. Whoever
 supervises the worker renews the lease while the worker lives; a running job whose lease
-ran out has lost its worker and is marked interrupted by whoever notices (`expire`).
+ran out has lost its worker (killed, or its machine lost) and whoever notices (`expire`:
+any server or worker sharing the store) requeues it once; a job that loses its worker a
+second time (`MAX_ATTEMPTS` claims) is marked interrupted, and one whose cancel was
+requested is cancelled.
+
+A batch is a set of jobs created together (one transaction) with the specification they
+came from; its members are read back with the few figures of their plans a summary needs.
 """
 
 from __future__ import annotations
@@ -19,6 +25,9 @@ JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
 STATUSES: tuple[JobStatus, ...] = ("queued", "running", "succeeded", "failed", "cancelled")
 FINAL: frozenset[str] = frozenset({"succeeded", "failed", "cancelled"})
 INTERRUPTED = "interrupted"
+MAX_ATTEMPTS = 2
+"""Claims a job may have: a job whose lease ran out is requeued until it has had these."""
+CANCELLED_ON_REQUEST = "cancelled on request"
 BUILDING: dict[str, Any] = {"phase": "building", "iteration": 0, "objective": None,
                             "inf_pr": None, "inf_du": None, "elapsed": 0.0, "mesh_pass": 0}
 """The progress of a job from its claim until the solver's first iteration."""
@@ -49,6 +58,32 @@ class JobRecord:
     started: float | None
     finished: float | None
     worker: str | None = None
+
+
+@dataclass(frozen=True)
+class MemberRecord:
+    """One job of a batch as its summary shows it: `index` in the batch, `verified` and
+    `objective` from its plan (None without a plan). Times are Unix seconds."""
+
+    job_id: str
+    index: int
+    status: JobStatus
+    error: str | None
+    verified: bool | None
+    objective: float | None
+    started: float | None
+    finished: float | None
+
+
+@dataclass(frozen=True)
+class BatchRecord:
+    """One stored batch: its specification (a JSON object) and its members by index."""
+
+    id: str
+    spec: dict[str, Any]
+    owner: str
+    created: float
+    members: list[MemberRecord]
 
 
 class JobStore(ABC):
@@ -85,15 +120,18 @@ class JobStore(ABC):
         """Give a claim back: running (by `worker`) -> queued, as if never claimed."""
 
     @abstractmethod
-    def report_progress(self, job_id: str, progress: dict[str, Any]) -> bool:
-        """Record progress of a running job; False when it should stop (cancel requested,
-        or the job is no longer running)."""
+    def report_progress(self, job_id: str, progress: dict[str, Any],
+                        worker: str | None = None) -> bool:
+        """Record progress of a running job (held by `worker` when given); False when it
+        should stop (cancel requested, or the job is no longer running there)."""
 
     @abstractmethod
     def finish(self, job_id: str, status: JobStatus, plan: dict[str, Any] | None,
-               error: str | None, solution: dict[str, Any] | None = None) -> bool:
-        """running -> a final status with its plan or error, and the NLP solution behind
-        the plan (for warm starts); False if it was not running."""
+               error: str | None, solution: dict[str, Any] | None = None,
+               worker: str | None = None) -> bool:
+        """running (held by `worker` when given) -> a final status with its plan or error,
+        and the NLP solution behind the plan (for warm starts); False if it was not
+        running there (e.g. its lease ran out and another worker took it)."""
 
     @abstractmethod
     def solution(self, job_id: str) -> dict[str, Any] | None:
@@ -117,12 +155,27 @@ class JobStore(ABC):
         """Extend the leases of the running jobs of `workers`; {job id: cancel requested}."""
 
     @abstractmethod
-    def expire(self, now: float) -> list[str]:
-        """Mark running jobs whose lease ended before `now` failed ("interrupted"); ids."""
+    def expire(self, now: float) -> dict[str, JobStatus]:
+        """Settle the running jobs whose lease ended before `now`: cancelled when a cancel
+        was requested, else queued again (claim forgotten) while they have had fewer than
+        `MAX_ATTEMPTS` claims, else failed ("interrupted"). {job id: new status}."""
 
     @abstractmethod
     def interrupt(self, owner: str) -> list[str]:
-        """Mark the running jobs of `owner` failed with error "interrupted"; their ids."""
+        """Mark the running jobs of `owner` held by its own workers (named "owner/...")
+        failed with error "interrupted"; their ids."""
+
+    @abstractmethod
+    def create_batch(self, batch_id: str, spec: dict[str, Any],
+                     members: list[tuple[str, dict[str, Any]]], owner: str,
+                     limit: int | None = None) -> bool:
+        """Store a batch and its members (job id, scene) as queued jobs, all or none;
+        False (nothing stored) when `owner` would then hold more than `limit` unfinished
+        jobs."""
+
+    @abstractmethod
+    def get_batch(self, batch_id: str) -> BatchRecord | None:
+        """The batch with its members in index order, or None when there is no such id."""
 
     @abstractmethod
     def check(self) -> None:

@@ -27,11 +27,15 @@ from typing import Any
 
 from app.store.base import (
     BUILDING,
+    CANCELLED_ON_REQUEST,
     INTERRUPTED,
+    MAX_ATTEMPTS,
     STATUSES,
+    BatchRecord,
     JobRecord,
     JobStatus,
     JobStore,
+    MemberRecord,
     StoreDamaged,
     StoreUnavailable,
 )
@@ -63,11 +67,33 @@ _MIGRATIONS: tuple[tuple[str, ...], ...] = (
     (  # 3: the NLP solution behind a plan, for warm starts (kept out of the plan's JSON)
         "ALTER TABLE jobs ADD COLUMN solution TEXT",
     ),
+    (  # 4: claims are counted (a job whose lease ran out is requeued once); batches
+        "ALTER TABLE jobs ADD COLUMN attempts INTEGER NOT NULL DEFAULT 0",
+        "ALTER TABLE jobs ADD COLUMN batch TEXT",
+        "ALTER TABLE jobs ADD COLUMN member INTEGER",
+        "CREATE INDEX IF NOT EXISTS jobs_batch ON jobs (batch, member)",
+        """CREATE TABLE IF NOT EXISTS batches (
+            id      TEXT PRIMARY KEY,
+            owner   TEXT NOT NULL,
+            created REAL NOT NULL,
+            spec    TEXT NOT NULL)""",
+    ),
 )
 SCHEMA_VERSION = len(_MIGRATIONS)
 
 _COLUMNS = ("id, status, scene, progress, plan, error, cancel_requested, owner, "
             "created, started, finished, worker")
+_MEMBER_COLUMNS = ("id, member, status, error, json_extract(plan, '$.verification.verified'), "
+                   "json_extract(plan, '$.objective'), started, finished")
+_EXPIRED = (  # the settlement of a running job whose lease ran out (see JobStore.expire)
+    "status = CASE WHEN cancel_requested THEN 'cancelled' WHEN attempts < :max THEN 'queued' "
+    "ELSE 'failed' END, error = CASE WHEN cancel_requested THEN :cancelled "
+    "WHEN attempts < :max THEN NULL ELSE :interrupted END, "
+    "finished = CASE WHEN NOT cancel_requested AND attempts < :max THEN NULL ELSE :now END, "
+    "started = CASE WHEN NOT cancel_requested AND attempts < :max THEN NULL ELSE started END, "
+    "progress = CASE WHEN NOT cancel_requested AND attempts < :max THEN NULL ELSE progress END, "
+    "worker = CASE WHEN NOT cancel_requested AND attempts < :max THEN NULL ELSE worker END, "
+    "lease_until = NULL")
 
 
 def _loads(text: str | None) -> Any:
@@ -81,6 +107,13 @@ def _record(row: tuple) -> JobRecord:
                      plan=_loads(plan), error=error, cancel_requested=bool(cancel),
                      owner=owner, created=created, started=started, finished=finished,
                      worker=worker)
+
+
+def _member(row: tuple) -> MemberRecord:
+    id_, index, status, error, verified, objective, started, finished = row
+    return MemberRecord(job_id=id_, index=index, status=status, error=error,
+                        verified=None if verified is None else bool(verified),
+                        objective=objective, started=started, finished=finished)
 
 
 def _dumps(value: Any) -> str | None:
@@ -178,7 +211,7 @@ class SqliteJobStore(JobStore):
             self._open()  # raises StoreUnavailable
         return local.conn
 
-    def _rows(self, sql: str, params: tuple = ()) -> list[tuple]:
+    def _rows(self, sql: str, params: tuple | dict = ()) -> list[tuple]:
         """Every row of one statement (fetched at once, so a write is complete)."""
         try:
             return self._connection().execute(sql, params).fetchall()
@@ -187,7 +220,24 @@ class SqliteJobStore(JobStore):
         except sqlite3.Error as exc:
             raise StoreUnavailable(f"the job store {self.path} failed: {exc}") from exc
 
-    def _write(self, sql: str, params: tuple = ()) -> list[tuple]:
+    @contextlib.contextmanager
+    def _transaction(self):
+        """This thread's connection inside BEGIN IMMEDIATE ... COMMIT (ROLLBACK on error)."""
+        conn = self._connection()
+        try:
+            conn.execute("BEGIN IMMEDIATE")
+            try:
+                yield conn
+            except BaseException:
+                conn.execute("ROLLBACK")
+                raise
+            conn.execute("COMMIT")
+        except sqlite3.IntegrityError:
+            raise
+        except sqlite3.Error as exc:
+            raise StoreUnavailable(f"the job store {self.path} failed: {exc}") from exc
+
+    def _write(self, sql: str, params: tuple | dict = ()) -> list[tuple]:
         """Rows of a writing statement (its RETURNING clause); checkpoints when due."""
         rows = self._rows(sql, params)
         if time.monotonic() - self._checkpointed >= self.checkpoint_interval:
@@ -235,7 +285,8 @@ class SqliteJobStore(JobStore):
         mine, params = ("AND owner = ?", (owner,)) if owner is not None else ("", ())
         rows = self._write(
             "UPDATE jobs SET status = 'running', started = ?, worker = ?, lease_until = ?, "
-            "progress = ? WHERE status = 'queued' AND id = (SELECT id FROM jobs "
+            "progress = ?, attempts = attempts + 1 WHERE status = 'queued' AND id = "
+            "(SELECT id FROM jobs "
             f"WHERE status = 'queued' {mine} ORDER BY created, id LIMIT 1) "
             f"RETURNING {_COLUMNS}",
             (time.time(), worker, lease_until, _dumps(BUILDING), *params))
@@ -245,23 +296,28 @@ class SqliteJobStore(JobStore):
         rows = self._write(
             "UPDATE jobs SET status = CASE WHEN cancel_requested THEN 'cancelled' "
             "ELSE 'queued' END, finished = CASE WHEN cancel_requested THEN ? END, "
-            "started = NULL, worker = NULL, lease_until = NULL, progress = NULL "
+            "started = NULL, worker = NULL, lease_until = NULL, progress = NULL, "
+            "attempts = attempts - 1 "
             "WHERE id = ? AND worker = ? AND status = 'running' RETURNING id",
             (time.time(), job_id, worker))
         return bool(rows)
 
-    def report_progress(self, job_id: str, progress: dict[str, Any]) -> bool:
+    def report_progress(self, job_id: str, progress: dict[str, Any],
+                        worker: str | None = None) -> bool:
         rows = self._write(
             "UPDATE jobs SET progress = ? WHERE id = ? AND status = 'running' "
-            "RETURNING cancel_requested", (_dumps(progress), job_id))
+            "AND (? IS NULL OR worker = ?) RETURNING cancel_requested",
+            (_dumps(progress), job_id, worker, worker))
         return bool(rows) and not rows[0][0]
 
     def finish(self, job_id: str, status: JobStatus, plan: dict[str, Any] | None,
-               error: str | None, solution: dict[str, Any] | None = None) -> bool:
+               error: str | None, solution: dict[str, Any] | None = None,
+               worker: str | None = None) -> bool:
         rows = self._write(
             "UPDATE jobs SET status = ?, plan = ?, error = ?, finished = ?, solution = ? "
-            "WHERE id = ? AND status = 'running' RETURNING id",
-            (status, _dumps(plan), error, time.time(), _dumps(solution), job_id))
+            "WHERE id = ? AND status = 'running' AND (? IS NULL OR worker = ?) RETURNING id",
+            (status, _dumps(plan), error, time.time(), _dumps(solution), job_id, worker,
+             worker))
         return bool(rows)
 
     def solution(self, job_id: str) -> dict[str, Any] | None:
@@ -303,11 +359,47 @@ class SqliteJobStore(JobStore):
             "RETURNING id, cancel_requested", (lease_until, *workers))
         return {job_id: bool(cancel) for job_id, cancel in rows}
 
-    def expire(self, now: float) -> list[str]:
-        return self._fail_running("lease_until < ?", (now,), INTERRUPTED)
+    def expire(self, now: float) -> dict[str, JobStatus]:
+        rows = self._write(
+            f"UPDATE jobs SET {_EXPIRED} WHERE status = 'running' AND lease_until < :now "
+            "RETURNING id, status", {"max": MAX_ATTEMPTS, "cancelled": CANCELLED_ON_REQUEST,
+                                     "interrupted": INTERRUPTED, "now": now})
+        return dict(rows)
 
     def interrupt(self, owner: str) -> list[str]:
-        return self._fail_running("owner = ?", (owner,), INTERRUPTED)
+        return self._fail_running("owner = ? AND substr(worker, 1, ?) = ?",
+                                  (owner, len(owner) + 1, owner + "/"), INTERRUPTED)
+
+    def create_batch(self, batch_id: str, spec: dict[str, Any],
+                     members: list[tuple[str, dict[str, Any]]], owner: str,
+                     limit: int | None = None) -> bool:
+        now = time.time()
+        with self._transaction() as conn:
+            if limit is not None:
+                (held,) = conn.execute(
+                    "SELECT COUNT(*) FROM jobs WHERE owner = ? AND status IN "
+                    "('queued', 'running')", (owner,)).fetchone()
+                if held + len(members) > limit:
+                    return False
+            conn.execute("INSERT INTO batches (id, owner, created, spec) VALUES (?, ?, ?, ?)",
+                         (batch_id, owner, now, _dumps(spec)))
+            conn.executemany(
+                "INSERT INTO jobs (id, status, scene, owner, created, batch, member) "
+                "VALUES (?, 'queued', ?, ?, ?, ?, ?)",
+                [(job_id, _dumps(scene), owner, now, batch_id, index)
+                 for index, (job_id, scene) in enumerate(members)])
+        return True
+
+    def get_batch(self, batch_id: str) -> BatchRecord | None:
+        rows = self._rows("SELECT id, spec, owner, created FROM batches WHERE id = ?",
+                          (batch_id,))
+        if not rows:
+            return None
+        id_, spec, owner, created = rows[0]
+        members = self._rows(f"SELECT {_MEMBER_COLUMNS} FROM jobs WHERE batch = ? "
+                             "ORDER BY member", (batch_id,))
+        return BatchRecord(id=id_, spec=_loads(spec), owner=owner, created=created,
+                           members=[_member(row) for row in members])
 
     def check(self) -> None:
         """Read the schema, the newest job and its index through a new connection, whose

@@ -1,0 +1,17 @@
+"""The job store a process's settings name: PostgreSQL at UNDERTOW_DB_URL when it is set,
+else the SQLite file at UNDERTOW_DB_PATH."""
+
+from __future__ import annotations
+
+from app.settings import Settings
+from app.store.base import JobStore
+from app.store.sqlite import SqliteJobStore
+
+
+def open_store(settings: Settings) -> JobStore:
+    """The configured store, opened and migrated (StoreDamaged, StoreUnavailable)."""
+    if settings.db_url:
+        from app.store.postgres import PostgresJobStore  # psycopg only where it is used
+
+        return PostgresJobStore(settings.db_url)
+    return SqliteJobStore(settings.db_path)

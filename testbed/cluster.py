@@ -1,0 +1,78 @@
+"""Several undertow processes on one machine, sharing one PostgreSQL job store, as on
+several machines: API-only servers (`testbed.service.LiveServer` with UNDERTOW_WORKERS=0)
+and worker nodes (`undertow worker`), each in a process group of its own so that one can
+be killed whole, as a lost machine would be."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+from typing import Self
+
+from testbed.service import ROOT, LiveServer
+
+UNDERTOW = Path(sys.executable).with_name("undertow")
+FAKE_SOLVER = "testbed.fake_solvers:fake_plan"
+
+
+def api_server(folder: Path, db_url: str, instance: str, **extra: str) -> LiveServer:
+    """An API-only server (no workers of its own) on the PostgreSQL store at `db_url`; its
+    log in `folder`."""
+    env = {"UNDERTOW_DB_URL": db_url, "UNDERTOW_INSTANCE": instance, "UNDERTOW_WORKERS": "0",
+           **extra}
+    return LiveServer(folder / f"{instance}.sqlite3", **env)  # the file is never opened
+
+
+class WorkerNode:
+    """`undertow worker --processes N`, in its own process group."""
+
+    def __init__(self, folder: Path, instance: str, processes: int = 1, **settings: str):
+        """`settings`: UNDERTOW_* variables, the store's among them."""
+        self.instance, self.processes = instance, processes
+        self.env = {**os.environ, "UNDERTOW_INSTANCE": instance, "UNDERTOW_LOG_LEVEL": "WARNING",
+                    **settings, "PYTHONPATH": str(ROOT)}  # testbed's fake solver
+        self.log = folder / f"{instance}.log"
+        self.proc: subprocess.Popen | None = None
+
+    def start(self) -> Self:
+        with open(self.log, "ab") as log:
+            self.proc = subprocess.Popen(
+                [str(UNDERTOW), "worker", "--processes", str(self.processes)], cwd=ROOT,
+                env=self.env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+        return self
+
+    def check(self) -> None:
+        """AssertionError, with the end of its log, when the node has exited."""
+        assert self.proc is not None and self.proc.poll() is None, (
+            f"worker node {self.instance} exited: {self.log.read_text()[-3000:]}")
+
+    def owns(self, worker: str | None) -> bool:
+        """Whether a job's `worker` is one of this node's processes."""
+        return worker is not None and worker.startswith(f"{self.instance}:worker:")
+
+    def kill(self) -> None:
+        """SIGKILL the node and its solver processes at once: nothing of it runs on."""
+        if self.proc is not None:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(self.proc.pid, signal.SIGKILL)
+            self.proc.wait(30)
+
+    def stop(self, timeout: float = 30.0) -> None:
+        """SIGTERM, then SIGKILL what is left after `timeout` seconds."""
+        if self.proc is None:
+            return
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                self.proc.wait(timeout)
+        self.kill()
+
+    def __enter__(self) -> Self:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
