@@ -31,7 +31,8 @@ class _Out(BaseModel):
 
 
 class DenseTrajectory(_Out):
-    """The transcription's own interpolant sampled finely: times [s], angles [rad], torques [N m]."""
+    """The transcription's own interpolant sampled finely: times [s], angles [rad],
+    torques [N m]."""
 
     t: list[float]
     q: list[list[float]]
