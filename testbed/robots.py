@@ -41,7 +41,8 @@ def random_robot(rng: np.random.Generator, n: int, *, waves: bool = True,
                                  "rotational_inertia": rotational})
 
 
-def random_state(rng: np.random.Generator, n: int, speed: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+def random_state(rng: np.random.Generator, n: int,
+                 speed: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
     """Angles uniform in [-pi, pi] rad and rates uniform in [-speed, speed] rad/s."""
     return rng.uniform(-np.pi, np.pi, n), rng.uniform(-speed, speed, n)
 
@@ -57,7 +58,8 @@ def chain(n: int, under: bool, masses: list[float] | None = None,
     for k in range(n):
         active = (k % 2 == 1) or not under or n == 1
         link = {"length": lengths[k], "mass": masses[k],
-                "inertia": masses[k] * lengths[k] ** 2 / 50, "joint": "active" if active else "passive"}
+                "inertia": masses[k] * lengths[k] ** 2 / 50,
+                "joint": "active" if active else "passive"}
         if active and k % 2 == 1:
             link["wave"] = {"amplitude": 0.1 * lengths[k], "frequency": frequency, "phase": 0.3}
         links.append(link)
