@@ -169,7 +169,7 @@ def format_of(path: str | Path) -> Format:
     suffix = Path(path).suffix.lower().lstrip(".")
     if suffix not in FORMATS:
         raise InputError(f"plot: the file name must end in .png or .svg (got {str(path)!r})")
-    return suffix  # type: ignore[return-value]
+    return suffix
 
 
 # --------------------------------------------------------------------------- geometry
