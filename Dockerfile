@@ -15,16 +15,15 @@ ENV PIP_DISABLE_PIP_VERSION_CHECK=1 \
     PYTHONDONTWRITEBYTECODE=1
 RUN python3 -m venv /opt/venv
 WORKDIR /src
-COPY pyproject.toml ./
-# Dependencies first, in their own layer: a change to the code alone reuses it.
+COPY requirements/runtime.txt requirements/
+# Dependencies first, in their own layer: a change to the code alone reuses it. The lock
+# file pins them (`make lock` regenerates it from pyproject.toml).
 RUN --mount=type=secret,id=ca_bundle,required=false \
     --mount=type=secret,id=pip_conf,required=false \
     if [ -s /run/secrets/ca_bundle ]; then export PIP_CERT=/run/secrets/ca_bundle; fi \
     && if [ -s /run/secrets/pip_conf ]; then export PIP_CONFIG_FILE=/run/secrets/pip_conf; fi \
-    && python3 -c "import tomllib; print(*tomllib.load(open('pyproject.toml', 'rb'))['project']['dependencies'], sep='\n')" \
-       > /tmp/requirements.txt \
-    && /opt/venv/bin/pip install --no-cache-dir -r /tmp/requirements.txt
-COPY README.md ./
+    && /opt/venv/bin/pip install --no-cache-dir -r requirements/runtime.txt
+COPY pyproject.toml README.md ./
 COPY planner/ planner/
 COPY app/ app/
 RUN --mount=type=secret,id=ca_bundle,required=false \

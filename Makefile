@@ -7,12 +7,19 @@ HOST   ?= 127.0.0.1
 PORT   ?= 8000
 PYTEST_ARGS ?=
 
-.PHONY: install serve test test-slow openapi screenshot clean postgres-server
+# Pinned for Python 3.11 on linux x86_64 by `make lock`: the image installs runtime.txt,
+# the venv (tests, lint) dev.txt, which holds the same versions plus the test and dev extras.
+LOCK_RUNTIME := requirements/runtime.txt
+LOCK_DEV     := requirements/dev.txt
+LOCK_FLAGS   := --quiet --python-version 3.11 --python-platform x86_64-unknown-linux-gnu
 
-$(STAMP): pyproject.toml
+.PHONY: install serve test test-slow lint lock browser openapi screenshot clean postgres-server
+
+$(STAMP): pyproject.toml $(LOCK_DEV)
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test,bench]'
+	$(PY) -m pip install --quiet -r $(LOCK_DEV)
+	$(PY) -m pip install --quiet --no-deps -e .
 	touch $(STAMP)
 
 install: $(STAMP)
@@ -39,10 +46,26 @@ test: $(STAMP) postgres-server
 test-slow: $(STAMP) postgres-server
 	$(PY) -m pytest -n 2 -m slow $(PYTEST_ARGS)
 
+lint: $(STAMP)
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/mypy
+
+# Re-resolve both lock files from pyproject.toml (newest versions within its bounds).
+lock: $(STAMP)
+	$(VENV)/bin/uv pip compile $(LOCK_FLAGS) --upgrade --extra test --extra bench --extra dev \
+	    pyproject.toml -o $(LOCK_DEV)
+	$(VENV)/bin/uv pip compile $(LOCK_FLAGS) --constraint $(LOCK_DEV) \
+	    pyproject.toml -o $(LOCK_RUNTIME)
+
+# Debian's chromium for tests/test_viewer.py (skipped without it); needs apt-get and root.
+browser:
+	test -x /usr/bin/chromium || { apt-get update -qq && DEBIAN_FRONTEND=noninteractive \
+	    apt-get install -y -qq --no-install-recommends chromium >/dev/null; }
+
 openapi: $(STAMP)
 	$(PY) -m app.openapi_export openapi/openapi.json
 
-screenshot: $(STAMP)
+screenshot: $(STAMP) browser
 	UNDERTOW_SCREENSHOT=1 $(PY) -m pytest tests/test_viewer.py -k watch_it -p no:xdist
 
 clean:

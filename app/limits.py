@@ -112,7 +112,8 @@ def check_scene(scene: Scene, settings: Settings) -> Scene:
     duration = scene.task.duration
     horizon = duration.max if isinstance(duration, DurationRange) else duration
     if horizon > settings.max_horizon:
-        loc = ["body", "task", "duration"] + (["max"] if isinstance(duration, DurationRange) else [])
+        ranged = isinstance(duration, DurationRange)
+        loc = ["body", "task", "duration"] + (["max"] if ranged else [])
         errors.append(field_error(loc, f"{horizon:g} s exceeds this server's horizon limit of "
                                        f"{settings.max_horizon:g} s (UNDERTOW_MAX_HORIZON)",
                                   "limit"))

@@ -78,6 +78,7 @@ class RequestIdMiddleware(HttpMiddleware):
             await self.app(scope, receive, send_with_id)
         finally:
             access.info("request", extra={
-                "request_id": rid, "method": scope["method"], "path": scope["path"], "status": status,
+                "request_id": rid, "method": scope["method"], "path": scope["path"],
+                "status": status,
                 "duration_ms": round(1e3 * (time.perf_counter() - start), 3)})
             request_id.reset(token)

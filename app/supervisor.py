@@ -22,6 +22,7 @@ killed; queued jobs stay queued for the next start.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import multiprocessing
 import signal
@@ -182,11 +183,9 @@ class Supervisor:
         self._slots[slot] = _Worker(name, process, ours)
 
     def _send(self, worker: _Worker, message: str) -> None:
-        with self._send_lock:
-            try:
-                worker.channel.send(message)
-            except OSError:
-                pass  # the worker is gone; its sentinel tells the supervisor
+        # a gone worker raises OSError here; its sentinel tells the supervisor
+        with self._send_lock, contextlib.suppress(OSError):
+            worker.channel.send(message)
 
     def _run(self) -> None:
         while not self._stopping.is_set():

@@ -17,6 +17,7 @@ thread marks its job interrupted and exits when the supervising process is gone.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import importlib
 import logging
@@ -227,10 +228,8 @@ def _watch(parent: int) -> None:
         time.sleep(WATCH_INTERVAL)
     current = _current
     if current is not None:
-        try:
+        with contextlib.suppress(StoreUnavailable):
             current[0].fail(current[1], INTERRUPTED)
-        except StoreUnavailable:
-            pass
     os._exit(0)
 
 

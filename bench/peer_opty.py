@@ -404,7 +404,8 @@ def main(argv: list[str]) -> int:
         harness.write_section(DOC, SECTION,
                               f"Not run: installing opty failed. `{what}` ended with\n\n"
                               f"    {error}\n\n"
-                              f"{harness.manifest('peer_opty', argv, started, harness.machine_note())}")
+                              + harness.manifest("peer_opty", argv, started,
+                                                 harness.machine_note()))
         log(f"install failed: {what}: {error}")
         return 1
     install_note = (f"{install['seconds']:.0f} s: {install['steps']}" if install["seconds"]

@@ -101,7 +101,8 @@ def plot(rows: list[dict], label: str, path: Path) -> None:
     ax1.legend(fontsize=8)
     ax1.grid(True, which="both", alpha=0.3)
     ax2.plot(x, [r["rss_peak"] for r in ok], "o-", label="peak RSS of the process")
-    ax2.plot(x, [r["rss_net"] for r in ok], "s--", label=f"net of imports, slope {slopes['rss_net']:.2f}")
+    ax2.plot(x, [r["rss_net"] for r in ok], "s--",
+             label=f"net of imports, slope {slopes['rss_net']:.2f}")
     ax2.set(xscale="log", yscale="log", xlabel=label, ylabel="memory [MB]")
     ax2.legend(fontsize=8)
     ax2.grid(True, which="both", alpha=0.3)

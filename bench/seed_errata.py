@@ -129,7 +129,8 @@ def report(states: int, duration: float) -> str:
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     lines += ["", (f"Largest deviation from the derived value over {states} random configurations "
               "(q uniform in [-pi, pi]^4), kg m^2:"), "",
-              "| term | max abs derived | max abs (printed - derived) | max abs (corrected - derived) |",
+              "| term | max abs derived | max abs (printed - derived) "
+              "| max abs (corrected - derived) |",
               "|---|---:|---:|---:|"]
     found = deviations(arm, dyn, np.random.default_rng(1000), states)
     for k, (size, printed, corrected) in found.items():

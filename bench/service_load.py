@@ -69,14 +69,17 @@ async def run(url: str, requests: int) -> dict:
 
 
 def percentiles(values: list[float]) -> tuple[float, float]:
-    return (float(np.percentile(values, 50)), float(np.percentile(values, 95))) if values else (0, 0)
+    if not values:
+        return (0, 0)
+    return (float(np.percentile(values, 50)), float(np.percentile(values, 95)))
 
 
 def report(result: dict, args: argparse.Namespace) -> tuple[str, bool]:
     statuses = [a[0] for a in result["answers"]]
     counts = {s: statuses.count(s) for s in sorted(set(statuses))}
     finals = [status for status, _ in result["ends"]]
-    job_latency = [end - start for (_, start), (_, end) in zip(result["accepted"], result["ends"])]
+    job_latency = [end - start for (_, start), (_, end)
+                   in zip(result["accepted"], result["ends"], strict=True)]
     submit_latency = [a[1] for a in result["answers"]]
     span = result["t1"] - result["t0"]
     done = sum(s in FINAL for s in finals)

@@ -43,7 +43,7 @@ ADAMS_NEWTON = {"linear_multistep_method": "adams", "nonlinear_solver_iteration"
 
 def drift(robot: Robot, q: list, dq: list) -> float:
     dyn = Dynamics(robot)
-    energies = np.array([dyn.energy(a, b) for a, b in zip(q, dq)])
+    energies = np.array([dyn.energy(a, b) for a, b in zip(q, dq, strict=True)])
     total = energies.sum(axis=1)
     return float(np.max(np.abs(total - total[0])) / (energies[0, 0] + abs(energies[0, 1])))
 
@@ -73,7 +73,7 @@ def heavy_light(rng: np.random.Generator, robot: Robot, lengths: bool) -> Robot:
     masses = rng.choice([0.03, 30.0], robot.n)
     if robot.n > 1:
         masses[rng.permutation(robot.n)[:2]] = [0.03, 30.0]
-    for link, mass in zip(doc["links"], masses):
+    for link, mass in zip(doc["links"], masses, strict=True):
         scale = 10 ** rng.uniform(-2, 1) / link["length"] if lengths else 1.0
         link["length"] *= scale
         link["mass"] = float(mass)
@@ -109,7 +109,8 @@ def rows(name: str, results: dict[str, list[tuple[float | None, float]]]) -> lis
     for method in METHODS:
         done = [d for d, _ in results[method] if d is not None]
         cpu = sum(t for _, t in results[method])
-        ratio = [t / b for (_, t), (_, b) in zip(results[method], results["bdf"]) if b > 0]
+        ratio = [t / b for (_, t), (_, b) in zip(results[method], results["bdf"], strict=True)
+                 if b > 0]
         out.append(f"| {name} | {method} | {len(results[method])} | "
                    f"{len(results[method]) - len(done)} | {max(done):.1e} | "
                    f"{statistics.median(done):.1e} | {sum(d > 1e-8 for d in done)} | "
@@ -119,7 +120,7 @@ def rows(name: str, results: dict[str, list[tuple[float | None, float]]]) -> lis
 
 def per_robot_worst(results: dict[str, list[tuple[float | None, float]]]) -> tuple[int, int]:
     """How many robots adams drifts less than bdf on, out of how many both completed."""
-    pairs = [(a, b) for (a, _), (b, _) in zip(results["adams"], results["bdf"])
+    pairs = [(a, b) for (a, _), (b, _) in zip(results["adams"], results["bdf"], strict=True)
              if a is not None and b is not None]
     return sum(a < b for a, b in pairs), len(pairs)
 

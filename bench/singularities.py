@@ -69,7 +69,7 @@ def plot_maps(name: str, arms, base, axes, spans, runs, labels) -> None:
     """det M_pa slices without and with the waves, each with the motions of its robot."""
     fig = Figure(figsize=(11, 4.8), layout="constrained")
     panels = fig.subplots(1, 2)
-    for ax, (title, robot), wavy in zip(panels, arms, (False, True)):
+    for ax, (title, robot), wavy in zip(panels, arms, (False, True), strict=True):
         U, V, D = det_map(robot, base, axes, spans)
         limit = np.abs(D).max()
         mesh = ax.pcolormesh(U, V, D, cmap="RdBu_r", vmin=-limit, vmax=limit, shading="auto")

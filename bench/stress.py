@@ -41,8 +41,8 @@ from planner import coupling_block
 from planner.model import Robot
 from testbed.edges import (
     SIGMAS,
-    inverse_case,
     invariants,
+    inverse_case,
     plan_case,
     scaled_case,
     scaled_cases,
@@ -53,7 +53,6 @@ from testbed.edges import (
 )
 from testbed.probes import disconnect_cases, kill_worker_case, malformed_bodies
 from testbed.service import LiveServer
-
 
 # ------------------------------------------------------------------ near-singular
 
@@ -84,7 +83,8 @@ def singular_rows(sigmas: list[float]) -> list[dict]:
             for threshold in (1e-3, sigma / 10):
                 started = time.perf_counter()
                 out = harness.isolated("stress", inverse_point.__name__,
-                               {"arm": arm, "sigma": sigma, "threshold": threshold}, INVERSE_TIMEOUT)
+                               {"arm": arm, "sigma": sigma,
+                                "threshold": threshold}, INVERSE_TIMEOUT)
                 rows.append({"part": "inverse", "arm": arm, "sigma": sigma, "threshold": threshold,
                              "wall": time.perf_counter() - started, **out})
                 print(json.dumps(rows[-1]), flush=True)
@@ -92,7 +92,8 @@ def singular_rows(sigmas: list[float]) -> list[dict]:
     for sigma in sigmas:
         q = two_link_at(sigma).tolist()
         final = [q[0] + 0.3, q[1] - 0.5]
-        for robot_name, robot in (("waveless", waveless_two_link().model_dump()), ("with wave", wavy)):
+        for robot_name, robot in (("waveless", waveless_two_link().model_dump()),
+                                  ("with wave", wavy)):
             for margin in (None, 1e-3):
                 out = harness.isolated("stress", plan_case.__name__,
                                        {"robot": robot, "start": q, "final": final,
@@ -163,7 +164,8 @@ def random_rows(count: int, seed: int = 20261122) -> tuple[list[dict], dict]:
     rows, started = [], time.perf_counter()
     for k in range(count):
         robot = random_robot(rng)
-        q, dq, ddq = rng.uniform(-np.pi, np.pi, robot.n), rng.uniform(-3, 3, robot.n), rng.uniform(-3, 3, robot.n)
+        q = rng.uniform(-np.pi, np.pi, robot.n)
+        dq, ddq = rng.uniform(-3, 3, robot.n), rng.uniform(-3, 3, robot.n)
         rows.append({"robot": k, "n": robot.n, **invariants(robot, q, dq, ddq)})
     summary = {"robots": count, "time": time.perf_counter() - started,
                **{f"worst {key}": (min if key == "definiteness" else max)(r[key] for r in rows)
@@ -187,7 +189,8 @@ def malformed_rows(url: str) -> list[dict]:
                 rows.append({"body": name, "path": path, "status": r.status_code,
                              "type": r.headers.get("content-type", ""), "detail": detail,
                              "ok": 400 <= r.status_code < 500
-                             and r.headers.get("content-type", "").startswith("application/problem+json")})
+                             and r.headers.get("content-type", "")
+                             .startswith("application/problem+json")})
     return rows
 
 
@@ -197,7 +200,8 @@ def schemathesis_run(url: str, examples: int, workdir: Path) -> dict:
               "content_type_conformance")
     started = time.perf_counter()
     run = subprocess.run(
-        [sys.executable, "-m", "schemathesis.cli", "run", str(harness.ROOT / "openapi" / "openapi.json"),
+        [sys.executable, "-m", "schemathesis.cli", "run",
+         str(harness.ROOT / "openapi" / "openapi.json"),
          "--url", url, "--checks", checks, "--mode", "all", "--max-examples", str(examples),
          "--seed", "2", "--workers", "1", "--request-timeout", "30",
          "--generation-database", "none", "--no-color"],
@@ -217,7 +221,8 @@ def service_rows(examples: int) -> tuple[list[dict], list[dict], dict]:
         faults = [kill_worker_case(live, http), *disconnect_cases(live, http)]
         bodies = malformed_rows(live.url)
         fuzz = schemathesis_run(live.url, examples, tmp)
-        faults.append({"fault": "after all of the above", "healthz": http.get("/healthz").status_code,
+        faults.append({"fault": "after all of the above",
+                       "healthz": http.get("/healthz").status_code,
                        "ok": http.get("/healthz").status_code == 200})
     return faults, bodies, fuzz
 

@@ -221,7 +221,8 @@ def recommendations(rows: list[dict]) -> list[dict]:
                 fast = min(hits, key=lambda r: r["solve"])
                 cold = min(hits, key=lambda r: r["solve"] + r["build_time"])
                 row.update(fastest=f"{fast['transcription']}, N = {fast['N']}", solve=fast["solve"],
-                           error=fast["ref_error"], cold=f"{cold['transcription']}, N = {cold['N']}",
+                           error=fast["ref_error"],
+                           cold=f"{cold['transcription']}, N = {cold['N']}",
                            cold_time=cold["solve"] + cold["build_time"])
             else:
                 row["fastest"] = "none reached it"

@@ -56,12 +56,13 @@ class Grid(BaseModel):
     def _consistent(self) -> Grid:
         if len(self.upper) != len(self.lower):
             raise ValueError(f"upper: needs {len(self.lower)} entries, as many as lower")
-        if any(u < lo for lo, u in zip(self.lower, self.upper)):
+        if any(u < lo for lo, u in zip(self.lower, self.upper, strict=True)):
             raise ValueError("upper: every entry must be >= the matching entry of lower")
         counts = self._requested()
         if len(counts) != len(self.lower):
             raise ValueError(f"points: needs 1 or {len(self.lower)} entries")
-        if any(c < 1 or (c < 2 and u > lo) for c, lo, u in zip(counts, self.lower, self.upper)):
+        if any(c < 1 or (c < 2 and u > lo)
+               for c, lo, u in zip(counts, self.lower, self.upper, strict=True)):
             raise ValueError("points: an axis with lower < upper needs at least 2 points")
         return self
 
@@ -71,12 +72,13 @@ class Grid(BaseModel):
 
     def counts(self) -> list[int]:
         """Points of every axis (1 on a degenerate axis), computed without building the axes."""
-        return [1 if u == lo else c for lo, u, c in zip(self.lower, self.upper, self._requested())]
+        return [1 if u == lo else c
+                for lo, u, c in zip(self.lower, self.upper, self._requested(), strict=True)]
 
     def axes(self) -> list[np.ndarray]:
         """Grid coordinates of every axis; a degenerate axis holds its single value."""
         return [np.array([lo]) if c == 1 else np.linspace(lo, u, c)
-                for lo, u, c in zip(self.lower, self.upper, self.counts())]
+                for lo, u, c in zip(self.lower, self.upper, self.counts(), strict=True)]
 
     @property
     def size(self) -> int:
@@ -241,7 +243,7 @@ def _sign_changes(robot: Robot, s: Structure, Q: np.ndarray, det: np.ndarray,
     m = along(robot, points, s)
     found += [SingularPoint(q=q.tolist(), det=float(d), sigma_min=float(a),
                             source="det-sign-change")
-              for q, d, a in zip(points, m.det, m.sigma_min)]
+              for q, d, a in zip(points, m.det, m.sigma_min, strict=True)]
     return found, skipped
 
 
@@ -298,7 +300,7 @@ def _refine_minimum(robot: Robot, s: Structure, lower: np.ndarray, upper: np.nda
         x = np.array([res.x])
     else:
         res = minimize(objective, q0[free], method="Nelder-Mead",
-                       bounds=list(zip(lower[free], upper[free])),
+                       bounds=list(zip(lower[free], upper[free], strict=True)),
                        options={"xatol": 1e-11, "fatol": 1e-15, "maxiter": 4000})
         x = res.x
     q = q0.copy()
@@ -398,7 +400,8 @@ def _path_minima(robot: Robot, s: Structure, Q: np.ndarray, idx: np.ndarray,
         budget.check(deadline, _REFINING.format(len(found), len(idx)))
         prev, nxt = Q[max(k - 1, 0)], Q[min(k + 1, K - 1)]
 
-        def point(u: float) -> np.ndarray:
+        def point(u: float, k: int = k, prev: np.ndarray = prev,
+                  nxt: np.ndarray = nxt) -> np.ndarray:
             return Q[k] + u * (Q[k] - prev) if u < 0 else Q[k] + u * (nxt - Q[k])
 
         res = minimize_scalar(lambda u: _sigma_min(robot, s, point(u)),

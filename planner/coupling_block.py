@@ -136,7 +136,7 @@ def condition(sigma_min: np.ndarray, sigma_max: np.ndarray) -> list[float | None
     with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
         ratio = sigma_max / sigma_min
     return [1.0 if math.isnan(a) else float(c) if a > 0.0 and math.isfinite(c) else None
-            for a, c in zip(sigma_min, ratio)]
+            for a, c in zip(sigma_min, ratio, strict=True)]
 
 
 def along(robot: Robot, configurations, structure: Structure | None = None,

@@ -61,7 +61,9 @@ def derive(s: Structure) -> Symbols:
     radius = []
     for i in range(s.n):
         wave = par["wave"][i]
-        r = par["l"][i] if wave is None else par["l"][i] + wave[0] * ca.sin(wave[1] * q[i] + wave[2])
+        r = par["l"][i]
+        if wave is not None:
+            r = r + wave[0] * ca.sin(wave[1] * q[i] + wave[2])
         radius.append(r)
 
     tip, tips = ca.SX.zeros(2), []

@@ -84,7 +84,7 @@ def seed_arm(waves: bool) -> Robot:
     lengths, masses = (0.5, 0.4, 0.4, 0.3), (1.0, 0.8, 0.6, 0.4)
     inertias = (0.01, 0.008, 0.006, 0.004)
     links = []
-    for i, (length, mass, inertia) in enumerate(zip(lengths, masses, inertias)):
+    for i, (length, mass, inertia) in enumerate(zip(lengths, masses, inertias, strict=True)):
         wave = SEED_WAVES.get(i) if waves else None
         links.append({"length": length, "mass": mass, "inertia": inertia,
                       "joint": "active" if i % 2 else "passive",

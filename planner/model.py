@@ -167,8 +167,8 @@ def parameters(robot: Robot, structure: Structure) -> np.ndarray:
     """
     links = robot.links
     values: list[float] = [link.length for link in links] + [link.mass for link in links]
-    values += [link.inertia for link, on in zip(links, structure.inertial) if on]
-    for link, on in zip(links, structure.wavy):
+    values += [link.inertia for link, on in zip(links, structure.inertial, strict=True) if on]
+    for link, on in zip(links, structure.wavy, strict=True):
         if on:
             wave = link.wave or Wave(amplitude=0.0, frequency=0.0)
             values += [wave.amplitude, wave.frequency, wave.phase]

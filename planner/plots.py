@@ -4,7 +4,8 @@ Plan figure: a strip of arm snapshots (links, tip masses, and the mass path
 r_i(q) e(q) of every active link drawn around its joint: wavy with a wave, a circle
 without), then the joint angles [rad], the
 active torques [N m] and sigma_min(M_pa) [kg m^2] over time, the last with and without
-the waves (the plan's own `verification.sigma_min` and `waveless_sigma_min`). The times where the waveless arm is singular (the plan's
+the waves (the plan's own `verification.sigma_min` and `waveless_sigma_min`). The times
+where the waveless arm is singular (the plan's
 `waveless_singular_crossings`) are vertical lines on every time axis.
 
 Inverse-dynamics figure: angles, torques and sigma_min over time, the singular stop
@@ -168,7 +169,7 @@ def format_of(path: str | Path) -> Format:
     suffix = Path(path).suffix.lower().lstrip(".")
     if suffix not in FORMATS:
         raise InputError(f"plot: the file name must end in .png or .svg (got {str(path)!r})")
-    return suffix  # type: ignore[return-value]
+    return suffix
 
 
 # --------------------------------------------------------------------------- geometry
@@ -245,7 +246,8 @@ def _snapshot_key(ax: Axes) -> None:
     handles = [Line2D([], [], color="#333333", lw=2.2, label="link"),
                Line2D([], [], ls="", marker="o", color=_PASSIVE, label="mass, passive joint"),
                Line2D([], [], ls="", marker="o", color=_ACTIVE, label="mass, active joint"),
-               Line2D([], [], color=_ACTIVE, lw=1.5, label="active link's mass\npath r(q) e(q), swept"),
+               Line2D([], [], color=_ACTIVE, lw=1.5,
+                      label="active link's mass\npath r(q) e(q), swept"),
                Line2D([], [], color="#c7c7c7", lw=0.9, label="last tip's path"),
                Line2D([], [], ls="", marker="$\\downarrow$", color="#777777",
                       label="gravity (x) down")]

@@ -7,7 +7,8 @@ passive joints at times t (seconds), one row per time and one column per passive
 from __future__ import annotations
 
 from functools import cached_property
-from typing import Annotated, Literal, Union
+from itertools import pairwise
+from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import BaseModel, Field, model_validator
@@ -104,7 +105,7 @@ class SampledProfile(BaseModel):
             raise ValueError("q: every row needs the same, non-zero number of passive angles")
         if self.t[0] != 0.0:
             raise ValueError("t: must start at 0")
-        if any(b <= a for a, b in zip(self.t, self.t[1:])):
+        if any(b <= a for a, b in pairwise(self.t)):
             raise ValueError("t: must be strictly increasing")
         return self
 
@@ -122,5 +123,5 @@ class SampledProfile(BaseModel):
         return len(self.q[0])
 
 
-PassiveMotion = Annotated[Union[BetaProfile, QuinticProfile, SampledProfile],
+PassiveMotion = Annotated[BetaProfile | QuinticProfile | SampledProfile,
                           Field(discriminator="profile")]

@@ -6,6 +6,7 @@ hold one entry per joint unless said otherwise; `null` entries of a final state 
 
 from __future__ import annotations
 
+from itertools import pairwise
 from typing import Literal
 
 from pydantic import BaseModel, Field, model_validator
@@ -79,7 +80,7 @@ class Bounds(BaseModel):
 
     @model_validator(mode="after")
     def _ordered(self) -> Bounds:
-        for k, (lo, hi) in enumerate(zip(self.lower, self.upper)):
+        for k, (lo, hi) in enumerate(zip(self.lower, self.upper, strict=False)):
             if lo is not None and hi is not None and lo > hi:
                 raise ValueError(f"lower.{k}: must not exceed upper.{k} ({lo:g} > {hi:g})")
         return self
@@ -175,7 +176,7 @@ class Transcription(BaseModel):
         if len(b) != self.intervals + 1:
             raise ValueError(f"breaks: needs intervals + 1 = {self.intervals + 1} values "
                              f"(got {len(b)})")
-        if b[0] != 0.0 or b[-1] != 1.0 or any(y <= x for x, y in zip(b, b[1:])):
+        if b[0] != 0.0 or b[-1] != 1.0 or any(y <= x for x, y in pairwise(b)):
             raise ValueError("breaks: must increase strictly from 0 to 1")
         return self
 

@@ -51,7 +51,8 @@ def _robot(rng: np.random.Generator, kinds: str, gravity: float) -> Robot:
     return Robot.model_validate({"links": links, "gravity": gravity})
 
 
-def singular_configuration(robot: Robot, rng: np.random.Generator, tries: int = 20) -> np.ndarray | None:
+def singular_configuration(robot: Robot, rng: np.random.Generator,
+                           tries: int = 20) -> np.ndarray | None:
     """A configuration where the waveless M_pa of a square block is singular, or None: a
     random configuration with one active joint moved to the nearest zero of det M_pa
     within pi of it."""

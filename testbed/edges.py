@@ -66,7 +66,8 @@ def seed_at(sigma: float, start: list[float], final: list[float]) -> np.ndarray:
     `sigma`."""
     robot = waveless_seed()
     q0, q1 = np.array(start), np.array(final)
-    path = lambda s: q0 + np.outer(s, q1 - q0)
+    def path(s: np.ndarray) -> np.ndarray:
+        return q0 + np.outer(s, q1 - q0)
     grid = np.linspace(0.0, 1.0, 401)
     root = coupling_block.zeros_along(robot, path, grid)[0]
     sig = coupling_block.along(robot, path(grid)).sigma_min
@@ -96,7 +97,8 @@ def inverse_case(robot: Robot, q: np.ndarray, threshold: float, rate: float = 1.
                 "time": time.perf_counter() - started}
     stop = result.singularity
     return {"status": result.status, "message": result.message,
-            "stop_time": stop.time if stop else None, "stop_sigma": stop.sigma_min if stop else None,
+            "stop_time": stop.time if stop else None,
+            "stop_sigma": stop.sigma_min if stop else None,
             "stop_q": stop.q if stop else None,
             "samples": len(result.t), "non_finite": len(non_finite(result.model_dump(mode="json"))),
             "max_tau": float(np.abs(result.tau).max()) if result.tau else None,
@@ -148,7 +150,8 @@ def scaled_cases() -> list[tuple[str, str, dict, float]]:
     cases = []
     for ratio in (1e-3, 1e-2, 1e-1, 1.0, 1e1, 1e2, 1e3):
         cases.append(("mass ratio m2/m1", f"{ratio:g}", {"masses": [1.0, ratio]}, 2.0))
-    for l1, l2 in ((1e-2, 1e-2), (1e-1, 1e-1), (1.0, 1.0), (10.0, 10.0), (1e-2, 10.0), (10.0, 1e-2)):
+    for l1, l2 in ((1e-2, 1e-2), (1e-1, 1e-1), (1.0, 1.0), (10.0, 10.0), (1e-2, 10.0),
+                   (10.0, 1e-2)):
         cases.append(("lengths l1, l2 [m]", f"{l1:g}, {l2:g}", {"lengths": [l1, l2]}, 2.0))
     for freq in (1.0, 5.0, 10.0, 20.0):
         cases.append(("wave frequency", f"{freq:g}", {"frequency": freq}, 2.0))
@@ -169,10 +172,11 @@ def scaled_case(sweep: str, value: str, options: dict, duration: float, under: b
     robot = chain(n, under, **options)
     joints = [link["joint"] for link in robot["links"]]
     start = [0.1 * k for k in range(n)]
-    final_q = [s + 0.5 if j == "active" else None for s, j in zip(start, joints)]
+    final_q = [s + 0.5 if j == "active" else None for s, j in zip(start, joints, strict=True)]
     final_dq = [0.0 if j == "active" else None for j in joints]
     scene = Scene.model_validate({
-        "robot": robot, "solver": {"max_wall_time": 60.0}, "transcription": {"intervals": N, "degree": 3},
+        "robot": robot, "solver": {"max_wall_time": 60.0},
+        "transcription": {"intervals": N, "degree": 3},
         "task": {"duration": duration, "initial": {"q": start, "dq": [0.0] * n},
                  "final": {"q": final_q, "dq": final_dq}}})
     return plan_row(scene)

@@ -23,7 +23,8 @@ QUICK = {"robot": {"links": [
     "transcription": {"intervals": 10}}
 LONG = {**QUICK, "task": {**QUICK["task"], "final": {"q": [None, None], "dq": [0.0, 0.0]},
                           "tip_target": {"x": 5.0, "y": 5.0}, "torque_limit": 0.5},
-        "transcription": {"intervals": 80, "degree": 3}, "solver": {"max_iter": 100000, "max_wall_time": 60}}
+        "transcription": {"intervals": 80, "degree": 3},
+        "solver": {"max_iter": 100000, "max_wall_time": 60}}
 """An unreachable tip under a torque limit: Ipopt iterates for many seconds."""
 
 
@@ -36,19 +37,27 @@ def malformed_bodies() -> list[tuple[str, bytes, str]]:
         ("JSON null", b"null", "application/json"),
         ("JSON array", b"[]", "application/json"),
         ("NaN literal", good.replace('"mass": 1.0', '"mass": NaN', 1).encode(), "application/json"),
-        ("Infinity literal", good.replace('"duration": 2.0', '"duration": Infinity').encode(), "application/json"),
-        ("number overflow 1e999", good.replace('"duration": 2.0', '"duration": 1e999').encode(), "application/json"),
-        ("string for a number", good.replace('"duration": 2.0', '"duration": "two"').encode(), "application/json"),
+        ("Infinity literal", good.replace('"duration": 2.0', '"duration": Infinity').encode(),
+         "application/json"),
+        ("number overflow 1e999", good.replace('"duration": 2.0', '"duration": 1e999').encode(),
+         "application/json"),
+        ("string for a number", good.replace('"duration": 2.0', '"duration": "two"').encode(),
+         "application/json"),
         ("deep nesting (100000 [)", b"[" * 100_000 + b"]" * 100_000, "application/json"),
         ("invalid UTF-8", b'{"robot": "\xff\xfe"}', "application/json"),
         ("text/plain content type", good.encode(), "text/plain"),
         ("form content type", b"a=1&b=2", "application/x-www-form-urlencoded"),
-        ("over the body limit (2 MB)", (good[:-1] + ', "pad": "' + "x" * 2_000_000 + '"}').encode(), "application/json"),
+        ("over the body limit (2 MB)", (good[:-1] + ', "pad": "' + "x" * 2_000_000 + '"}').encode(),
+         "application/json"),
         ("unknown field", good.replace('"task"', '"tsk"').encode(), "application/json"),
-        ("negative intervals", good.replace('"intervals": 10', '"intervals": -5').encode(), "application/json"),
-        ("10^9 intervals", good.replace('"intervals": 10', '"intervals": 1000000000').encode(), "application/json"),
-        ("10 links", json.dumps({**QUICK, "robot": {"links": QUICK["robot"]["links"] * 5}}).encode(), "application/json"),
-        ("huge integer", good.replace('"intervals": 10', '"intervals": ' + "9" * 5000).encode(), "application/json"),
+        ("negative intervals", good.replace('"intervals": 10', '"intervals": -5').encode(),
+         "application/json"),
+        ("10^9 intervals", good.replace('"intervals": 10', '"intervals": 1000000000').encode(),
+         "application/json"),
+        ("10 links", json.dumps({**QUICK, "robot": {"links": QUICK["robot"]["links"] * 5}})
+         .encode(), "application/json"),
+        ("huge integer", good.replace('"intervals": 10', '"intervals": ' + "9" * 5000).encode(),
+         "application/json"),
     ]
 
 
@@ -108,7 +117,8 @@ def disconnect_cases(live: LiveServer, http: httpx.Client) -> list[dict]:
         gone = "client waited for its answer"
     except httpx.TimeoutException:
         gone = "client left after 0.5 s"
-    new = [j["id"] for j in http.get("/v1/plans?limit=100").json()["items"] if j["id"] not in before]
+    new = [j["id"] for j in http.get("/v1/plans?limit=100").json()["items"]
+           if j["id"] not in before]
     status = None
     if new:
         http.delete(f"/v1/plans/{new[0]}")
@@ -122,8 +132,10 @@ def disconnect_cases(live: LiveServer, http: httpx.Client) -> list[dict]:
         sock.sendall(b"POST /v1/plans HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
                      + f"Content-Length: {len(body)}\r\n\r\n".encode() + body[: len(body) // 3])
     time.sleep(0.5)
-    after = [j["id"] for j in http.get("/v1/plans?limit=100").json()["items"] if j["id"] not in before]
-    rows.append({"fault": "client sends a third of the body and closes", "jobs created": len(after) - len(new),
+    after = [j["id"] for j in http.get("/v1/plans?limit=100").json()["items"]
+             if j["id"] not in before]
+    rows.append({"fault": "client sends a third of the body and closes",
+                 "jobs created": len(after) - len(new),
                  "healthz": http.get("/healthz").status_code, "ok": len(after) == len(new)})
     for _ in range(20):
         with socket.create_connection(("127.0.0.1", live.port), timeout=5) as sock:

@@ -3,6 +3,8 @@ generator), and chains of links with their rest-to-rest task."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from planner.model import Robot
@@ -25,9 +27,9 @@ def random_robot(rng: np.random.Generator, n: int, *, waves: bool = True,
     links = []
     for k in range(n):
         length = float(rng.uniform(0.2, 1.0))
-        link = {"length": length, "mass": float(rng.uniform(0.2, 2.0)),
-                "inertia": float(rng.uniform(0.0, 0.05)) if inertia else 0.0,
-                "joint": "active" if active[k] else "passive"}
+        link: dict[str, Any] = {"length": length, "mass": float(rng.uniform(0.2, 2.0)),
+                                "inertia": float(rng.uniform(0.0, 0.05)) if inertia else 0.0,
+                                "joint": "active" if active[k] else "passive"}
         if waves and active[k]:
             link["wave"] = {"amplitude": float(rng.uniform(0.01, 0.3)) * length,
                             "frequency": float(rng.uniform(1.0, 5.0)),
@@ -41,7 +43,8 @@ def random_robot(rng: np.random.Generator, n: int, *, waves: bool = True,
                                  "rotational_inertia": rotational})
 
 
-def random_state(rng: np.random.Generator, n: int, speed: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+def random_state(rng: np.random.Generator, n: int,
+                 speed: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
     """Angles uniform in [-pi, pi] rad and rates uniform in [-speed, speed] rad/s."""
     return rng.uniform(-np.pi, np.pi, n), rng.uniform(-speed, speed, n)
 
@@ -56,8 +59,9 @@ def chain(n: int, under: bool, masses: list[float] | None = None,
     links = []
     for k in range(n):
         active = (k % 2 == 1) or not under or n == 1
-        link = {"length": lengths[k], "mass": masses[k],
-                "inertia": masses[k] * lengths[k] ** 2 / 50, "joint": "active" if active else "passive"}
+        link: dict[str, Any] = {"length": lengths[k], "mass": masses[k],
+                                "inertia": masses[k] * lengths[k] ** 2 / 50,
+                                "joint": "active" if active else "passive"}
         if active and k % 2 == 1:
             link["wave"] = {"amplitude": 0.1 * lengths[k], "frequency": frequency, "phase": 0.3}
         links.append(link)

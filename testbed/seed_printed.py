@@ -168,7 +168,8 @@ def printed_potential(p: Arm, q) -> float:
     """V of (28): L carries + sum_k sum_{i<=k} m_k g r_i cos q_i, so V is its negative."""
     m, g = p.m, p.g
     _, _, r = _waves(p, q)
-    return float(-sum(m[k] * g * r[i] * np.cos(q[i]) for k in (1, 2, 3, 4) for i in range(1, k + 1)))
+    return float(-sum(m[k] * g * r[i] * np.cos(q[i])
+                      for k in (1, 2, 3, 4) for i in range(1, k + 1)))
 
 
 def printed_lagrangian(p: Arm, q, dq, literal: bool = False) -> float:
@@ -279,7 +280,8 @@ def bias_vector(terms: dict[str, float], dq) -> np.ndarray:
 def arm_of(robot) -> Arm:
     """The `Arm` (1-based) of a 4-link `planner.model.Robot`; joints without wave get a = n = eps = 0."""
     links = robot.links
-    waves = [(w.amplitude, w.frequency, w.phase) if (w := link.wave) else (0.0, 0.0, 0.0) for link in links]
+    waves = [(w.amplitude, w.frequency, w.phase) if (w := link.wave) else (0.0, 0.0, 0.0)
+             for link in links]
     return Arm(l=(0.0, *(link.length for link in links)), m=(0.0, *(link.mass for link in links)),
                I=(0.0, *(link.inertia for link in links)), a=(0.0, *(w[0] for w in waves)),
                n=(0.0, *(w[1] for w in waves)), e=(0.0, *(w[2] for w in waves)), g=robot.gravity)

@@ -25,7 +25,8 @@ from testbed.robots import random_robot
 def seed_arm(gravity: float = 9.81, waves: bool = True,
              rotational: str = "cumulative") -> Robot:
     """The seed's 4-link arm, optionally without gravity or without its waves."""
-    robot = Robot.model_validate({**VERTICAL_SEED_ARM, "gravity": gravity, "rotational_inertia": rotational})
+    robot = Robot.model_validate({**VERTICAL_SEED_ARM, "gravity": gravity,
+                                  "rotational_inertia": rotational})
     return robot if waves else robot.without_waves()
 
 
@@ -41,7 +42,8 @@ def point_mass_dynamics(robot: Robot, q, dq) -> tuple[np.ndarray, np.ndarray]:
     n = robot.n
     r, r1, r2 = np.empty(n), np.empty(n), np.empty(n)
     for i, link in enumerate(robot.links):
-        a, f, e = (link.wave.amplitude, link.wave.frequency, link.wave.phase) if link.wave else (0, 0, 0)
+        a, f, e = ((link.wave.amplitude, link.wave.frequency, link.wave.phase) if link.wave
+                   else (0, 0, 0))
         r[i] = link.length + a * np.sin(f * q[i] + e)
         r1[i] = a * f * np.cos(f * q[i] + e)
         r2[i] = -a * f * f * np.sin(f * q[i] + e)

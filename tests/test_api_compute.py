@@ -46,7 +46,7 @@ def test_dynamics_agree_with_an_independent_point_mass_model(api):
     assert r.status_code == 200, r.text
     results = strict_json(r.text)["results"]
     robot = Robot.model_validate(TWO_LINK)
-    for state, result in zip(states, results):
+    for state, result in zip(states, results, strict=True):
         M, h = point_mass_dynamics(robot, state["q"], state["dq"])
         np.testing.assert_allclose(result["M"], M, rtol=1e-12, atol=1e-14)
         np.testing.assert_allclose(result["h"], h, rtol=1e-12, atol=1e-14)
@@ -144,7 +144,8 @@ def test_nan_in_the_body_is_refused(api):
 
 def test_the_links_limit_of_the_server(tmp_path):
     with client(tmp_path, max_links=1) as c:
-        r = c.post("/v1/dynamics", json={"robot": TWO_LINK, "states": [{"q": [0, 0], "dq": [0, 0]}]})
+        r = c.post("/v1/dynamics",
+                   json={"robot": TWO_LINK, "states": [{"q": [0, 0], "dq": [0, 0]}]})
     assert errors_of(r) == [(["body", "robot", "links"],
                              "at most 1 links on this server (UNDERTOW_MAX_LINKS), got 2")]
 
@@ -197,7 +198,7 @@ def test_inverse_dynamics_torques_satisfy_the_equations_of_motion(api):
     result = strict_json(r.text)
     assert result["status"] == "completed" and len(result["t"]) == 11
     states = [{"q": q, "dq": dq, "ddq": ddq}
-              for q, dq, ddq in zip(result["q"], result["dq"], result["ddq"])]
+              for q, dq, ddq in zip(result["q"], result["dq"], result["ddq"], strict=True)]
     forces = api.post("/v1/dynamics", json={"robot": request["robot"], "states": states}).json()
     Q = np.array([res["generalized_forces"] for res in forces["results"]])
     np.testing.assert_allclose(Q[:, 0], 0.0, atol=1e-6)  # the passive joint is unforced

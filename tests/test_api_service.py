@@ -198,8 +198,9 @@ def test_settings_come_from_undertow_environment_variables(monkeypatch):
 def test_the_default_store_lives_in_an_ignored_data_directory():
     import subprocess
 
-    from app.settings import Settings
     from service_fixtures import ROOT
+
+    from app.settings import Settings
 
     path = Settings().db_path
     assert path == "var/undertow-jobs.sqlite3"

@@ -19,10 +19,9 @@ import pytest
 from service_fixtures import ROOT
 from test_plots import CROSSING_SCENE
 
-from planner import cli
-from planner.examples import Kind, example, examples
-from planner import inverse
+from planner import cli, inverse
 from planner.errors import InputError
+from planner.examples import Kind, example, examples
 from planner.inverse import InverseDynamicsResult
 from planner.ocp import Plan, plan
 from planner.ocp.result import Progress
@@ -94,7 +93,8 @@ def test_an_unknown_example_is_bad_input_naming_the_known_ones(capsys):
 def test_plan_writes_the_library_plan_a_figure_and_a_progress_line_per_iteration(
         capsys, tmp_path, monkeypatch):
     monkeypatch.setattr(cli, "PROGRESS_PERIOD", 0.0)
-    scene, out, figure = write_json(tmp_path / "s.json", CROSSING_SCENE), tmp_path / "p.json", tmp_path / "p.png"
+    scene = write_json(tmp_path / "s.json", CROSSING_SCENE)
+    out, figure = tmp_path / "p.json", tmp_path / "p.png"
     code, stdout, err = run(capsys, "plan", scene, "-o", str(out), "--plot", str(figure))
     assert code == 0 and stdout == ""
     written = Plan.model_validate_json(out.read_text())
@@ -176,7 +176,8 @@ def test_unreadable_json_and_a_bad_plot_name_are_bad_input(capsys, tmp_path):
 def test_files_that_cannot_be_read_or_written_are_io_errors(capsys, tmp_path):
     code, _, err = run(capsys, "plan", str(tmp_path / "missing.json"), "-o", "-")
     assert code == cli.IO_ERROR
-    assert err == f"undertow plan: cannot read {tmp_path / 'missing.json'}: No such file or directory\n"
+    missing = tmp_path / "missing.json"
+    assert err == f"undertow plan: cannot read {missing}: No such file or directory\n"
     request = write_json(tmp_path / "r.json", example("two-link-waves").request)
     target = tmp_path / "no" / "such" / "dir" / "out.json"
     code, _, err = run(capsys, "inverse", request, "-o", str(target))

@@ -71,7 +71,7 @@ def test_report_lists_every_configuration_with_condition(rng):
     Q = rng.uniform(-np.pi, np.pi, (50, 4))
     report = analyse(CouplingRequest(robot=robot, configurations=Q.tolist()))
     assert len(report.results) == 50 and report.results_omitted == 0
-    for row, q in zip(report.results, Q):
+    for row, q in zip(report.results, Q, strict=True):
         sv = np.linalg.svd(independent_block(robot, q), compute_uv=False)
         assert row.det == pytest.approx(np.linalg.det(independent_block(robot, q)), abs=1e-13)
         assert row.condition == pytest.approx(sv[0] / sv[-1], rel=1e-8)
@@ -81,7 +81,7 @@ def test_large_grids_omit_the_per_point_results_but_keep_the_minimum():
     robot = two_link()
     grid = {"lower": [-1.0, 0.0], "upper": [1.0, 3.0], "points": [200, 150]}
     report = analyse(CouplingRequest(robot=robot, grid=grid))
-    assert 200 * 150 > MAX_RESULTS
+    assert MAX_RESULTS < 200 * 150
     assert report.results == [] and report.results_omitted == 30_000
     assert report.min_sigma.sigma_min < 1e-12
 

@@ -134,7 +134,7 @@ def test_kinetic_energy_is_the_quadratic_form_of_M(rng):
         dyn = Dynamics(robot)
         q, dq = random_state(rng, robot.n)
         T, _ = dyn.energy(q, dq)
-        assert T == pytest.approx(0.5 * dq @ dyn.mass_matrix(q) @ dq, rel=RTOL)
+        assert pytest.approx(0.5 * dq @ dyn.mass_matrix(q) @ dq, rel=RTOL) == T
 
 
 def test_potential_energy_and_gravity_follow_from_the_tips(rng):
@@ -144,7 +144,7 @@ def test_potential_energy_and_gravity_follow_from_the_tips(rng):
         tips = dyn.tips(q)
         masses = np.array([link.mass for link in robot.links])
         _, V = dyn.energy(q, dq)
-        assert V == pytest.approx(-robot.gravity * masses @ tips[:, 0], rel=RTOL, abs=1e-14)
+        assert pytest.approx(-robot.gravity * masses @ tips[:, 0], rel=RTOL, abs=1e-14) == V
         step = 1e-6
         fd = [(dyn.energy(q + step * e, dq)[1] - dyn.energy(q - step * e, dq)[1]) / (2 * step)
               for e in np.eye(robot.n)]
@@ -154,8 +154,9 @@ def test_potential_energy_and_gravity_follow_from_the_tips(rng):
 def test_tips_follow_the_waves(rng):
     for robot in robots(rng):
         q, _ = random_state(rng, robot.n)
-        radius = [link.length + (link.wave.amplitude * np.sin(link.wave.frequency * qi + link.wave.phase)
-                                 if link.wave else 0.0) for link, qi in zip(robot.links, q)]
+        radius = [link.length + (w.amplitude * np.sin(w.frequency * qi + w.phase)
+                                 if (w := link.wave) else 0.0)
+                  for link, qi in zip(robot.links, q, strict=True)]
         expected = np.cumsum(np.stack([radius * np.cos(q), radius * np.sin(q)], axis=1), axis=0)
         assert np.allclose(Dynamics(robot).tips(q), expected, rtol=0, atol=1e-14)
 
@@ -270,7 +271,8 @@ def test_a_non_finite_entry_is_refused(case, bad):
 
 def test_matrices_and_text_are_refused():
     dyn = Dynamics(two_link())
-    with pytest.raises(InputError, match=r"^q: must be a flat list of numbers \(got shape \(2, 1\)\)$"):
+    with pytest.raises(InputError,
+                       match=r"^q: must be a flat list of numbers \(got shape \(2, 1\)\)$"):
         dyn.mass_matrix([[0.1], [0.2]])
     with pytest.raises(InputError, match="^dq: must be a list of numbers$"):
         dyn.bias(Q, ["fast", "slow"])
@@ -300,8 +302,10 @@ def corner_robots(rng: np.random.Generator, count: int):
                 link["wave"] = {"amplitude": 0.999 * length, "frequency": MAX_FREQUENCY,
                                 "phase": float(rng.choice([-MAX_PHASE, MAX_PHASE]))}
             links.append(link)
-        yield Robot.model_validate({"links": links, "gravity": float(rng.choice([0.0, MAX_GRAVITY])),
-                                    "rotational_inertia": str(rng.choice(["cumulative", "absolute"]))})
+        yield Robot.model_validate({"links": links,
+                                    "gravity": float(rng.choice([0.0, MAX_GRAVITY])),
+                                    "rotational_inertia":
+                                        str(rng.choice(["cumulative", "absolute"]))})
 
 
 def test_robots_at_the_bounds_give_finite_values_or_a_clear_error(rng):

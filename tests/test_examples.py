@@ -10,8 +10,16 @@ import pytest
 
 from planner.coupling import CouplingRequest, analyse
 from planner.coupling_block import at
-from planner.examples import (MARGIN, example, examples, seed_arm, seed_crossing,
-                              seed_start, two_link, two_link_start)
+from planner.examples import (
+    MARGIN,
+    example,
+    examples,
+    seed_arm,
+    seed_crossing,
+    seed_start,
+    two_link,
+    two_link_start,
+)
 from planner.inverse import InverseDynamicsRequest
 from planner.waves import WaveDesignRequest
 

@@ -61,7 +61,7 @@ def test_interval_errors_agree_with_an_independent_integrator(seed_arm):
         x0 = np.concatenate([interp.q([a])[0], interp.dq([a])[0]])
         n = sc.robot.n
 
-        def rhs(t, x):
+        def rhs(t, x, n=n):
             return np.concatenate([x[n:], dyn.forward(x[:n], x[n:], interp.tau([t])[0])])
 
         t = a + (b - a) * np.arange(1, SAMPLES + 1) / SAMPLES

@@ -27,7 +27,8 @@ RTOL = 1e-12
 
 @cache
 def sympy_dynamics(n: int, rotational: str):
-    """Lambdified (M, h)(q, dq, l, m, I, a, f, e, g) of an n-link chain with a wave on every joint."""
+    """Lambdified (M, h)(q, dq, l, m, I, a, f, e, g) of an n-link chain with a wave on every
+    joint."""
     q, dq = sp.symbols(f"q:{n}"), sp.symbols(f"dq:{n}")
     l, m, inertia = sp.symbols(f"l:{n}"), sp.symbols(f"m:{n}"), sp.symbols(f"I:{n}")
     a, f, e = sp.symbols(f"a:{n}"), sp.symbols(f"f:{n}"), sp.symbols(f"e:{n}")
@@ -58,7 +59,7 @@ def sympy_mass_bias(robot: Robot, q, dq) -> tuple[np.ndarray, np.ndarray]:
     links = robot.links
     waves = [(w.amplitude, w.frequency, w.phase) if (w := link.wave) else (0.0, 0.0, 0.0)
              for link in links]
-    a, f, e = (list(col) for col in zip(*waves))
+    a, f, e = (list(col) for col in zip(*waves, strict=True))
     M, h = sympy_dynamics(robot.n, robot.rotational_inertia)(
         list(q), list(dq), [k.length for k in links], [k.mass for k in links],
         [k.inertia for k in links], a, f, e, robot.gravity)
@@ -73,7 +74,8 @@ def waveless_mass_bias(robot: Robot, q, dq) -> tuple[np.ndarray, np.ndarray]:
     beyond = mu[np.maximum.outer(idx, idx)]
     diff = np.subtract.outer(q, q)
     M = beyond * np.outer(l, l) * np.cos(diff) + rotational_mass(robot)
-    h = (beyond * np.outer(l, l) * np.sin(diff)) @ np.asarray(dq) ** 2 + robot.gravity * mu * l * np.sin(q)
+    h = ((beyond * np.outer(l, l) * np.sin(diff)) @ np.asarray(dq) ** 2
+         + robot.gravity * mu * l * np.sin(q))
     return M, h
 
 
@@ -106,7 +108,8 @@ def test_agrees_with_sympy_lagrangian(rng, n, waves, rotational):
 @pytest.mark.parametrize("n", [5, 6, 7, 8])
 def test_agrees_with_sympy_lagrangian_long_chains(rng, n, rotational):
     for gravity in (0.0, 9.81):
-        assert_agree(random_robot(rng, n, gravity=gravity, rotational=rotational), sympy_mass_bias, rng)
+        assert_agree(random_robot(rng, n, gravity=gravity, rotational=rotational), sympy_mass_bias,
+                     rng)
 
 
 def test_sympy_lagrangian_sees_every_wave_parameter(rng):
@@ -141,5 +144,6 @@ def test_closed_form_and_dalembert_agree_on_waveless_arms(rng):
     for n in range(1, 9):
         robot = random_robot(rng, n, waves=False, gravity=9.81)
         q, dq = random_state(rng, n)
-        for ref, other in zip(waveless_mass_bias(robot, q, dq), point_mass_dynamics(robot, q, dq)):
+        for ref, other in zip(waveless_mass_bias(robot, q, dq), point_mass_dynamics(robot, q, dq),
+                              strict=True):
             assert np.allclose(ref, other, rtol=1e-13, atol=1e-13)

@@ -82,7 +82,7 @@ def test_equations_of_motion_hold_at_every_sample(name):
     """Independent M and h (d'Alembert): passive rows vanish, active rows equal tau."""
     req = request(name, samples=41)
     result = solve(req)
-    for q, dq, ddq, tau in zip(result.q, result.dq, result.ddq, result.tau):
+    for q, dq, ddq, tau in zip(result.q, result.dq, result.ddq, result.tau, strict=True):
         M, h = point_mass_dynamics(req.robot, q, dq)
         forces = M @ ddq + h
         assert np.abs(forces[req.robot.passive]).max() < 1e-10
@@ -134,7 +134,7 @@ def test_more_active_joints_take_the_minimum_norm_accelerations():
         duration=1.5, active_initial={"q": [0.5, 1.0], "dq": [0.0, 0.0]}, samples=31)
     result = solve(req)
     assert result.status == "completed"
-    for q, dq, ddq, tau in zip(result.q, result.dq, result.ddq, result.tau):
+    for q, dq, ddq in zip(result.q, result.dq, result.ddq, strict=True):
         M, h = point_mass_dynamics(robot, q, dq)
         mpa = M[0, 1:]
         assert abs(M[0] @ ddq + h[0]) < 1e-10

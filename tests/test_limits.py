@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import pytest
+from service_fixtures import two_link_scene
 
 from app.limits import check_scene, most_intervals, nodes
 from app.settings import Settings
 from planner.ocp import methods
 from planner.scene import Scene, Transcription
-from service_fixtures import two_link_scene
 
 
 @pytest.mark.parametrize("method, degree, per_interval, extra", [

@@ -73,7 +73,8 @@ EXTRA = "Extra inputs are not permitted"
 CASES = {
     "zero length": (edit(("links", 0, "length"), 0.0), ("links", 0, "length"), GE_LENGTH),
     "negative length": (edit(("links", 1, "length"), -0.4), ("links", 1, "length"), GE_LENGTH),
-    "length below 0.1 mm": (edit(("links", 0, "length"), 0.99e-4), ("links", 0, "length"), GE_LENGTH),
+    "length below 0.1 mm": (edit(("links", 0, "length"), 0.99e-4), ("links", 0, "length"),
+                            GE_LENGTH),
     "tiny length": (edit(("links", 0, "length"), 1e-200), ("links", 0, "length"), GE_LENGTH),
     "length above 1 km": (edit(("links", 0, "length"), 1000.1), ("links", 0, "length"), LE_LENGTH),
     "huge length": (edit(("links", 1, "length"), 1e200), ("links", 1, "length"), LE_LENGTH),
@@ -89,10 +90,12 @@ CASES = {
     "negative frequency": (edit(("links", 1, "wave", "frequency"), -3.0),
                            ("links", 1, "wave", "frequency"), GE0),
     "frequency above 100": (edit(("links", 1, "wave", "frequency"), 100.5),
-                            ("links", 1, "wave", "frequency"), "Input should be less than or equal to 100"),
+                            ("links", 1, "wave", "frequency"),
+                            "Input should be less than or equal to 100"),
     "phase above 1000": (edit(("links", 1, "wave", "phase"), 1000.5), ("links", 1, "wave", "phase"),
                          "Input should be less than or equal to 1000"),
-    "phase below -1000": (edit(("links", 1, "wave", "phase"), -1e200), ("links", 1, "wave", "phase"),
+    "phase below -1000": (edit(("links", 1, "wave", "phase"), -1e200),
+                          ("links", 1, "wave", "phase"),
                           "Input should be greater than or equal to -1000"),
     "negative gravity": (edit(("gravity",), -9.81), ("gravity",), GE0),
     "gravity above 1000": (edit(("gravity",), 1e4), ("gravity",),
@@ -112,7 +115,8 @@ CASES = {
                       ("links", 1, "wave", "amplitude"), FINITE),
     "inf frequency": (edit(("links", 1, "wave", "frequency"), math.inf),
                       ("links", 1, "wave", "frequency"), FINITE),
-    "nan phase": (edit(("links", 1, "wave", "phase"), math.nan), ("links", 1, "wave", "phase"), FINITE),
+    "nan phase": (edit(("links", 1, "wave", "phase"), math.nan), ("links", 1, "wave", "phase"),
+                  FINITE),
     "inf gravity": (edit(("gravity",), math.inf), ("gravity",), FINITE),
     "nan as a string": (edit(("links", 0, "length"), "nan"), ("links", 0, "length"),
                         "Input should be a valid number"),
@@ -121,9 +125,11 @@ CASES = {
         "Value error, a passive joint cannot carry a wave"),
     "wave on an unknown joint kind": (edit(("links", 1, "joint"), "free"), ("links", 1, "joint"),
                                       "Input should be 'passive' or 'active'"),
-    "no active joint": (lambda doc: edit(("links", 1, "joint"), "passive")(drop(("links", 1, "wave"))(doc)),
+    "no active joint": (lambda doc: edit(("links", 1, "joint"),
+                                         "passive")(drop(("links", 1, "wave"))(doc)),
                         ("links",), "Value error, at least one joint must be active"),
-    "unknown joint kind": (lambda doc: edit(("links", 1, "joint"), "free")(drop(("links", 1, "wave"))(doc)),
+    "unknown joint kind": (lambda doc: edit(("links", 1, "joint"),
+                                            "free")(drop(("links", 1, "wave"))(doc)),
                            ("links", 1, "joint"), "Input should be 'passive' or 'active'"),
     "more than 8 links": (
         lambda doc: {**doc, "links": doc["links"] * 4 + doc["links"][:1]}, ("links",),
@@ -136,7 +142,8 @@ CASES = {
     "unknown link field": (edit(("links", 0, "width"), 0.05), ("links", 0, "width"), EXTRA),
     "unknown wave field": (edit(("links", 1, "wave", "shape"), "square"),
                            ("links", 1, "wave", "shape"), EXTRA),
-    "unknown rotational_inertia": (edit(("rotational_inertia",), "relative"), ("rotational_inertia",),
+    "unknown rotational_inertia": (edit(("rotational_inertia",), "relative"),
+                                   ("rotational_inertia",),
                                    "Input should be 'cumulative' or 'absolute'"),
 }
 
@@ -205,7 +212,8 @@ def test_robots_are_immutable():
     robot = Robot.model_validate(valid())
     with pytest.raises(ValidationError) as info:
         robot.gravity = 1.0
-    assert [(e["loc"], e["msg"]) for e in info.value.errors()] == [(("gravity",), "Instance is frozen")]
+    errors = [(e["loc"], e["msg"]) for e in info.value.errors()]
+    assert errors == [(("gravity",), "Instance is frozen")]
 
 
 def test_frequency_counts_periods_per_turn_as_documented():

@@ -106,7 +106,8 @@ def test_a_compiled_nlp_is_named_by_the_code_that_built_it(monkeypatch):
 
 def test_unused_features_build_no_constraints():
     bare = problem(ProblemKey.of(scene(N=10)))
-    tip = problem(ProblemKey.of(scene(N=10, tip_target={"x": 0.5, "y": 0.5}, final={"q": [None, None], "dq": [0, 0]})))
+    tip = problem(ProblemKey.of(scene(N=10, tip_target={"x": 0.5, "y": 0.5},
+                                      final={"q": [None, None], "dq": [0, 0]})))
     margin = problem(ProblemKey.of(scene(UNDERACTUATED, N=10, coupling_margin=0.01)))
     plain = problem(ProblemKey.of(scene(UNDERACTUATED, N=10)))
     assert tip.lbg.size == bare.lbg.size + 2
@@ -153,8 +154,10 @@ def test_tip_target_is_reached():
 
 
 def test_free_final_time_stays_in_its_bounds_and_trades_against_effort():
-    slow = plan(scene(N=20, duration={"min": 0.5, "max": 3.0}, objective={"effort": 1.0, "time": 0.1}))
-    fast = plan(scene(N=20, duration={"min": 0.5, "max": 3.0}, objective={"effort": 1.0, "time": 10.0}))
+    slow = plan(scene(N=20, duration={"min": 0.5, "max": 3.0},
+                      objective={"effort": 1.0, "time": 0.1}))
+    fast = plan(scene(N=20, duration={"min": 0.5, "max": 3.0},
+                      objective={"effort": 1.0, "time": 10.0}))
     assert slow.solver.success and fast.solver.success
     assert 0.5 - 1e-9 <= fast.duration < slow.duration <= 3.0 + 1e-9
 
@@ -183,7 +186,8 @@ def test_weighted_tracking_pulls_towards_the_profile():
                        tracking={"motion": motion, "mode": "weighted", "weight": 1e4}))
     ref = Scene.model_validate(scene(UNDERACTUATED, **common, tracking={"motion": motion})
                                .model_dump()).task.tracking.motion
-    err = lambda p: np.abs(np.asarray(p.q)[:, 0] - ref.evaluate(np.asarray(p.t), 2.0)[0][:, 0]).max()  # noqa: E731
+    def err(p):
+        return np.abs(np.asarray(p.q)[:, 0] - ref.evaluate(np.asarray(p.t), 2.0)[0][:, 0]).max()
     assert tight.solver.success and loose.solver.success
     assert err(tight) < 0.1 * err(loose)
 
@@ -196,7 +200,8 @@ def test_coupling_margin_holds_at_every_knot():
     # sigma_min(M_pa) is 0.0471 at the final state; on 20 intervals the optimum under a
     # margin of 0.045 binds it. The refined plan, a better optimum, keeps it everywhere.
     sc = scene(UNDERACTUATED, **{**MARGIN_TASK, "coupling_margin": 0.045}, refine=False)
-    for result in (plan(sc), plan(scene(UNDERACTUATED, **{**MARGIN_TASK, "coupling_margin": 0.045}))):
+    for result in (plan(sc),
+                   plan(scene(UNDERACTUATED, **{**MARGIN_TASK, "coupling_margin": 0.045}))):
         sigma, _ = coupling_along(sc.robot, np.asarray(result.q))
         assert result.solver.success
         assert sigma.min() >= 0.045 - 1e-7
@@ -344,7 +349,7 @@ def _rows(robot: dict, g: dict) -> np.ndarray:
     """|M ddq + h - B tau| per row and sample of a guess (B: the active columns)."""
     dyn = Dynamics(Robot.model_validate(robot))
     out = []
-    for q, dq, ddq, tau in zip(g["q"], g["dq"], g["ddq"], g["tau"]):
+    for q, dq, ddq, tau in zip(g["q"], g["dq"], g["ddq"], g["tau"], strict=True):
         Q = dyn.inverse(q, dq, ddq)
         Q[dyn.robot.active] -= tau
         out.append(np.abs(Q))

@@ -80,8 +80,10 @@ def test_the_sigma_panel_shows_both_robots_along_the_dense_path(crossing_plan, s
               if not (line.get_gid() or "").startswith(plots.CROSSING_GID)}
     q = np.asarray(crossing_plan.dense.q)
     waveless = curves["without waves"].get_ydata()
-    wavy = next(line for label, line in curves.items() if label.startswith("with waves")).get_ydata()
-    assert np.allclose(waveless, np.clip(coupling_along(scene.robot.without_waves(), q)[0], 1e-12, None))
+    wavy = next(line for label, line in curves.items()
+                if label.startswith("with waves")).get_ydata()
+    assert np.allclose(waveless,
+                       np.clip(coupling_along(scene.robot.without_waves(), q)[0], 1e-12, None))
     assert np.allclose(wavy, np.clip(coupling_along(scene.robot, q)[0], 1e-12, None))
     assert ax.get_yscale() == "log"
     t = np.asarray(crossing_plan.dense.t)
@@ -137,7 +139,8 @@ def test_the_snapshots_draw_the_links_through_the_dynamics_tips(crossing_plan, s
     first = strip[0]
     links = next(line for line in first.get_lines() if len(line.get_xdata()) == scene.robot.n + 1)
     tips = np.vstack([[0.0, 0.0], Dynamics(scene.robot).tips(crossing_plan.dense.q[0])])
-    assert np.allclose(links.get_xdata(), tips[:, 1]) and np.allclose(links.get_ydata(), -tips[:, 0])
+    assert np.allclose(links.get_xdata(), tips[:, 1])
+    assert np.allclose(links.get_ydata(), -tips[:, 0])
 
 
 def test_each_snapshot_draws_the_gravity_arrow_of_its_key(crossing_plan, scene):

@@ -95,9 +95,9 @@ def test_beta_moves_several_joints_as_each_alone():
     times = np.linspace(0.0, T, 51)
     together = beta_profile(4.0, 2.5).evaluate(times, T)
     assert all(part.shape == (51, 3) for part in together)
-    for j, (start, end) in enumerate(zip(START, END)):
+    for j, (start, end) in enumerate(zip(START, END, strict=True)):
         alone = BetaProfile(start=[start], end=[end], alpha=4.0, beta=2.5).evaluate(times, T)
-        for joint, single in zip(together, alone):
+        for joint, single in zip(together, alone, strict=True):
             np.testing.assert_allclose(joint[:, j], single[:, 0], rtol=0.0, atol=1e-15)
 
 
@@ -108,7 +108,7 @@ def test_quintic_equals_beta_three_three():
     times = np.linspace(0.0, T, 201)
     quintic = QuinticProfile(start=START, end=END).evaluate(times, T)
     reference = beta_profile(3.0, 3.0).evaluate(times, T)
-    for got, expected in zip(quintic, reference):
+    for got, expected in zip(quintic, reference, strict=True):
         np.testing.assert_allclose(got, expected, rtol=0.0, atol=1e-12)
 
 
@@ -133,7 +133,8 @@ def test_samples_motion_is_continuous_across_interior_sample_times():
     eps = 1e-9
     knots = np.array(SAMPLE_T[1:-1])
     profile = sampled()
-    for before, after in zip(profile.evaluate(knots - eps, T), profile.evaluate(knots + eps, T)):
+    for before, after in zip(profile.evaluate(knots - eps, T), profile.evaluate(knots + eps, T),
+                             strict=True):
         np.testing.assert_allclose(after, before, rtol=0.0, atol=2 * eps * DERIVATIVE_BOUND)
 
 
@@ -161,5 +162,6 @@ def test_inverse_dynamics_follows_the_profile(motion: dict):
     assert len(result.t) == 41 and result.t[-1] == DURATION
     passive = req.robot.passive
     for got, expected in zip((result.q, result.dq, result.ddq),
-                             req.passive_motion.evaluate(np.array(result.t), DURATION)):
+                             req.passive_motion.evaluate(np.array(result.t), DURATION),
+                             strict=True):
         np.testing.assert_allclose(np.array(got)[:, passive], expected, rtol=0.0, atol=1e-9)

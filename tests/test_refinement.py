@@ -53,7 +53,7 @@ def test_refinement_cuts_the_intervals_above_the_tolerance_by_its_error_model():
     # error e / parts^4 is largest, interval 7 (2.5e-4) then interval 2 (1.9e-4)
     assert SAFETY == 0.5 and 15 in INTERVAL_STEPS and 13 not in INTERVAL_STEPS
     parts = [int(np.sum((new.breaks >= a - 1e-15) & (new.breaks < b - 1e-15)))
-             for a, b in zip(mesh.breaks[:-1], mesh.breaks[1:])]
+             for a, b in zip(mesh.breaks[:-1], mesh.breaks[1:], strict=True)]
     assert parts == [1, 1, 3, 1, 1, 1, 1, 4, 1, 1]
     inside = new.breaks[(new.breaks > mesh.breaks[7]) & (new.breaks < mesh.breaks[8])]
     assert np.allclose(np.diff(np.concatenate([[mesh.breaks[7]], inside, [mesh.breaks[8]]])),

@@ -7,7 +7,8 @@ unsupported methods are refused; Allow headers are right; ...) but one:
 the service also refuses bodies by rules a JSON schema cannot state (one entry per joint,
 one torque row per time) and by the server's limits (docs/api.md, "Fuzzing"). The server
 has an API key, which the run sends. Bounded: a few examples per operation, a fixed seed,
-tight server limits so that any plan or wave design it manages to submit is small. The default run leaves out the two
+tight server limits so that any plan or wave design it manages to submit is small. The
+default run leaves out the two
 operations that start solver work (plan submission, wave design); the slow run fuzzes
 every operation. The documented request examples are posted by tests/test_e2e_server.py
 and tests/test_api_compute.py instead.

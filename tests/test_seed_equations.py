@@ -38,7 +38,8 @@ def paper_arm(rng: np.random.Generator) -> Robot:
     links = []
     for k in range(4):
         length = rng.uniform(0.2, 1.0)
-        link = {"length": length, "mass": rng.uniform(0.2, 2.0), "inertia": rng.uniform(0.001, 0.05),
+        link = {"length": length, "mass": rng.uniform(0.2, 2.0),
+                "inertia": rng.uniform(0.001, 0.05),
                 "joint": "active" if k % 2 else "passive"}
         if k % 2:
             link["wave"] = {"amplitude": rng.uniform(0.01, 0.3) * length,
@@ -114,7 +115,8 @@ def test_misprint_is_wrong_by_far_more_than_rounding(samples, term):
 
 def test_disagreeing_terms_are_exactly_the_documented_ones(samples):
     disagreeing = {term for term in PRINTED
-                   if deviation(samples, term, lambda arm, q, t=term: printed_terms(arm, q)[t]) > RTOL}
+                   if deviation(samples, term,
+                                lambda arm, q, t=term: printed_terms(arm, q)[t]) > RTOL}
     assert disagreeing == set(CORRECTED)
     assert documented_misprints() == disagreeing
 
@@ -157,7 +159,7 @@ def test_kinetic_energy_of_28_read_literally_is_wrong(motions):
 
 
 def test_literal_reading_differs_only_in_the_rotational_sum(motions):
-    for arm, q, dq, dyn in motions[:5]:
+    for arm, q, dq, _ in motions[:5]:
         still = Arm(arm.l, arm.m, (0.0,) * 5, arm.a, arm.n, arm.e, arm.g)
         assert printed_kinetic(still, q, dq, literal=True) == pytest.approx(
             printed_kinetic(still, q, dq), rel=RTOL)

@@ -30,7 +30,7 @@ DURATION, OUTPUTS, TOL, DRIFT = 5.0, 100, 1e-12, 1e-8
 def drift(robot: Robot, q: list, dq: list) -> float:
     """max |E - E(0)| / (T(0) + |V(0)|) along the states."""
     dyn = Dynamics(robot)
-    energies = np.array([dyn.energy(a, b) for a, b in zip(q, dq)])
+    energies = np.array([dyn.energy(a, b) for a, b in zip(q, dq, strict=True)])
     total = energies.sum(axis=1)
     return float(np.max(np.abs(total - total[0])) / (energies[0, 0] + abs(energies[0, 1])))
 
@@ -197,7 +197,8 @@ def test_torques_near_the_largest_double_fail_instead_of_returning_the_start(sam
 
 
 REQUEST_ERRORS = {
-    "decreasing t": (request(t=[0.0, 1.0, 0.5]), ("t",), "Value error, must be strictly increasing"),
+    "decreasing t": (request(t=[0.0, 1.0, 0.5]), ("t",),
+                     "Value error, must be strictly increasing"),
     "repeated t": (request(t=[0.0, 0.5, 0.5]), ("t",), "Value error, must be strictly increasing"),
     "one time": (request(t=[0.0], tau=[[0.0]]), ("t",),
                  "List should have at least 2 items after validation, not 1"),

@@ -52,7 +52,8 @@ def seed_near(sigma: float) -> np.ndarray:
     that it reaches sigma_min = 1e-2)."""
     a, b = (np.array(q) for q in seed_crossing())
     middle = (a + b) / 2
-    return seed_at(sigma, (middle + 3 * (a - middle)).tolist(), (middle + 3 * (b - middle)).tolist())
+    return seed_at(sigma, (middle + 3 * (a - middle)).tolist(),
+                   (middle + 3 * (b - middle)).tolist())
 
 
 @pytest.mark.parametrize("arm, at", [("2-link", two_link_at), ("seed 4-link", seed_near)])
@@ -140,7 +141,8 @@ def robots(draw) -> Robot:
     for _ in range(n):
         length = 10 ** draw(st.floats(-2, 1))
         mass = 10 ** draw(st.floats(-3, 3))
-        link = {"length": length, "mass": mass, "joint": draw(st.sampled_from(["passive", "active"])),
+        link = {"length": length, "mass": mass,
+                "joint": draw(st.sampled_from(["passive", "active"])),
                 "inertia": mass * length**2 * draw(st.sampled_from([0.0, 0.01, 0.3, 1.0]))}
         if link["joint"] == "active" and draw(st.booleans()):
             link["wave"] = {"amplitude": length * draw(st.floats(0.0, 0.9)),
@@ -149,8 +151,10 @@ def robots(draw) -> Robot:
         links.append(link)
     if all(link["joint"] == "passive" for link in links):
         links[draw(st.integers(0, n - 1))]["joint"] = "active"
-    return Robot.model_validate({"links": links, "gravity": draw(st.sampled_from([0.0, 9.81, 20.0])),
-                                 "rotational_inertia": draw(st.sampled_from(["cumulative", "absolute"]))})
+    return Robot.model_validate({"links": links,
+                                 "gravity": draw(st.sampled_from([0.0, 9.81, 20.0])),
+                                 "rotational_inertia":
+                                     draw(st.sampled_from(["cumulative", "absolute"]))})
 
 
 def _state(draw, n: int, bound: float) -> np.ndarray:
@@ -188,7 +192,8 @@ def test_malformed_bodies_get_a_problem_answer_not_a_server_error(tmp_path):
             for path in ("/v1/plans", "/v1/dynamics"):
                 r = http.post(path, content=body, headers={"Content-Type": ctype})
                 assert 400 <= r.status_code < 500, (name, path, r.status_code, r.text[:300])
-                assert r.headers["content-type"].startswith("application/problem+json"), (name, path)
+                ctype = r.headers["content-type"]
+                assert ctype.startswith("application/problem+json"), (name, path)
 
 
 @pytest.mark.slow

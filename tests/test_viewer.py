@@ -1,23 +1,16 @@
 """The browser viewer at "/", in Debian's chromium driven headless by Playwright against a
 live uvicorn on 127.0.0.1.
 
-The set-up installs what is missing: chromium with apt-get (the test is skipped only when
-apt itself is unavailable) and the playwright package into this interpreter with pip.
+The browser is prepared outside the tests (`make browser` installs Debian's chromium; CI
+runs it); without /usr/bin/chromium or the playwright package the tests are skipped.
 The plan test takes a screenshot; with UNDERTOW_SCREENSHOT=1 (`make screenshot`) it
 replaces docs/img/viewer.png, otherwise it goes to the test's temporary folder.
 """
 
 from __future__ import annotations
 
-import contextlib
-import fcntl
-import importlib.util
 import json
 import os
-import shutil
-import subprocess
-import sys
-from collections.abc import Iterator
 from pathlib import Path
 
 import httpx
@@ -33,7 +26,6 @@ ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-f
 SCREENSHOT = ROOT / "docs" / "img" / "viewer.png"
 """Replaced only when UNDERTOW_SCREENSHOT=1, so a test run leaves the tree clean."""
 PLAN_TIMEOUT = 180_000  # [ms]
-APT_TIMEOUT, PIP_TIMEOUT = 900, 600  # [s]
 COLORS = {"active": (255, 127, 14), "link": (43, 52, 64), "with": (31, 111, 180),
           "without": (154, 154, 154), "mark": (214, 39, 40)}
 
@@ -41,54 +33,13 @@ COLORS = {"active": (255, 127, 14), "link": (43, 52, 64), "with": (31, 111, 180)
 # --------------------------------------------------------------------------- set-up
 
 
-@contextlib.contextmanager
-def setup_lock() -> Iterator[None]:
-    """One installer at a time across pytest-xdist workers."""
-    with open(Path("/tmp") / "undertow-viewer-setup.lock", "w") as handle:
-        fcntl.flock(handle, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(handle, fcntl.LOCK_UN)
-
-
-def ensure_chromium() -> None:
-    """Install Debian's chromium unless /usr/bin/chromium exists; skip without apt-get."""
-    if CHROMIUM.exists():
-        return
-    apt = shutil.which("apt-get")
-    if apt is None:
-        pytest.skip("Debian's chromium is missing and apt-get is not available to install it")
-    env = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
-    install = [apt, "-o", "DPkg::Lock::Timeout=300", "install", "-y", "-q",
-               "--no-install-recommends", "chromium"]
-    result = subprocess.run(install, env=env, capture_output=True, text=True,
-                            timeout=APT_TIMEOUT, check=False)
-    if result.returncode != 0:  # stale package lists: refresh once and retry
-        subprocess.run([apt, "-o", "DPkg::Lock::Timeout=300", "update", "-q"], env=env,
-                       capture_output=True, timeout=APT_TIMEOUT, check=False)
-        result = subprocess.run(install, env=env, capture_output=True, text=True,
-                                timeout=APT_TIMEOUT, check=False)
-    assert result.returncode == 0 and CHROMIUM.exists(), (
-        f"apt-get install chromium failed:\n{result.stdout[-2000:]}\n{result.stderr[-2000:]}")
-
-
-def ensure_playwright() -> None:
-    """pip install playwright into the running interpreter when it is missing."""
-    if importlib.util.find_spec("playwright") is not None:
-        return
-    result = subprocess.run([sys.executable, "-m", "pip", "install", "-q", "playwright"],
-                            capture_output=True, text=True, timeout=PIP_TIMEOUT, check=False)
-    assert result.returncode == 0, f"pip install playwright failed:\n{result.stderr[-3000:]}"
-    importlib.invalidate_caches()
-
-
 @pytest.fixture(scope="module")
 def browser():
-    with setup_lock():
-        ensure_chromium()
-        ensure_playwright()
-    from playwright.sync_api import sync_playwright
+    if not CHROMIUM.exists():
+        pytest.skip(f"no browser at {CHROMIUM}: `make browser` installs Debian's chromium")
+    sync_api = pytest.importorskip("playwright.sync_api",
+                                   reason="the playwright package is not installed")
+    sync_playwright = sync_api.sync_playwright
 
     with sync_playwright() as playwright:
         instance = playwright.chromium.launch(executable_path=str(CHROMIUM), args=ARGS)

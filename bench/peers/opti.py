@@ -8,13 +8,13 @@ collocation point (degree d - 1 per interval, the planner's own torque space), s
 solve the same continuous problem with the same discretization error.
 
 Same as the planner: objective effort * int |tau|^2 dt by the collocation quadrature;
-boundary states; the torque limit at the collocation points; the coupling margin sigma_min(M_pa) >= delta at the nodes and the
-collocation points, written as the leading principal minors of G / delta^2 - I >= 0,
-G = M_pa M_pa^T, and for a square M_pa also sign * det(M_pa) / delta^p - 1 >= 0 with the
-sign det M_pa has at the start, alone for a 1 x 1 block (the form of planner/ocp/problem.py
-`_margin_function`: the minors bound sigma_min, the kept sign stops a path from jumping
-through det = 0 between knots); the initial
-guess of `planner.ocp.guess.hermite_guess`. Different on purpose: Ipopt with its default
+boundary states; the torque limit at the collocation points; the coupling margin
+sigma_min(M_pa) >= delta at the nodes and the collocation points, written as the leading
+principal minors of G / delta^2 - I >= 0, G = M_pa M_pa^T, and for a square M_pa also
+sign * det(M_pa) / delta^p - 1 >= 0 with the sign det M_pa has at the start, alone for a
+1 x 1 block (the form of planner/ocp/problem.py `_margin_function`: the minors bound
+sigma_min, the kept sign stops a path from jumping through det = 0 between knots); the
+initial guess of `planner.ocp.guess.hermite_guess`. Different on purpose: Ipopt with its default
 options (monotone barrier update, tol 1e-8), no `expand`, boundary conditions as equality
 constraints, one Opti variable block per quantity indexed interval by interval.
 
@@ -187,7 +187,8 @@ def solve(scene: Scene, built: Baseline | None = None, wall_time: float = WALL_C
               "status": stats.get("return_status", "?"), "success": bool(stats.get("success")),
               "objective": float(value(built.cost))}
     result.update(verification(scene, built, value))
-    result["stats"] = {k: v for k, v in stats.items() if k.startswith(("t_wall_", "t_proc_", "n_call_"))}
+    result["stats"] = {k: v for k, v in stats.items()
+                       if k.startswith(("t_wall_", "t_proc_", "n_call_"))}
     return result
 
 

@@ -52,7 +52,8 @@ def lagrangian_dynamics(robot: dict):
         a = float(wave.get("amplitude", 0.0))
         r = sp.Float(link["length"])
         if a != 0.0:
-            r = r + sp.Float(a) * sp.sin(sp.Float(wave["frequency"]) * q[i] + sp.Float(wave["phase"]))
+            angle = sp.Float(wave["frequency"]) * q[i] + sp.Float(wave["phase"])
+            r = r + sp.Float(a) * sp.sin(angle)
         radius.append(r)
     tips, x, y = [], sp.Integer(0), sp.Integer(0)
     for i in range(n):
@@ -101,13 +102,14 @@ def opty_problem(spec: dict):
     check = spec["check"]
     M_num, h_num = sp.lambdify([qs, dqs], [M, h], "numpy")(check["q"], check["dq"])
     check_out = {"M_error": float(np.abs(np.array(M_num, float) - np.array(check["M"])).max()),
-                 "h_error": float(np.abs(np.array(h_num, float).ravel() - np.array(check["h"])).max())}
+                 "h_error": float(np.abs(np.array(h_num, float).ravel()
+                                         - np.array(check["h"])).max())}
 
     t = me.dynamicsymbols._t
     q = me.dynamicsymbols(" ".join(f"q{i}" for i in range(n)), seq=True)
     u = me.dynamicsymbols(" ".join(f"u{i}" for i in range(n)), seq=True)
     tau = me.dynamicsymbols(" ".join(f"tau{j}" for j in range(len(active))), seq=True)
-    to_time = {**dict(zip(qs, q)), **dict(zip(dqs, u))}
+    to_time = {**dict(zip(qs, q, strict=True)), **dict(zip(dqs, u, strict=True))}
     M_t, h_t = M.xreplace(to_time), h.xreplace(to_time)
     Btau = sp.Matrix([tau[active.index(i)] if i in active else 0 for i in range(n)])
     udot = sp.Matrix([v.diff(t) for v in u])

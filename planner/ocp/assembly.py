@@ -165,7 +165,10 @@ def _blocks(f: ca.Function, with_next: bool) -> Blocks:
     grad = ca.gradient(cost, y)
     H = ca.triu(ca.hessian(sigma * cost + ca.dot(lam, rows), y)[0])
     grad_rows = np.array(grad.sparsity().get_triplet()[0], dtype=int)
-    nz = lambda m: ca.vertcat(*m.nonzeros()) if m.nnz() else ca.SX(0, 1)  # noqa: E731
+
+    def nz(m: ca.SX) -> ca.SX:
+        return ca.vertcat(*m.nonzeros()) if m.nnz() else ca.SX(0, 1)
+
     name = f.name()
     return Blocks(ca.Function(f"{name}_jac", ins, [nz(J)]),
                   ca.Function(f"{name}_grad", ins, [nz(grad)]),
@@ -173,7 +176,8 @@ def _blocks(f: ca.Function, with_next: bool) -> Blocks:
                   J.sparsity(), grad_rows, H.sparsity())
 
 
-def _scatter(rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int]) -> tuple[ca.Sparsity, list[int]]:
+def _scatter(rows: np.ndarray, cols: np.ndarray,
+             shape: tuple[int, int]) -> tuple[ca.Sparsity, list[int]]:
     """The sparsity of entries (rows, cols) and the permutation that orders their nonzeros
     column-major."""
     order = np.lexsort((rows, cols))
@@ -236,7 +240,8 @@ def _assembled(kernels: Kernels, derivs: Derivatives, layout: Layout, X: ca.MX, 
         grad = grad + ca.gradient(boundary, X)
         hess = hess + lam_f * ca.triu(ca.hessian(boundary, X)[0])
     return {
-        "grad_f": ca.Function("nlp_grad_f_stages", [X, P], [f, grad], ["x", "p"], ["f", "grad_f_x"]),
+        "grad_f": ca.Function("nlp_grad_f_stages", [X, P], [f, grad], ["x", "p"],
+                              ["f", "grad_f_x"]),
         "jac_g": ca.Function("nlp_jac_g_stages", [X, P], [g, jac], ["x", "p"], ["g", "jac_g_x"]),
         "hess_lag": ca.Function("nlp_hess_l_stages", [X, P, lam_f, lam_g], [hess],
                                 ["x", "p", "lam_f", "lam_g"], ["triu_hess_gamma_x_x"]),

@@ -154,4 +154,5 @@ def replay(robot: Robot, interp: Interpolant, starts: np.ndarray, K: np.ndarray 
             failed[r] = failed[r] or f"the state became non-finite {where}"
         worst = np.maximum(worst, np.where(np.isfinite(errors), errors, 0.0))
         x = np.where(np.isfinite(states[:, :, -1]), states[:, :, -1], 0.0)
-    return [(float(w), "completed") if f is None else (None, f) for w, f in zip(worst, failed)]
+    return [(float(w), "completed") if f is None else (None, f)
+            for w, f in zip(worst, failed, strict=True)]

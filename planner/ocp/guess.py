@@ -51,7 +51,7 @@ def hermite_motion(scene: Scene, robot: Robot, T: float) -> Guess:
         q, dq, ddq = (cubic(t, derivative=order) for order in range(3))
         if task.tracking is not None:
             ref = task.tracking.motion.evaluate(t, T)
-            for arr, r in zip((q, dq, ddq), ref):
+            for arr, r in zip((q, dq, ddq), ref, strict=True):
                 arr[:, robot.passive] = r
         return {"q": q, "dq": dq, "ddq": ddq}
 

@@ -76,12 +76,12 @@ class Layout:
         in time order."""
         N, nw = self.intervals, self.stage_size
         out: dict[str, tuple[str, list[np.ndarray]]] = {}
-        for part, start in zip(self.stage, _offsets(self.stage).values()):
+        for part, start in zip(self.stage, _offsets(self.stage).values(), strict=True):
             local = start + np.arange(part.size).reshape(len(part.positions), part.rows).T
             cols = [local + k * nw for k in range(N)]
             out[part.name] = (part.kind, cols)
         base = N * nw
-        for part, start in zip(self.terminal, _offsets(self.terminal).values()):
+        for part, start in zip(self.terminal, _offsets(self.terminal).values(), strict=True):
             local = base + start + np.arange(part.size).reshape(len(part.positions), part.rows).T
             out.setdefault(part.name, (part.kind, []))[1].append(local)
         base += self.terminal_size
@@ -120,6 +120,6 @@ class Layout:
 def split(parts: tuple[Part, ...], w: ca.SX) -> dict[str, ca.SX]:
     """The named parts of one stage's (or the terminal's) variable vector, rows x columns."""
     out = {}
-    for part, start in zip(parts, _offsets(parts).values()):
+    for part, start in zip(parts, _offsets(parts).values(), strict=True):
         out[part.name] = ca.reshape(w[start:start + part.size], part.rows, len(part.positions))
     return out

@@ -50,5 +50,5 @@ class Mesh:
     def split(self, pieces: np.ndarray) -> Mesh:
         """Each interval k cut into pieces[k] >= 1 equal parts."""
         parts = [np.linspace(a, b, int(m) + 1)[:-1]
-                 for a, b, m in zip(self.breaks[:-1], self.breaks[1:], pieces)]
+                 for a, b, m in zip(self.breaks[:-1], self.breaks[1:], pieces, strict=True)]
         return Mesh(np.concatenate([*parts, [1.0]]))

@@ -10,6 +10,7 @@ stays at the same local optimum.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import math
 import time
@@ -160,8 +161,8 @@ def _starts(scene: Scene, robot: Robot, T: float, warm_start: Plan | None,
     "Retries"): an earlier plan's own NLP solution where it solved the same problem on a
     mesh at least as fine as the scene's (its refined mesh is kept); the scene's own start
     (with refinement on, a uniform mesh of over COARSE_INTERVALS intervals solved on that
-    many first, unless an earlier plan is the guess); a
-    restart from the last iterate of a solve that did not converge;
+    many first, unless an earlier plan is the guess); a restart from the last iterate of
+    a solve that did not converge;
     the classical inverse dynamics as the initial guess; a first mesh of twice, then of
     half the intervals."""
     tr = scene.transcription
@@ -185,11 +186,9 @@ def _starts(scene: Scene, robot: Robot, T: float, warm_start: Plan | None,
                     interpolant_guess(last.interp, last.T), "the last iterate", last.T,
                     last.robot)
     if used != "inverse-dynamics" and _inverse_dynamics_applies(robot):
-        try:
+        with contextlib.suppress(ValueError):
             yield Start("inverse-dynamics start", mesh, inverse_dynamics_guess(scene, robot, T),
                         "inverse-dynamics", T, robot)
-        except ValueError:
-            pass
     first = hermite_guess(scene, robot, T)
     for intervals in (2 * tr.intervals, max(tr.intervals // 2, 1)):
         yield Start(f"first mesh of {intervals} intervals", Mesh.uniform(intervals), first,
@@ -333,7 +332,7 @@ def _result(scene: Scene, attempts: list[Attempt], budget: Budget) -> Plan:
         success, note = False, note or "the solve produced non-finite values"
     per = REPLAY_SAMPLES * max(1, math.ceil(DENSE_POINTS / (REPLAY_SAMPLES * len(breaks))))
     t_dense = np.concatenate([np.linspace(a, b, per, endpoint=False)
-                              for a, b in zip(breaks[:-1], breaks[1:])] + [breaks[-1:]])
+                              for a, b in itertools.pairwise(breaks)] + [breaks[-1:]])
     verification, feedback = (verify(robot, interp, t_dense, best.errors, best.errors_status,
                                      best.replayed, tolerance, scene.task.torque_limit,
                                      scene.solver.jit)

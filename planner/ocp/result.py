@@ -31,7 +31,7 @@ class _Out(BaseModel):
 
 
 class DenseTrajectory(_Out):
-    """The transcription's own interpolant sampled finely: times [s], angles [rad], torques [N m]."""
+    """The transcription's interpolant sampled finely: times [s], angles [rad], torques [N m]."""
 
     t: list[float]
     q: list[list[float]]

@@ -73,7 +73,8 @@ def singular_crossings(robot: Robot, interp: Interpolant,
         times += coupling_block.zeros_along(waveless, interp.q, t).tolist()
     else:
         floor = 1e-3 * float(sigma.max())
-        sig_at = lambda x: coupling_along(waveless, interp.q(np.array([x])))[0][0]
+        def sig_at(x: float) -> float:
+            return coupling_along(waveless, interp.q(np.array([x])))[0][0]
         for k in range(1, len(t) - 1):
             if sigma[k] <= sigma[k - 1] and sigma[k] <= sigma[k + 1] and sigma[k] < floor:
                 best = minimize_scalar(sig_at, bounds=(t[k - 1], t[k + 1]), method="bounded")

@@ -89,7 +89,7 @@ def _design(request: WaveDesignRequest, deadline: float | None) -> WaveDesignRes
 def _specs(c: Candidate, base: Robot) -> list[WaveSpec]:
     """The candidate's waves on the base robot's active joints."""
     return [WaveSpec(joint=j, amplitude=float(a), frequency=int(n), phase=float(e))
-            for j, a, n, e in zip(base.active, c.amplitude, c.frequency, c.phase)]
+            for j, a, n, e in zip(base.active, c.amplitude, c.frequency, c.phase, strict=True)]
 
 
 def _exchange(problem: Problem, start: Candidate, upper: np.ndarray,

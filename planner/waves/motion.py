@@ -20,13 +20,26 @@ from planner import budget
 from planner.coupling_block import evaluate, measures
 from planner.dynamics import derive
 from planner.exclusive import Exclusive
-from planner.inverse import (InverseDynamicsRequest, InverseDynamicsResult, active_acceleration,
-                             solve)
+from planner.inverse import (
+    InverseDynamicsRequest,
+    InverseDynamicsResult,
+    active_acceleration,
+    solve,
+)
 from planner.model import Robot, Structure, parameters
 from planner.rk4 import rk4_step
 from planner.waves.certificate import EXCHANGE_TOL, Certificate
-from planner.waves.nlp import (IPOPT, WHAT, bound, candidate_from, decision, lbx, normalisers,
-                               ubx, with_waves)
+from planner.waves.nlp import (
+    IPOPT,
+    WHAT,
+    bound,
+    candidate_from,
+    decision,
+    lbx,
+    normalisers,
+    ubx,
+    with_waves,
+)
 from planner.waves.schemas import WaveDesignRequest
 from planner.waves.screening import SCREEN_STEPS, Candidate, params
 

@@ -17,8 +17,17 @@ from planner.dynamics import derive
 from planner.exclusive import Exclusive
 from planner.model import Robot, Structure, parameters
 from planner.waves.certificate import EXCHANGE_TOL, Certificate
-from planner.waves.nlp import (IPOPT, WHAT, bound, candidate_from, decision, lbx, normalisers,
-                               ubx, with_waves)
+from planner.waves.nlp import (
+    IPOPT,
+    WHAT,
+    bound,
+    candidate_from,
+    decision,
+    lbx,
+    normalisers,
+    ubx,
+    with_waves,
+)
 from planner.waves.schemas import WaveDesignRequest
 from planner.waves.screening import Candidate, coarse_points, params
 
@@ -88,7 +97,7 @@ class RegionProblem:
 
 def _box_grid(lower: np.ndarray, upper: np.ndarray, points: int) -> np.ndarray:
     axes = [np.array([lo]) if hi == lo else np.linspace(lo, hi, points)
-            for lo, hi in zip(lower, upper)]
+            for lo, hi in zip(lower, upper, strict=True)]
     return np.stack([m.ravel() for m in np.meshgrid(*axes, indexing="ij")], axis=1)
 
 

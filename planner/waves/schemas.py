@@ -65,7 +65,7 @@ class WaveDesignRequest(BaseModel):
         if self.region is not None:
             if len(self.region.lower) != n or len(self.region.upper) != n:
                 raise ValueError(f"region: lower and upper need {n} entries each, one per joint")
-            if any(u < lo for lo, u in zip(self.region.lower, self.region.upper)):
+            if any(u < lo for lo, u in zip(self.region.lower, self.region.upper, strict=True)):
                 raise ValueError("region.upper: every entry must be >= the matching entry "
                                  "of lower")
         else:
@@ -86,7 +86,7 @@ class WaveDesignRequest(BaseModel):
         candidates = (self.frequency_max * phases_per_joint(na)) ** na
         if self.region is None:
             return candidates * (SCREEN_STEPS + 1)
-        free = sum(hi > lo for lo, hi in zip(self.region.lower, self.region.upper))
+        free = sum(hi > lo for lo, hi in zip(self.region.lower, self.region.upper, strict=True))
         return candidates * coarse_points(free) ** free
 
 

@@ -34,7 +34,8 @@ class Candidate:
 
     def robot(self, base: Robot) -> Robot:
         waves = {j: Wave(amplitude=float(a), frequency=float(n), phase=float(e))
-                 for j, a, n, e in zip(base.active, self.amplitude, self.frequency, self.phase)}
+                 for j, a, n, e in zip(base.active, self.amplitude, self.frequency, self.phase,
+                                       strict=True)}
         return base.with_waves(waves)
 
 

@@ -43,7 +43,8 @@ class HermiteSimpson:
     def parts(self, n: int, na: int) -> tuple[tuple[Part, ...], tuple[Part, ...]]:
         def knot(suffix: str, at: float) -> tuple[Part, ...]:
             q, dq = (Part(f"{k}{suffix}", k, n, (at,)) for k in ("q", "dq"))
-            accel, tau = Part(f"ddq{suffix}", "ddq", n, (at,)), Part(f"tau{suffix}", "tau", na, (at,))
+            accel = Part(f"ddq{suffix}", "ddq", n, (at,))
+            tau = Part(f"tau{suffix}", "tau", na, (at,))
             return (q, dq, accel, tau) if self.implicit else (q, dq, tau)
 
         node = knot("", 0.0)
