@@ -147,6 +147,24 @@ def isolated(module: str, function: str, kwargs: dict, timeout: float) -> dict:
     return {"failure": f"exit {run.returncode}: {tail[:200]}"}
 
 
+def read_csv(path: Path) -> list[dict]:
+    """Rows written by `write_csv`, with booleans, numbers and NaN read back as such."""
+    def value(text: str) -> object:
+        if text in ("True", "False"):
+            return text == "True"
+        try:
+            return int(text)
+        except ValueError:
+            pass
+        try:
+            return float(text)
+        except ValueError:
+            return text
+
+    with open(path, newline="") as f:
+        return [{k: value(v) for k, v in row.items()} for row in csv.DictReader(f)]
+
+
 def write_csv(path: Path, rows: Sequence[dict]) -> None:
     """Rows (dicts with the same keys) as CSV; floats with 6 significant digits."""
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -18,7 +18,7 @@ plan is the wall time of the whole plan (build, every solve, mesh pass and retry
 estimates and verification), counted only for verified plans. A peer whose package is
 missing is skipped, with the reason printed and written.
 
-    python -m bench suite [--count 48] [--seed 20261123] [--configs undertow,...]
+    python -m bench suite [--count 48] [--seed 20261123] [--configs undertow,...] [--merge]
 
 `--seed` other than the suite's own writes its own section and CSV (suite-seed-N.csv):
 tasks the planner was not tuned on.
@@ -332,6 +332,9 @@ def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench suite", description=__doc__)
     parser.add_argument("--count", type=int, default=COUNT)
     parser.add_argument("--seed", type=int, default=SEED)
+    parser.add_argument("--merge", action="store_true",
+                        help="keep the other configurations' rows of the CSV (runs split "
+                             "over processes or cores write one table)")
     parser.add_argument("--configs", default=",".join(CONFIGS),
                         help="comma-separated, from: " + ", ".join(CONFIGS))
     args = parser.parse_args(argv)
@@ -351,6 +354,11 @@ def main(argv: list[str]) -> int:
         rows += _run(config, args.count, args.seed)
     own = args.seed == SEED
     csv = "suite.csv" if own else f"suite-seed-{args.seed}.csv"
+    kept: list[dict] = []
+    if args.merge and (harness.RESULTS / csv).exists():
+        kept = [r for r in harness.read_csv(harness.RESULTS / csv) if r["config"] not in configs]
+        rows = [r for r in kept if r["config"] in CONFIGS] + rows
+        configs = [c for c in CONFIGS if c in {r["config"] for r in rows}]
     harness.write_csv(harness.RESULTS / csv, rows)
     summary = [_summary(rows, c) for c in configs]
     ours = next((r for r in summary if r["config"] == "undertow"), None)
@@ -372,6 +380,8 @@ def main(argv: list[str]) -> int:
         "rockit (bench/peers/rockit.py; its states between the nodes as rockit samples "
         "them), opty (bench/peers/opty.py; its states cubic Hermite between the nodes).",
         "".join(f"Not run here: {c}, {why}. " for c, why in skipped.items()).strip(),
+        ("Rows of " + ", ".join(sorted({r["config"] for r in kept})) + " come from an earlier "
+         "invocation on the same tasks, kept by `--merge`." if kept else ""),
         harness.table(summary, [("config", "configuration"), ("what", "settings"),
                                 ("tasks", "tasks"), ("verified", "verified"),
                                 ("share", "share"),
