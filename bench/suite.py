@@ -338,7 +338,7 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--configs", default=",".join(CONFIGS),
                         help="comma-separated, from: " + ", ".join(CONFIGS))
     args = parser.parse_args(argv)
-    configs = [c.strip() for c in args.configs.split(",")]
+    configs = [c.strip() for c in args.configs.split(",") if c.strip()]
     started = time.perf_counter()
     note = harness.machine_note()
     rows = []
