@@ -8,6 +8,7 @@ from service_fixtures import two_link_scene
 from app.limits import check_scene, most_intervals, nodes
 from app.settings import Settings
 from planner.ocp import methods
+from planner.ocp.mesh import Mesh
 from planner.scene import Scene, Transcription
 
 
@@ -29,3 +30,15 @@ def test_an_unset_refinement_budget_is_lowered_to_the_node_limit():
     capped = check_scene(scene, Settings(max_nodes=2000))
     assert capped.transcription.refinement.max_intervals == 200
     assert nodes(capped.transcription, 200) == 2000
+
+
+@pytest.mark.parametrize("method", ["legendre", "radau", "hermite-simpson", "trapezoidal",
+                                    "multiple-shooting"])
+def test_the_knot_count_is_where_the_quadrature_weights_sit(method):
+    # The contract's knot count is the number of quadrature points of the objective: the
+    # stage knots of every interval and the terminal knots, on any mesh.
+    tr = methods.of(Transcription(method=method, intervals=6, degree=3))
+    stage, terminal = tr.weights(Mesh.uniform(6))
+    assert stage.shape == (6, len(tr.knot_positions)) and terminal.shape == (tr.terminal_knots,)
+    assert stage.size + terminal.size == tr.knot_count()
+    assert stage.sum() + terminal.sum() == pytest.approx(1.0)
