@@ -40,6 +40,7 @@ import time
 import casadi as ca
 import numpy as np
 
+from bench.scenes import fixed_duration
 from planner.dynamics import functions
 from planner.model import Structure, parameters
 from planner.ocp.accuracy import SAMPLES, interval_errors
@@ -48,20 +49,12 @@ from planner.ocp.interpolant import PiecewisePolynomial
 from planner.ocp.solve import fatrop_status
 from planner.ocp.transcription import Interpolant
 from planner.ocp.verify import open_loop
-from planner.scene import DurationRange, Scene
+from planner.scene import Scene
 
 GUESS_POINTS = 8  # samples of the state guess per interval (linear between them)
 WALL_CAP = 600.0  # [s] Ipopt max_wall_time, a safety cap (not an Ipopt default)
 METHODS = ("collocation", "multiple shooting")
 SOLVERS = ("ipopt", "fatrop")
-
-
-def _duration(scene: Scene) -> float:
-    """The scene's duration T [s]; a free duration (a range) is not supported."""
-    duration = scene.task.duration
-    if isinstance(duration, DurationRange):
-        raise ValueError("rockit peer: fixed-duration scenes only (got a duration range)")
-    return float(duration)
 
 
 def _method(name: str, N: int):
@@ -100,7 +93,7 @@ def build(scene: Scene, method: str = "collocation", solver: str = "ipopt",
     n, na = s.n, len(s.active_idx)
     p = ca.DM(parameters(robot, s))
     f = functions(s)
-    T = _duration(scene)
+    T = fixed_duration(scene)
 
     ocp = Ocp(t0=0, T=T)
     q = ocp.state(n)
@@ -173,7 +166,7 @@ def interpolant(scene: Scene, built: dict, sol) -> Interpolant | None:
     """The plan rockit reports, as the planner's interpolant (see the module's docstring);
     None when it has non-finite entries."""
     N = scene.transcription.intervals
-    breaks = np.linspace(0.0, _duration(scene), N + 1)
+    breaks = np.linspace(0.0, fixed_duration(scene), N + 1)
     _, q = sol.sample(built["q"], grid="integrator", refine=SAMPLES)
     _, dq = sol.sample(built["dq"], grid="integrator", refine=SAMPLES)
     _, tau = sol.sample(built["tau"], grid="control")
