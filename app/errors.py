@@ -175,6 +175,6 @@ class UnexpectedErrorMiddleware(HttpMiddleware):
 def install(app: FastAPI) -> None:
     """Register the problem+json handlers on an app (and `UnexpectedErrorMiddleware`,
     added with the app's middleware, for everything else)."""
-    app.add_exception_handler(ApiError, _on_api_error)
-    app.add_exception_handler(RequestValidationError, _on_validation)
-    app.add_exception_handler(StarletteHTTPException, _on_http)
+    app.exception_handler(ApiError)(_on_api_error)
+    app.exception_handler(RequestValidationError)(_on_validation)
+    app.exception_handler(StarletteHTTPException)(_on_http)

@@ -73,7 +73,7 @@ def create_app(settings: Settings | None = None, solve: SolveFunction | None = N
     app.state.metrics = Metrics()
     app.state.quick_limiter = CapacityLimiter(settings.quick_threads)
     errors.install(app)
-    app.add_exception_handler(StoreUnavailable, _store_unavailable)
+    app.exception_handler(StoreUnavailable)(_store_unavailable)
     app.include_router(health.router)
     secured = [Depends(require_api_key)]
     for router in (dynamics.router, plans.router, batches.router, examples.router,

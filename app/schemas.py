@@ -116,7 +116,7 @@ class Batch(BaseModel):
 
     @classmethod
     def of(cls, record: BatchRecord) -> Batch:
-        counts = dict.fromkeys(STATUSES, 0)
+        counts: dict[str, int] = dict.fromkeys(STATUSES, 0)
         for member in record.members:
             counts[member.status] += 1
         parameters = record.spec["parameters"]

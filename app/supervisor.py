@@ -206,10 +206,12 @@ class Supervisor:
     def _step(self) -> None:
         """Wait for messages and exits, then enforce budgets, cancels and leases."""
         waitables: dict[object, tuple[int, _Worker]] = {}
+        handles: list[Connection | int] = []
         for slot, worker in enumerate(self._slots):
             if worker is not None:
                 waitables[worker.channel] = waitables[worker.process.sentinel] = (slot, worker)
-        for ready in wait(list(waitables), timeout=TICK):
+                handles += [worker.channel, worker.process.sentinel]
+        for ready in wait(handles, timeout=TICK):
             slot, worker = waitables[ready]
             if self._slots[slot] is not worker:
                 continue  # reaped in this round already
@@ -221,8 +223,9 @@ class Supervisor:
         for slot, worker in enumerate(self._slots):
             if worker is None and self._wanted and now >= self._restart_at[slot]:
                 self._spawn(slot)
-            elif worker is not None and worker.fate is None and now > worker.deadline:
-                self._kill(worker, "failed", over_budget(worker.budget, self.grace))
+            elif (worker is not None and worker.job is not None and worker.fate is None
+                  and now > worker.deadline):
+                self._kill(worker, worker.job, "failed", over_budget(worker.budget, self.grace))
         self._enforce_cancels(now)
         if now >= self._next_expiry:
             self._next_expiry = now + self._expire_interval
@@ -266,11 +269,12 @@ class Supervisor:
             if worker.cancel_seen is None:
                 worker.cancel_seen = now
             elif now - worker.cancel_seen > CANCEL_GRACE:
-                self._kill(worker, "cancelled", CANCELLED_STOPPED)
+                self._kill(worker, job_id, "cancelled", CANCELLED_STOPPED)
 
-    def _kill(self, worker: _Worker, status: JobStatus, error: str) -> None:
-        log.warning("job %s: %s", worker.job, error)
-        worker.fate = (worker.job, status, error)
+    def _kill(self, worker: _Worker, job_id: str, status: JobStatus, error: str) -> None:
+        """Kill the worker running job `job_id`; the job ends `status` once it is gone."""
+        log.warning("job %s: %s", job_id, error)
+        worker.fate = (job_id, status, error)
         worker.process.kill()
 
     def _reap(self, slot: int, worker: _Worker) -> None:

@@ -64,20 +64,21 @@ class BatchRequest(BaseModel):
 
 def members(request: BatchRequest, settings: Settings) -> list[dict[str, float]]:
     """The members' parameters, in order; 422 when there are more than the server allows."""
-    where = "overrides" if request.overrides is not None else "grid"
-    if request.overrides is not None:
-        count = len(request.overrides)
+    overrides, grid = request.overrides, request.grid or {}  # the validator gives one
+    where = "overrides" if overrides is not None else "grid"
+    if overrides is not None:
+        count = len(overrides)
     else:
-        count = math.prod(len(values) for values in request.grid.values())
+        count = math.prod(len(values) for values in grid.values())
     if count > settings.max_batch_members:
         raise invalid([field_error(["body", where], f"{count} members exceed this server's "
                                    f"limit of {settings.max_batch_members} "
                                    "(UNDERTOW_MAX_BATCH_MEMBERS)", "limit")])
-    if request.overrides is not None:
-        return [dict(item) for item in request.overrides]
-    names = list(request.grid)
+    if overrides is not None:
+        return [dict(item) for item in overrides]
+    names = list(grid)
     return [dict(zip(names, values, strict=True))
-            for values in itertools.product(*request.grid.values())]
+            for values in itertools.product(*grid.values())]
 
 
 def _set(scene: dict[str, Any], name: str, value: float) -> str | None:
@@ -138,6 +139,7 @@ def scenes(request: BatchRequest, parameters: list[dict[str, float]],
     out, errors = [], []
     for k, member in enumerate(parameters):
         scene, found = _member_scene(base_json, member, settings)
+        loc: list[str | int]
         if request.overrides is not None:
             loc, what = ["body", "overrides", k], ""
         else:

@@ -192,7 +192,9 @@ def run_job(store: JobStore, job_id: str, scene: Scene, solve: SolveFunction,
 
 def _earlier(store: JobStore, job_id: str | None) -> Plan | None:
     """The plan of an earlier job with the NLP solution it came from, to warm-start from."""
-    record = store.get(job_id) if job_id else None
+    if not job_id:
+        return None
+    record = store.get(job_id)
     if record is None or record.plan is None:
         return None
     solution = store.solution(job_id)

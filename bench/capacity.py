@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from typing import Any
 
 from app.capacity import dynamics_knots, estimate_mb
 from bench import harness
@@ -104,8 +105,9 @@ def main(argv: list[str]) -> int:
     args = parser.parse_args(argv)
     started, note, rows = time.perf_counter(), harness.machine_note(), []
     for links, method, degree, intervals, integrator, steps, form, extra in POINTS[:args.points]:
-        spec = {"links": links, "method": method, "degree": degree, "intervals": intervals,
-                "integrator": integrator, "steps": steps, "form": form, "extra": extra}
+        spec: dict[str, Any] = {
+            "links": links, "method": method, "degree": degree, "intervals": intervals,
+            "integrator": integrator, "steps": steps, "form": form, "extra": extra}
         out = harness.isolated("capacity", "point", spec, TIMEOUT)
         scene = scene_of(**spec)
         row = {**spec, "knots": dynamics_knots(scene.transcription),

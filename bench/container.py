@@ -41,7 +41,10 @@ def docker(*args: str) -> str:
 def memory_mib(container: str) -> float:
     """The container's memory use [MiB], as `docker stats` reports it ("84.1MiB / 23GiB")."""
     usage = docker("stats", "--no-stream", "--format", "{{.MemUsage}}", container)
-    number, unit = re.match(r"\s*([\d.]+)\s*([KMG]i?B)", usage).groups()
+    match = re.match(r"\s*([\d.]+)\s*([KMG]i?B)", usage)
+    if match is None:
+        raise ValueError(f"docker stats: no memory use in {usage!r}")
+    number, unit = match.groups()
     return float(number) * {"KiB": 1 / 1024, "MiB": 1.0, "GiB": 1024.0, "kB": 1e3 / 2**20,
                             "MB": 1e6 / 2**20, "GB": 1e9 / 2**20}[unit]
 

@@ -27,6 +27,7 @@ from __future__ import annotations
 import argparse
 import os
 import signal
+import subprocess
 import tempfile
 import time
 from collections import Counter
@@ -93,7 +94,7 @@ def wait_gone(group: int, timeout: float = 30.0) -> None:
 def settle(http: httpx.Client, ids: list[str]) -> Counter:
     """What became of each job: its final status ("interrupted" for the error of that
     name, "worker died" for a dead worker's job), or "lost"."""
-    deadline, outcomes = time.monotonic() + SETTLE, Counter()
+    deadline, outcomes = time.monotonic() + SETTLE, Counter[str]()
     pending = list(ids)
     while pending and time.monotonic() < deadline:
         job = http.get(f"/v1/plans/{pending[0]}")
@@ -123,10 +124,16 @@ def _kind(job: dict) -> str:
     return job["status"]
 
 
+def _process(live: LiveServer) -> subprocess.Popen:
+    """The server's process (it has been started)."""
+    assert live.proc is not None, "the server has not been started"
+    return live.proc
+
+
 def kill_group(live: LiveServer) -> None:
     """SIGKILL the server and every process it started, at once."""
-    os.killpg(live.proc.pid, signal.SIGKILL)
-    live.proc.wait()
+    os.killpg(_process(live).pid, signal.SIGKILL)
+    _process(live).wait()
 
 
 def _stopped_then_restarted(folder: Path, sig: int, group: bool = False) -> dict:
@@ -138,7 +145,7 @@ def _stopped_then_restarted(folder: Path, sig: int, group: bool = False) -> dict
             kill_group(live)
         else:
             live.stop(sig)
-        wait_gone(live.proc.pid)
+        wait_gone(_process(live).pid)
     store = _store(folder)
     queued = [j for j in ids if j not in running]
     stayed = sum(store.get(j).status == "queued" and store.get(j).started is None
@@ -172,7 +179,7 @@ def kill_worker(folder: Path) -> dict:
     with live, httpx.Client(base_url=live.url, timeout=30) as http:
         ids = submit(http, 4)
         wait_running(http, 2)
-        os.kill(worker_pids(live.proc.pid)[0], signal.SIGKILL)
+        os.kill(worker_pids(_process(live).pid)[0], signal.SIGKILL)
         outcome = settle(http, ids)
         healthy = http.get("/healthz").status_code
     return {"accepted": len(ids), **outcome, "healthz after": f"{healthy}",
@@ -233,7 +240,7 @@ def _after_shutdown(folder: Path, damage: Callable[[Path], None], clean: bool) -
             live.stop(signal.SIGTERM)
         else:
             kill_group(live)
-        wait_gone(live.proc.pid)
+        wait_gone(_process(live).pid)
     damage(folder)
     try:
         with live, httpx.Client(base_url=live.url, timeout=30) as http:

@@ -31,7 +31,7 @@ FINALS = "0:1.75,0:1.8,0.05:1.8,0.1:1.8,-0.1:1.8,0.3:2,0.4:2.1"
 DURATIONS = "2,2.5,3"
 
 
-def row(final: tuple[float, float], duration: float) -> dict:
+def row(final: tuple[float, ...], duration: float) -> dict:
     """One plan of the example scene with another final configuration [rad] and duration [s]."""
     request = copy.deepcopy(example("two-link-plan").request)
     request["task"]["final"]["q"] = list(final)

@@ -53,7 +53,7 @@ from bench import harness
 from bench.peers import opti as baseline_opti
 from bench.peers.opty import ONE_SOLVE_ABOVE, SOLVE_CAP
 from bench.plans import dense_error
-from bench.scenes import make_scene
+from bench.scenes import fixed_duration, make_scene
 from planner.dynamics import Dynamics
 from planner.model import Robot
 from planner.ocp import Plan, plan
@@ -268,7 +268,7 @@ def scene_rows(name: str, nodes: list[int], methods: list[str], rng: np.random.G
 
     scene = make_scene(name)
     check = check_state(scene.robot, rng)
-    guess_of = hermite_guess(scene, scene.robot, float(scene.task.duration))
+    guess_of = hermite_guess(scene, scene.robot, fixed_duration(scene))
     for method in methods:
         stop = ""
         for N in nodes:

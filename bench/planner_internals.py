@@ -23,6 +23,7 @@ import statistics
 import tempfile
 import time
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 
 import casadi as ca
@@ -34,7 +35,8 @@ from planner import compiled
 from planner.dynamics import derive, functions, selection
 from planner.model import Robot, Structure, parameters
 from planner.ocp import plan
-from planner.ocp.problem import ProblemKey, problem
+from planner.ocp.problem import Problem, ProblemKey, problem
+from planner.scene import Scene
 
 DOC = harness.DOCS / "bench-planner-internals.md"
 SECTIONS = {"residual": "The residual form",
@@ -75,7 +77,7 @@ def residual_forms() -> tuple[str, list[dict]]:
         f = ca.Function("r", [x, sym.p], [expr])
         H = ca.Function("H", [x, lam, sym.p], [ca.hessian(ca.dot(lam, expr), x)[0]])
         mapped = H.map(KNOTS)
-        cpu = median_cpu(lambda mapped=mapped: mapped(*args), 21)
+        cpu = median_cpu(partial(mapped, *args), 21)
         rows.append({"form": name, "nodes": f.n_nodes(), "hessian_nodes": H.n_nodes(),
                      "cpu_ms": 1e3 * cpu})
     text = harness.table(rows, [("form", "residual form"), ("nodes", "nodes"),
@@ -94,7 +96,10 @@ def compiled_against_interpreted(repeats: int) -> tuple[str, list[dict]]:
             for jit in (False, True):
                 scene = make_scene(name, N=N, one_solve=True,
                                    solver={"jit": jit, "max_wall_time": 600})
-                _, build, _ = harness.timed(lambda s=scene: problem(ProblemKey.of(s), wait=True))
+                def build_nlp(s: Scene = scene) -> Problem:
+                    return problem(ProblemKey.of(s), wait=True)
+
+                _, build, _ = harness.timed(build_nlp)
                 first = plan(scene)
                 compiled.wait()  # the verification's dynamics, built in the background
                 times = [plan(scene).solver.solve_time for _ in range(repeats)]

@@ -75,9 +75,12 @@ def planner_rows(name: str, N: int, repeats: int, form: str,
     name += ", compiled" if jit else ""
     rows = {"cold": {**_plan_row(N, f"{name}, cold", cold, time.perf_counter() - started),
                      "build": build_time, "cpu": solver.cpu}}
-    warm, cpus = [], []
+    warm: list[tuple[Plan, float, float]] = []
+    cpus = []
     for _ in range(repeats):
-        warm.append(harness.timed(lambda: plan(scene)))
+        result, wall, cpu = harness.timed(lambda: plan(scene))
+        assert isinstance(result, Plan)
+        warm.append((result, wall, cpu))
         cpus.append(solver.cpu)
     solves = [p.solver.solve_time for p, _, _ in warm]
     last = warm[-1][0]

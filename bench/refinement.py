@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from typing import Any
 
 from bench import harness
 from planner.examples import example
@@ -55,7 +56,7 @@ def intervals_table(intervals: list[int]) -> list[dict]:
         sc = _with(base, transcription={"intervals": N})
         single = _with(sc, transcription={"intervals": N, "refinement": {"enabled": False}},
                        solver={"retries": 0})
-        row = {"intervals": N}
+        row: dict[str, Any] = {"intervals": N}
         for name, scene in (("single", single), ("default", sc)):
             started = time.perf_counter()
             row.update({f"{name}_{k}": v for k, v in _one(plan(scene)).items()})

@@ -36,6 +36,7 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import httpx
 
@@ -134,14 +135,16 @@ def bad_input(p: Probes) -> None:
                                      "initial": {"q": [0, 0], "dq": [0, 0]},
                                      "samples_per_interval": 1}) for v in (1e300, -1e300, 1.7e308)],
             lambda r: r.status_code == 200 and r.json()["status"] == "failed")
-    tasks = [{"duration": 0}, {"duration": -1}, {"torque_limit": -1.0}, {"torque_limit": [-2.0]},
-             {"position_bounds": {"lower": [0, 1], "upper": [1, 0]}},
-             {"velocity_bounds": {"lower": [1, None], "upper": [-1, None]}}]
+    tasks: list[dict[str, Any]] = [
+        {"duration": 0}, {"duration": -1}, {"torque_limit": -1.0}, {"torque_limit": [-2.0]},
+        {"position_bounds": {"lower": [0, 1], "upper": [1, 0]}},
+        {"velocity_bounds": {"lower": [1, None], "upper": [-1, None]}}]
     p.probe(group, "task: duration 0 or -1, negative torque limit, lower > upper",
             "422 at the field", [p.post("/v1/plans", _task(change)) for change in tasks],
             problem(422, "validation"))
-    numbers = [("/v1/dynamics", {"robot": UNDERACTUATED, "states": [{"q": v, "dq": [0, 0]}]})
-               for v in (["0.1", "0.2"], [True, False])]
+    numbers: list[tuple[str, dict[str, Any]]] = [
+        ("/v1/dynamics", {"robot": UNDERACTUATED, "states": [{"q": v, "dq": [0, 0]}]})
+        for v in (["0.1", "0.2"], [True, False])]
     numbers += [("/v1/coupling", {"robot": UNDERACTUATED, "configurations": [["0", "1"]]}),
                 ("/v1/dynamics", {"robot": {**UNDERACTUATED, "gravity": False},
                                   "states": [{"q": [0, 0], "dq": [0, 0]}]}),
@@ -368,7 +371,7 @@ def main(argv: list[str]) -> int:
     started, note = time.perf_counter(), harness.machine_note()
     tmp = Path(tempfile.mkdtemp(prefix="undertow-reliability-"))
     env = {"UNDERTOW_API_KEY": KEY, "UNDERTOW_WORKERS": "1"}
-    with LiveServer(tmp / "jobs.sqlite3", **env) as live:
+    with LiveServer(tmp / "jobs.sqlite3", None, **env) as live:
         probes = Probes(live.url, live.port)
         bad_input(probes)
         print("bad input done", flush=True)

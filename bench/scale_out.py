@@ -25,6 +25,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import httpx
 
@@ -55,7 +56,7 @@ def deployment(server: postgres.PostgresServer, folder: Path, nodes: int,
     with contextlib.ExitStack() as stack:
         api = stack.enter_context(api_server(folder, url, "api", **extra))
         for k in range(nodes):
-            stack.enter_context(WorkerNode(folder, f"node-{k + 1}", UNDERTOW_DB_URL=url,
+            stack.enter_context(WorkerNode(folder, f"node-{k + 1}", 1, UNDERTOW_DB_URL=url,
                                            **extra))
         yield api.url, store
     store.close()
@@ -83,7 +84,8 @@ def warm_up(http: httpx.Client, store: PostgresJobStore, nodes: int, scene: dict
             assert http.post("/v1/plans", json=scene).status_code == 202
         sent += nodes
         wait_ended(store, sent, stop)
-        if len({r.worker.split(":")[0] for r in store.list(limit=sent)}) == nodes:
+        workers = {r.worker.split(":")[0] for r in store.list(limit=sent) if r.worker is not None}
+        if len(workers) == nodes:
             return sent
     raise AssertionError("the worker nodes did not all take a plan")
 
@@ -200,7 +202,7 @@ def main(argv: list[str]) -> int:
         return 2
     started, note = time.perf_counter(), harness.machine_note()
     affinity = sorted(os.sched_getaffinity(0))
-    rows = []
+    rows: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory() as tmp, postgres.PostgresServer() as server:
         for scene_name, (scene, solve) in SCENES.items():
             for nodes in (1, 2):

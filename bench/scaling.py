@@ -45,10 +45,9 @@ def _maxrss() -> float:
 def point(kind: str, size: int) -> dict:
     """One point in this (fresh) process: kind "N" (arm-2 at N = size) or "links"."""
     base = _maxrss()
-    transcription, solver = ONE_SOLVE
+    transcription, settings = ONE_SOLVE
     scene = (make_scene("arm-2", N=size, one_solve=True) if kind == "N"
-             else chain_scene(size, under=False, solver=solver, intervals=LINKS_N,
-                              **transcription))
+             else chain_scene(size, False, "", settings, intervals=LINKS_N, **transcription))
     build_time, solver = harness.build_instrumented(scene)
     after_build = _maxrss()
     walls, cpus, plans = [], [], []

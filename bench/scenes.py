@@ -20,20 +20,21 @@
 from __future__ import annotations
 
 import copy
+from typing import Any
 
 from planner.examples import PLAN_ARM, VERTICAL_SEED_ARM, example
-from planner.scene import Scene
+from planner.scene import DurationRange, Scene
 
 UNDERACTUATED = PLAN_ARM
 """Two links, passive shoulder, wavy active elbow; g = 0."""
 ARM = {**PLAN_ARM, "links": [{**PLAN_ARM["links"][0], "joint": "active"}, PLAN_ARM["links"][1]],
        "gravity": 9.81}
 """`UNDERACTUATED` with the shoulder active, under gravity."""
-SEED_TASK = {"duration": 4.0,
+SEED_TASK: dict[str, Any] = {"duration": 4.0,
              "initial": {"q": [0.766, -1.157, -1.148, -1.287], "dq": [0.0] * 4},
              "final": {"q": [0.676, -0.67, -1.306, -1.202], "dq": [0.0] * 4},
              "coupling_margin": 0.02, "objective": {"effort": 1.0}}
-TWO_LINK_TASK = {"duration": 1.0, "initial": {"q": [0.0, 0.5], "dq": [0.0, 0.0]},
+TWO_LINK_TASK: dict[str, Any] = {"duration": 1.0, "initial": {"q": [0.0, 0.5], "dq": [0.0, 0.0]},
                  "final": {"q": [0.6, 1.2], "dq": [0.0, 0.0]}}
 UNDER_TASK = {"duration": 2.0, "initial": {"q": [0.0, 0.5], "dq": [0.0, 0.0]},
               "final": {"q": [0.3, 1.0], "dq": [0.0, 0.0]}}
@@ -67,3 +68,11 @@ def make_scene(name: str, method: str = "legendre", N: int = 50, degree: int = 3
     """The named reference scene ("seed-hang", "seed-4", "arm-2", "under-2"), as `request`."""
     return Scene.model_validate(request(name, method, N, degree, solver, one_solve,
                                         **transcription))
+
+
+def fixed_duration(scene: Scene) -> float:
+    """The scene's duration T [s]: the peers solve fixed-duration tasks only."""
+    duration = scene.task.duration
+    if isinstance(duration, DurationRange):
+        raise ValueError("the peers solve fixed-duration scenes only (got a duration range)")
+    return float(duration)

@@ -58,19 +58,34 @@ def library_rhs(dyn: Dynamics) -> Rhs:
     return lambda x: np.r_[x[4:], dyn.forward(x[:4], x[4:], tau)]
 
 
+class _Diverged:
+    """solve_ivp's event of a motion whose energy error reaches `scale` (a terminal one:
+    the integration stops there)."""
+
+    terminal = True
+
+    def __init__(self, dyn: Dynamics, scale: float, energy: float):
+        self.dyn, self.scale, self.energy = dyn, scale, energy
+
+    def __call__(self, t: float, x: np.ndarray) -> float:
+        return self.scale - abs(sum(self.dyn.energy(x[:4], x[4:])) - self.energy)
+
+
+def _all_but(term: str) -> Callable[[str], bool]:
+    """`use` of `term_rhs` that corrects every term but `term`."""
+    return lambda k: k != term
+
+
 def drift(dyn: Dynamics, rhs: Rhs, x0: np.ndarray, duration: float) -> str:
     """Relative energy drift over `duration` [s]; a motion whose drift reaches 1 is stopped
     there."""
     T0, V0 = dyn.energy(x0[:4], x0[4:])
     scale, E0 = T0 + abs(V0), T0 + V0
-
-    def diverged(t: float, x: np.ndarray) -> float:
-        return scale - abs(sum(dyn.energy(x[:4], x[4:])) - E0)
-    diverged.terminal = True
-
+    diverged = _Diverged(dyn, scale, E0)
     sol = solve_ivp(lambda t, x: rhs(x), (0.0, duration), x0, method="DOP853", rtol=TOL,
                     atol=TOL, t_eval=np.linspace(0.0, duration, 501), events=diverged)
     if sol.status == 1:
+        assert sol.t_events is not None  # solve_ivp was given an event
         return f"> 1 (diverged at t = {sol.t_events[0][0]:.3g} s)"
     if sol.status != 0:
         return f"failed at t = {sol.t[-1]:.3g} s: {sol.message}"
@@ -111,7 +126,7 @@ def report(states: int, duration: float) -> str:
     starts = [np.r_[rng.uniform(-np.pi, np.pi, 4), rng.uniform(-2.0, 2.0, 4)] for _ in range(3)]
     variants: list[tuple[str, Rhs]] = [
         ("printed (all misprints)", term_rhs(arm, lambda k: False)),
-        *[(f"only `{m}` misprinted", term_rhs(arm, lambda k, m=m: k != m)) for m in sp.CORRECTED],
+        *[(f"only `{m}` misprinted", term_rhs(arm, _all_but(m))) for m in sp.CORRECTED],
         ("corrected", term_rhs(arm, lambda k: True)),
         ("library (planner.dynamics)", library_rhs(dyn)),
     ]

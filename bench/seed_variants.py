@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from typing import Any
 
 import numpy as np
 
@@ -33,7 +34,7 @@ from bench.plans import summary
 from bench.scenes import make_scene
 from planner.ocp import plan
 
-SCENES = {
+SCENES: dict[str, dict[str, Any]] = {
     "seed-4": {"section": "Seed arm: end states around the seed's", "csv": "seed_variants.csv",
                "moved": "whose final configuration moves by up to ±0.15 rad per joint",
                "offset": 0.15, "ends": ("final",), "joints": [0, 1, 2, 3]},

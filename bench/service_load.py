@@ -123,7 +123,7 @@ def main(argv: list[str]) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         env = {"UNDERTOW_WORKERS": str(args.workers),
                "UNDERTOW_MAX_QUEUED": str(args.max_queued)}
-        with LiveServer(Path(tmp) / "jobs.sqlite3", **env) as live:
+        with LiveServer(Path(tmp) / "jobs.sqlite3", None, **env) as live:
             result = asyncio.run(run(live.url, args.requests))
     text, ok = report(result, args)
     text += "\n\n" + harness.manifest("service_load", argv, started, note)

@@ -62,6 +62,8 @@ def det_map(robot: Robot, base: list[float], axes: tuple[int, int], spans, point
     Q = np.tile(base, (U.size, 1))
     Q[:, axes[0]], Q[:, axes[1]] = U.ravel(), V.ravel()
     det = along(robot, Q).det
+    if det is None:
+        raise ValueError("det M_pa needs a square coupling block")
     return U, V, det.reshape(U.shape)
 
 

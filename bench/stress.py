@@ -31,6 +31,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import httpx
 import numpy as np
@@ -147,7 +148,7 @@ def random_robot(rng: np.random.Generator) -> Robot:
     links = []
     for k in range(n):
         length, mass = 10 ** rng.uniform(-2, 1), 10 ** rng.uniform(-3, 3)
-        link = {"length": length, "mass": mass,
+        link: dict[str, Any] = {"length": length, "mass": mass,
                 "inertia": 0.0 if rng.random() < 0.3 else mass * length**2 * rng.random(),
                 "joint": "active" if active[k] else "passive"}
         if active[k] and rng.random() < 0.75:
@@ -216,7 +217,7 @@ def service_rows(examples: int) -> tuple[list[dict], list[dict], dict]:
     tmp = Path(tempfile.mkdtemp(prefix="undertow-stress-"))
     limits = {"UNDERTOW_MAX_NODES": "400", "UNDERTOW_MAX_WALL_TIME": "60",
               "UNDERTOW_MAX_QUEUED": "4", "UNDERTOW_MAX_WAIT": "30"}
-    with LiveServer(tmp / "jobs.sqlite3", **limits) as live, \
+    with LiveServer(tmp / "jobs.sqlite3", None, **limits) as live, \
             httpx.Client(base_url=live.url, timeout=60) as http:
         faults = [kill_worker_case(live, http), *disconnect_cases(live, http)]
         bodies = malformed_rows(live.url)

@@ -41,6 +41,7 @@ import math
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 from bench import harness
 from bench.plans import dense_error, spline_floor
@@ -55,7 +56,7 @@ SPECS = ([("trapezoidal", 0, "rk4"), ("hermite-simpson", 0, "rk4")]
 GRIDS = {"seed-4": [10, 20, 40, 80], "arm-2": [10, 20, 40, 80, 160, 400],
          "under-2": [10, 20, 40, 80, 160, 400]}
 CVODES_MAX_N = 40  # multiple shooting with CVODES (limited-memory Hessian) above is hopeless
-REFERENCE = {"degree": 5, "N": 160, "starts": (20, 30, 40)}
+REFERENCE: dict[str, Any] = {"degree": 5, "N": 160, "starts": (20, 30, 40)}
 SOLVE_CAP, POINT_TIMEOUT, REFERENCE_TIMEOUT = 60.0, 600.0, 1800.0
 FLOOR = 1e-7  # [rad]
 SAME_OPTIMUM = 0.05  # relative objective difference within which two plans share an optimum
@@ -75,16 +76,18 @@ def label(method: str, degree: int, integrator: str) -> str:
 
 def reference(scene_name: str, path: str) -> dict:
     """Compute the scene's reference plan (see module doc), save it as JSON at `path`."""
-    best: tuple[Plan, Plan] | None = None
+    best: tuple[Plan, Plan, float] | None = None  # (start, fine, fine's objective)
     for N in REFERENCE["starts"]:
         start = plan(make_scene(scene_name, "legendre", N, 3, one_solve=True))
         fine = plan(make_scene(scene_name, "legendre", REFERENCE["N"], REFERENCE["degree"],
                                one_solve=True), warm_start=start)
-        if fine.solver.success and (best is None or fine.objective < best[1].objective):
-            best = (start, fine)
+        objective = fine.objective
+        if (fine.solver.success and objective is not None
+                and (best is None or objective < best[2])):
+            best = (start, fine, objective)
     if best is None:
         return {"failure": "no reference solve succeeded"}
-    start, fine = best
+    start, fine, _ = best
     Path(path).write_text(fine.model_dump_json())
     Path(path + ".start.json").write_text(start.model_dump_json())
     return {"objective": fine.objective, "interval_error": fine.verification.local_error,

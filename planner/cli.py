@@ -324,7 +324,8 @@ def parser(*extensions: Callable[[Commands], None]) -> argparse.ArgumentParser:
     ex.add_argument("-o", "--output", help="file for --name (default: stdout)")
     ex.set_defaults(run=cmd_examples)
 
-    raw = {"epilog": EXIT_CODES, "formatter_class": argparse.RawDescriptionHelpFormatter}
+    raw: dict[str, Any] = {"epilog": EXIT_CODES,
+                           "formatter_class": argparse.RawDescriptionHelpFormatter}
     pl = commands.add_parser("plan", help="plan a scene (optimal control, Ipopt)", **raw)
     pl.add_argument("scene", metavar="SCENE.json", help='scene file ("-": stdin)')
     pl.add_argument("-o", "--output", required=True, metavar="PLAN.json",

@@ -114,7 +114,7 @@ class CouplingRequest(BaseModel):
                                  f"limit of {MAX_POINTS:,}")
             if any(len(row) != n for row in self.configurations):
                 raise ValueError(f"configurations: every row needs {n} entries, one per joint")
-        else:
+        elif self.grid is not None:  # (the other of the two)
             if len(self.grid.lower) != n:
                 raise ValueError(f"grid.lower: needs {n} entries, one per joint")
             if self.grid.size > MAX_POINTS:
@@ -241,6 +241,8 @@ def _sign_changes(robot: Robot, s: Structure, Q: np.ndarray, det: np.ndarray,
                np.zeros(len(lo)), np.ones(len(lo)), deadline)
     points = start + u[:, None] * step
     m = along(robot, points, s)
+    if m.det is None:
+        raise ValueError("det M_pa needs a square coupling block")
     found += [SingularPoint(q=q.tolist(), det=float(d), sigma_min=float(a),
                             source="det-sign-change")
               for q, d, a in zip(points, m.det, m.sigma_min, strict=True)]
@@ -288,21 +290,21 @@ def _refine_minimum(robot: Robot, s: Structure, lower: np.ndarray, upper: np.nda
     if not free.any():
         return q0
 
-    def objective(x: np.ndarray) -> float:
+    def objective(x: np.ndarray | float) -> float:
         q = q0.copy()
         q[free] = x
         return _sigma_min(robot, s, q)
 
     if free.sum() == 1:
         (i,) = np.flatnonzero(free)
-        res = minimize_scalar(objective, bounds=(lower[i], upper[i]), method="bounded",
-                              options={"xatol": 1e-12})
-        x = np.array([res.x])
+        line = minimize_scalar(objective, bounds=(lower[i], upper[i]), method="bounded",
+                               options={"xatol": 1e-12})
+        x = np.array([line.x])
     else:
         res = minimize(objective, q0[free], method="Nelder-Mead",
                        bounds=list(zip(lower[free], upper[free], strict=True)),
                        options={"xatol": 1e-11, "fatol": 1e-15, "maxiter": 4000})
-        x = res.x
+        x = np.asarray(res.x)
     q = q0.copy()
     q[free] = x
     return q
@@ -310,7 +312,7 @@ def _refine_minimum(robot: Robot, s: Structure, lower: np.ndarray, upper: np.nda
 
 def _minima_points(robot: Robot, s: Structure, Q: np.ndarray, idx: np.ndarray,
                    boxes, deadline: float | None = None) -> list[SingularPoint]:
-    found = []
+    found: list[SingularPoint] = []
     for k in idx:
         budget.check(deadline, _REFINING.format(len(found), len(idx)))
         lower, upper = boxes(k)
@@ -329,21 +331,24 @@ def _points(request: CouplingRequest):
         K = len(Q)
         pairs = [(np.arange(K - 1), np.arange(1, K))] if K > 1 else []
 
-        def boxes(k: int):
+        def path_box(k: int) -> tuple[np.ndarray, np.ndarray]:
             lo, hi = Q[max(k - 1, 0)], Q[min(k + 1, K - 1)]
             return np.minimum(lo, hi), np.maximum(lo, hi)
-        return Q, pairs, boxes, True
+        return Q, pairs, path_box, True
 
-    axes = request.grid.axes()
+    grid = request.grid
+    if grid is None:
+        raise ValueError("configurations: give exactly one of configurations and grid")
+    axes = grid.axes()
     shape = tuple(len(axis) for axis in axes)
     mesh = np.meshgrid(*axes, indexing="ij")
     Q = np.stack([m.ravel() for m in mesh], axis=1)
     steps = np.array([axis[1] - axis[0] if len(axis) > 1 else 0.0 for axis in axes])
-    lower_all, upper_all = np.array(request.grid.lower), np.array(request.grid.upper)
+    lower_all, upper_all = np.array(grid.lower), np.array(grid.upper)
 
-    def boxes(k: int):
+    def grid_box(k: int) -> tuple[np.ndarray, np.ndarray]:
         return (np.maximum(Q[k] - steps, lower_all), np.minimum(Q[k] + steps, upper_all))
-    return Q, _edges(shape), boxes, False
+    return Q, _edges(shape), grid_box, False
 
 
 def analyse(request: CouplingRequest, *, deadline: float | None = None) -> CouplingReport:
@@ -394,7 +399,7 @@ def _analyse(request: CouplingRequest, deadline: float | None) -> CouplingReport
 def _path_minima(robot: Robot, s: Structure, Q: np.ndarray, idx: np.ndarray,
                  deadline: float | None = None) -> list[SingularPoint]:
     """Refine local minima of sigma_min along the polyline through the configurations."""
-    found = []
+    found: list[SingularPoint] = []
     K = len(Q)
     for k in idx:
         budget.check(deadline, _REFINING.format(len(found), len(idx)))

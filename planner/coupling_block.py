@@ -184,7 +184,10 @@ def refine(s: Structure, p: np.ndarray, path: Path, lo: np.ndarray, hi: np.ndarr
 
     def det_at(u: np.ndarray, k: np.ndarray) -> np.ndarray:
         q = path(u.ravel(), k.ravel().astype(int))
-        return measures(evaluate(s, "Mpa", q, p, deadline)).det.reshape(u.shape)
+        det = measures(evaluate(s, "Mpa", q, p, deadline)).det
+        if det is None:
+            raise ValueError("det M_pa needs a square coupling block")
+        return det.reshape(u.shape)
 
     res = find_root(det_at, (np.asarray(lo, float), np.asarray(hi, float)),
                     args=(np.arange(len(lo)),), tolerances={"xatol": 1e-16, "xrtol": 1e-15})

@@ -71,7 +71,7 @@ def derive(s: Structure) -> Symbols:
         tip = tip + radius[i] * ca.vertcat(ca.cos(q[i]), ca.sin(q[i]))
         tips.append(tip)
 
-    kinetic = 0
+    kinetic = ca.SX(0)
     for k in range(s.n):
         velocity = ca.jtimes(tips[k], q, dq)
         kinetic += 0.5 * par["m"][k] * ca.sumsqr(velocity)
@@ -81,11 +81,10 @@ def derive(s: Structure) -> Symbols:
         rate = ca.sum1(dq[: k + 1]) if s.rotational == "cumulative" else dq[k]
         kinetic += 0.5 * inertia * rate**2
 
-    potential = 0
+    potential = ca.SX(0)
     if s.gravity:
         g = par["g"][0]
         potential = -g * sum(par["m"][k] * tips[k][0] for k in range(s.n))
-    potential = ca.SX(potential)
 
     momentum = ca.gradient(kinetic, dq)
     mass = ca.jacobian(momentum, dq)

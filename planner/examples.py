@@ -97,7 +97,10 @@ def _singular_angle(robot: Robot, q: list[float], joint: int, guess: float,
     """The first angle of `joint` [rad] within `width` of `guess` where det M_pa = 0, the
     other joints at q (to machine precision)."""
     u = np.linspace(guess - width, guess + width, 201)
-    return float(zeros_along(robot, sweep(q, joint), u)[0])
+    roots = zeros_along(robot, sweep(q, joint), u)
+    if roots is None:
+        raise ValueError("det M_pa needs a square coupling block")
+    return float(roots[0])
 
 
 @lru_cache(maxsize=1)
@@ -188,7 +191,7 @@ def _coupling_examples() -> list[Example]:
     ]
 
 
-VERTICAL_SEED_ARM = {
+VERTICAL_SEED_ARM: dict[str, Any] = {
     "links": [
         {"length": 0.5, "mass": 1.0, "inertia": 0.01, "joint": "passive"},
         {"length": 0.4, "mass": 0.8, "inertia": 0.008, "joint": "active",
@@ -204,7 +207,7 @@ VERTICAL_SEED_ARM = {
 the seed-arm plan, of the tests of the seed's printed equations and of the benches (the
 seed's excerpt gives no numbers)."""
 
-PLAN_ARM = {"links": [
+PLAN_ARM: dict[str, Any] = {"links": [
     {"length": 0.5, "mass": 1.0, "inertia": 0.01, "joint": "passive"},
     {"length": 0.4, "mass": 0.8, "inertia": 0.008, "joint": "active",
      "wave": {"amplitude": 0.05, "frequency": 3, "phase": 0.3}}], "gravity": 0.0}

@@ -206,6 +206,21 @@ class _Problem:
         return float(measures(block[None]).sigma_min[0]), level
 
 
+class _SigmaEvent:
+    """solve_ivp's event where sigma_min(M_pa) falls through its level (terminal: the
+    integration stops there)."""
+
+    terminal = True
+    direction = -1.0
+
+    def __init__(self, pb: _Problem):
+        self.pb = pb
+
+    def __call__(self, t: float, x: np.ndarray) -> float:
+        sigma, level = self.pb.sigma(t, x)
+        return sigma - level
+
+
 def solve(request: InverseDynamicsRequest, *,
           deadline: float | None = None) -> InverseDynamicsResult:
     """Active motion and torques for the prescribed passive motion, or the singular stop
@@ -234,23 +249,21 @@ def integrate(robot: Robot, motion, duration: float, active_initial: JointState,
                        f"sigma_min(M_pa) = {sigma0:.3g} < {level0:.3g} at the start"
                        + _floor_note(pb, level0))
 
-    def event(t: float, x: np.ndarray) -> float:
-        sigma, level = pb.sigma(t, x)
-        return sigma - level
-    event.terminal, event.direction = True, -1.0
     try:
         sol = solve_ivp(pb.rhs, (0.0, duration), x0, method="DOP853", dense_output=True,
-                        rtol=rtol, atol=atol, events=event)
+                        rtol=rtol, atol=atol, events=_SigmaEvent(pb))
     except _OverBudget:
         raise InputError(f"the inverse dynamics did not finish within {pb.wall_time:g} s: the "
                          f"motion is far too fast for its duration; {_SCALE_DOWN}") from None
+    dense = sol.sol
+    assert dense is not None  # dense_output=True
     if sol.status == 0:
-        return _result("completed", pb, grid, sol.sol(grid).T, None, "completed")
+        return _result("completed", pb, grid, dense(grid).T, None, "completed")
 
     t_stop = float(sol.t[-1])
     x_stop = sol.y[:, -1]
     times = np.append(grid[grid < t_stop], t_stop)
-    states = np.vstack([sol.sol(times[:-1]).T, x_stop]) if len(times) > 1 else x_stop[None, :]
+    states = np.vstack([dense(times[:-1]).T, x_stop]) if len(times) > 1 else x_stop[None, :]
     q_stop, _, _ = pb.full(t_stop, x_stop[None, :])
     sigma_stop, level = pb.sigma(t_stop, x_stop)
     floor = level > pb.threshold

@@ -10,6 +10,7 @@ M, h, the energies and the tips of a valid robot are finite at any moderate stat
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Literal
 
@@ -111,7 +112,7 @@ class Robot(BaseModel):
         links = [link.model_copy(update={"wave": None}) for link in self.links]
         return self.model_copy(update={"links": links})
 
-    def with_waves(self, waves: dict[int, Wave | None]) -> Robot:
+    def with_waves(self, waves: Mapping[int, Wave | None]) -> Robot:
         """The same robot with the waves of the given joints replaced."""
         links = list(self.links)
         for joint, wave in waves.items():

@@ -203,14 +203,14 @@ def _snapshots(fig: Figure, strip, robot: Robot, t: np.ndarray, q: np.ndarray,
     sizes = 25 + 90 * masses / masses.max()
     colors = [_ACTIVE if link.joint == "active" else _PASSIVE for link in robot.links]
     full = np.linspace(0.0, 2.0 * np.pi, 361)
-    drawings = []
+    drawings: list[tuple[int, np.ndarray, list[tuple[np.ndarray, np.ndarray]]]] = []
     for k in picks:
         tips = np.vstack([[0.0, 0.0], dyn.tips(q[k])])
         paths = [(tips[j] + wave_path(robot, j, full),
                   tips[j] + wave_path(robot, j, np.linspace(q[:, j].min(), q[:, j].max(), 120)))
                  for j, link in enumerate(robot.links) if link.joint == "active"]
         drawings.append((k, tips, paths))
-    extent = np.vstack([trace.reshape(-1, 2), [[0.0, 0.0]]]
+    extent = np.vstack([trace.reshape(-1, 2), np.zeros((1, 2))]
                        + [p for _, _, paths in drawings for pair in paths for p in pair])
     xs, ys = _screen(extent)
     pad = 0.08 * max(np.ptp(xs), np.ptp(ys), 1e-3)
@@ -324,7 +324,8 @@ def _plan_title(plan: Plan) -> str:
     """Whether the plan is verified (its re-simulation error against the tolerance), then
     Ipopt's outcome and the plan's figures."""
     v = plan.verification
-    verdict = {True: "verified", False: "not verified"}.get(v.verified, "not checked")
+    verdict = ("not checked" if v.verified is None
+               else "verified" if v.verified else "not verified")
     if v.resimulation_error is not None:
         bound = f" (tolerance {v.tolerance:.2g} rad)" if v.tolerance is not None else ""
         verdict += f": re-simulation error {v.resimulation_error:.2g} rad{bound}"

@@ -5,7 +5,9 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import TypeVar
 
-X = TypeVar("X")
+import casadi as ca
+
+X = TypeVar("X", ca.SX, ca.MX)
 
 
 def rk4_step(f: Callable[[X, float], X], x: X, h) -> X:

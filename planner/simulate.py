@@ -17,7 +17,7 @@ import itertools
 import math
 import re
 from functools import lru_cache
-from typing import Literal
+from typing import Any, Literal
 
 import casadi as ca
 import numpy as np
@@ -97,10 +97,12 @@ def _integrator(s: Structure, degree: int, n_out: int, rtol: float, atol: float,
     p = ca.SX.sym("p", s.n_params)
     h = ca.SX.sym("h")
     tau = sum(coeffs[j * na:(j + 1) * na] * sn**j for j in range(degree + 1))
-    dae = {"x": x, "t": sn, "p": ca.vertcat(p, coeffs, h), "ode": h * f(x, tau, p), "quad": 1}
+    dae: dict[str, Any] = {"x": x, "t": sn, "p": ca.vertcat(p, coeffs, h),
+                           "ode": h * f(x, tau, p), "quad": 1}
     grid = np.linspace(0.0, 1.0, n_out + 1)[1:]
-    opts = {"abstol": atol, "reltol": rtol, "max_num_steps": MAX_STEPS,
-            "show_eval_warnings": False, "disable_internal_warnings": True, **_METHODS[method]}
+    opts: dict[str, Any] = {"abstol": atol, "reltol": rtol, "max_num_steps": MAX_STEPS,
+                            "show_eval_warnings": False, "disable_internal_warnings": True,
+                            **_METHODS[method]}
     return Exclusive(ca.integrator("sim", "cvodes", dae, 0.0, list(grid), opts))
 
 
@@ -205,7 +207,10 @@ class SimulationRequest(BaseModel):
     @property
     def breaks(self) -> list[float]:
         """The interval boundaries [s]: the sample times, or the polynomial's breaks."""
-        return self.torque.breaks if self.torque is not None else self.t
+        if self.torque is not None:
+            return self.torque.breaks
+        assert self.t is not None  # the request holds one of t and torque
+        return self.t
 
     @property
     def output_samples(self) -> int:
@@ -257,7 +262,9 @@ class SimulationRequest(BaseModel):
     @classmethod
     def _one_per_joint(cls, initial: JointState, info: ValidationInfo) -> JointState:
         robot = info.data.get("robot")
-        for name in ("q", "dq") if robot is not None else ():
+        if robot is None:
+            return initial
+        for name in ("q", "dq"):
             got = len(getattr(initial, name))
             if got != robot.n:
                 raise ValueError(f"{name}: needs {robot.n} entries, one per joint (got {got})")

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from typing import Any
 
 import numpy as np
 
@@ -40,9 +41,10 @@ def _robot(rng: np.random.Generator, kinds: str, gravity: float) -> Robot:
     links = []
     for kind in kinds:
         length, mass = rng.uniform(0.3, 0.6), rng.uniform(0.4, 1.2)
-        link = {"length": round(length, 3), "mass": round(mass, 3),
-                "inertia": round(mass * length**2 / 12 * rng.uniform(0.5, 1.5), 5),
-                "joint": "active" if kind == "A" else "passive"}
+        link: dict[str, Any] = {
+            "length": round(length, 3), "mass": round(mass, 3),
+            "inertia": round(mass * length**2 / 12 * rng.uniform(0.5, 1.5), 5),
+            "joint": "active" if kind == "A" else "passive"}
         if kind == "A" and rng.random() < 0.5:
             link["wave"] = {"amplitude": round(rng.uniform(0.02, 0.06), 3),
                             "frequency": float(rng.integers(2, 5)),
@@ -64,7 +66,7 @@ def singular_configuration(robot: Robot, rng: np.random.Generator,
         joint = int(rng.choice(robot.active))
         grid = np.linspace(q[joint] - math.pi, q[joint] + math.pi, 73)
         zeros = zeros_along(waveless, sweep(q, joint), grid)
-        if zeros.size:
+        if zeros is not None and zeros.size:
             q[joint] = zeros[np.argmin(np.abs(zeros - q[joint]))]
             return q
     return None

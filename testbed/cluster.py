@@ -24,7 +24,7 @@ def api_server(folder: Path, db_url: str, instance: str, **extra: str) -> LiveSe
     log in `folder`."""
     env = {"UNDERTOW_DB_URL": db_url, "UNDERTOW_INSTANCE": instance, "UNDERTOW_WORKERS": "0",
            **extra}
-    return LiveServer(folder / f"{instance}.sqlite3", **env)  # the file is never opened
+    return LiveServer(folder / f"{instance}.sqlite3", None, **env)  # the file is never opened
 
 
 class WorkerNode:

@@ -68,14 +68,22 @@ def seed_at(sigma: float, start: list[float], final: list[float]) -> np.ndarray:
     q0, q1 = np.array(start), np.array(final)
     def path(s: np.ndarray) -> np.ndarray:
         return q0 + np.outer(s, q1 - q0)
+
+    def gap(s: float) -> float:
+        found = coupling_block.at(robot, path(np.array([s]))[0]).sigma_min
+        assert found is not None  # the seed arm has passive joints
+        return found - sigma
+
     grid = np.linspace(0.0, 1.0, 401)
-    root = coupling_block.zeros_along(robot, path, grid)[0]
+    roots = coupling_block.zeros_along(robot, path, grid)
+    assert roots is not None  # its M_pa is square
+    root = roots[0]
     sig = coupling_block.along(robot, path(grid)).sigma_min
     above = grid[sig > sigma]
     outer = above[np.argmin(np.abs(above - root))]
-    s = brentq(lambda s: coupling_block.at(robot, path([s])[0]).sigma_min - sigma,
-               *sorted((outer, root)), xtol=1e-18)
-    return path([s])[0]
+    lo, hi = sorted((float(outer), float(root)))
+    s = brentq(gap, lo, hi, xtol=1e-18)
+    return path(np.array([s]))[0]
 
 
 def inverse_case(robot: Robot, q: np.ndarray, threshold: float, rate: float = 1.0) -> dict:
@@ -147,7 +155,7 @@ def plan_row(scene: Scene) -> dict:
 def scaled_cases() -> list[tuple[str, str, dict, float]]:
     """(sweep, value, chain options, duration [s]) of the badly scaled robots, 2 links
     unless varied."""
-    cases = []
+    cases: list[tuple[str, str, dict, float]] = []
     for ratio in (1e-3, 1e-2, 1e-1, 1.0, 1e1, 1e2, 1e3):
         cases.append(("mass ratio m2/m1", f"{ratio:g}", {"masses": [1.0, ratio]}, 2.0))
     for l1, l2 in ((1e-2, 1e-2), (1e-1, 1e-1), (1.0, 1.0), (10.0, 10.0), (1e-2, 10.0),

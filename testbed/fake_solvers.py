@@ -21,10 +21,16 @@ from planner.scene import Scene
 ITERATION = 0.02  # [s]
 
 
+def _duration(scene: Scene) -> float:
+    """The scene's duration, the upper bound of a free one [s]."""
+    duration = scene.task.duration
+    return duration if isinstance(duration, float) else duration.max
+
+
 def _plan(scene: Scene, status: str, success: bool, iterations: int, elapsed: float,
           error: float = 0.0) -> Plan:
     n, na = scene.robot.n, len(scene.robot.active)
-    T = scene.task.duration if isinstance(scene.task.duration, float) else scene.task.duration.max
+    T = _duration(scene)
     zeros, tau = [[0.0] * n] * 2, [[0.0] * na] * 2
     return Plan.model_validate({
         "t": [0.0, T], "q": [scene.task.initial.q, scene.task.initial.q], "dq": zeros,
@@ -50,7 +56,7 @@ def fake_plan(scene: Scene, progress=None) -> Plan:
         held = bytearray(scene.solver.max_iter * 2**20)
         return _plan(scene, "Solve_Succeeded", True, len(held) // 2**20, 0.0)
     if 0.8 <= tol < 0.9:
-        time.sleep(scene.task.duration)
+        time.sleep(_duration(scene))
     if 0.7 <= tol < 0.8:
         return _plan(scene, "Invalid_Problem_Definition", False, 0, 0.0)
     if 0.25 <= tol < 0.5:

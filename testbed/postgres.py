@@ -55,9 +55,10 @@ class PostgresServer:
     """A throwaway cluster; `url(name)` addresses one of its databases."""
 
     def __init__(self) -> None:
-        self.bin = binaries()
-        if self.bin is None:
+        found = binaries()
+        if found is None:
             raise RuntimeError(missing())
+        self.bin: Path = found
         self.port = free_port()
         self.root = Path(tempfile.mkdtemp(prefix="undertow-pg-"))
         self.data, self.log = self.root / "data", self.root / "server.log"

@@ -9,22 +9,24 @@ import os
 import signal
 import socket
 import time
+from typing import Any
 
 import httpx
 
 from testbed.service import LiveServer, wait_final
 
-QUICK = {"robot": {"links": [
+QUICK: dict[str, Any] = {"robot": {"links": [
     {"length": 0.5, "mass": 1.0, "inertia": 0.01, "joint": "passive"},
     {"length": 0.4, "mass": 0.5, "inertia": 0.005, "joint": "active",
      "wave": {"amplitude": 0.05, "frequency": 3.0, "phase": 0.3}}], "gravity": 9.81},
     "task": {"duration": 2.0, "initial": {"q": [0.0, 0.0], "dq": [0.0, 0.0]},
              "final": {"q": [1.0, None], "dq": [0.0, 0.0]}},
     "transcription": {"intervals": 10}}
-LONG = {**QUICK, "task": {**QUICK["task"], "final": {"q": [None, None], "dq": [0.0, 0.0]},
-                          "tip_target": {"x": 5.0, "y": 5.0}, "torque_limit": 0.5},
-        "transcription": {"intervals": 80, "degree": 3},
-        "solver": {"max_iter": 100000, "max_wall_time": 60}}
+LONG: dict[str, Any] = {
+    **QUICK, "task": {**QUICK["task"], "final": {"q": [None, None], "dq": [0.0, 0.0]},
+                      "tip_target": {"x": 5.0, "y": 5.0}, "torque_limit": 0.5},
+    "transcription": {"intervals": 80, "degree": 3},
+    "solver": {"max_iter": 100000, "max_wall_time": 60}}
 """An unreachable tip under a torque limit: Ipopt iterates for many seconds."""
 
 
@@ -93,6 +95,7 @@ def kill_worker_case(live: LiveServer, http: httpx.Client) -> dict:
     while http.get(f"/v1/plans/{job_id}").json()["progress"] is None:
         assert time.monotonic() < deadline, "the long plan reported no progress"
         time.sleep(0.05)
+    assert live.proc is not None, "the server is not running"
     workers = worker_pids(live.proc.pid)
     killed_at = time.monotonic()
     for pid in workers:

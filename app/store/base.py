@@ -17,6 +17,7 @@ came from; its members are read back with the few figures of their plans a summa
 
 from __future__ import annotations
 
+import builtins
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Any, Literal
@@ -142,7 +143,7 @@ class JobStore(ABC):
         """queued or running -> failed with an error; False if it was already final."""
 
     @abstractmethod
-    def fail_claimed(self, worker: str, error: str) -> list[str]:
+    def fail_claimed(self, worker: str, error: str) -> builtins.list[str]:
         """Mark the running jobs of `worker` failed with `error`; their ids."""
 
     @abstractmethod
@@ -151,7 +152,7 @@ class JobStore(ABC):
         its worker to stop; a final job is left as it is. None when there is no such id."""
 
     @abstractmethod
-    def renew(self, workers: list[str], lease_until: float) -> dict[str, bool]:
+    def renew(self, workers: builtins.list[str], lease_until: float) -> dict[str, bool]:
         """Extend the leases of the running jobs of `workers`; {job id: cancel requested}."""
 
     @abstractmethod
@@ -161,13 +162,13 @@ class JobStore(ABC):
         `MAX_ATTEMPTS` claims, else failed ("interrupted"). {job id: new status}."""
 
     @abstractmethod
-    def interrupt(self, owner: str) -> list[str]:
+    def interrupt(self, owner: str) -> builtins.list[str]:
         """Mark the running jobs of `owner` held by its own workers (named "owner/...")
         failed with error "interrupted"; their ids."""
 
     @abstractmethod
     def create_batch(self, batch_id: str, spec: dict[str, Any],
-                     members: list[tuple[str, dict[str, Any]]], owner: str,
+                     members: builtins.list[tuple[str, dict[str, Any]]], owner: str,
                      limit: int | None = None) -> bool:
         """Store a batch and its members (job id, scene) as queued jobs, all or none;
         False (nothing stored) when `owner` would then hold more than `limit` unfinished

@@ -16,6 +16,7 @@ machines of one deployment keep their clocks synchronised (NTP).
 
 from __future__ import annotations
 
+import builtins
 import json
 import os
 import threading
@@ -122,6 +123,14 @@ def _member(row: tuple) -> MemberRecord:
                         finished=finished)
 
 
+def _one(cursor: psycopg.Cursor) -> tuple[Any, ...]:
+    """The row of a statement that always returns one (a COUNT, an INSERT ... RETURNING)."""
+    row = cursor.fetchone()
+    if row is None:
+        raise RuntimeError("the statement returned no row")
+    return row
+
+
 def _lock_key(owner: str) -> int:
     """The advisory lock key of an owner's job count (a signed 32-bit hash)."""
     return zlib.crc32(owner.encode()) - 2**31
@@ -226,15 +235,15 @@ class PostgresJobStore(JobStore):
         with self._connection() as conn, conn.transaction():
             if self._held(conn, owner) >= limit:
                 return None
-            return _record(conn.execute(insert, values).fetchone())
+            return _record(_one(conn.execute(insert, values)))
 
     @staticmethod
     def _held(conn: psycopg.Connection, owner: str) -> int:
         """The owner's unfinished jobs, counted under its advisory lock (held until the
         transaction ends, so a concurrent create waits for this one's insert)."""
         conn.execute("SELECT pg_advisory_xact_lock(%s)", (_lock_key(owner),))
-        return conn.execute("SELECT COUNT(*) FROM jobs WHERE owner = %s AND status IN "
-                            "('queued', 'running')", (owner,)).fetchone()[0]
+        return _one(conn.execute("SELECT COUNT(*) FROM jobs WHERE owner = %s AND status IN "
+                                 "('queued', 'running')", (owner,)))[0]
 
     def get(self, job_id: str) -> JobRecord | None:
         rows = self._rows(f"SELECT {_COLUMNS} FROM jobs WHERE id = %s", (job_id,))
@@ -248,7 +257,7 @@ class PostgresJobStore(JobStore):
         return [_record(row) for row in rows]
 
     def count_by_status(self) -> dict[str, int]:
-        counts = dict.fromkeys(STATUSES, 0)
+        counts: dict[str, int] = dict.fromkeys(STATUSES, 0)
         for status, count in self._rows("SELECT status, COUNT(*) FROM jobs GROUP BY status"):
             counts[status] = count
         return counts
@@ -303,7 +312,7 @@ class PostgresJobStore(JobStore):
             (error, time.time(), job_id))
         return bool(rows)
 
-    def _fail_running(self, condition: str, params: tuple, error: str) -> list[str]:
+    def _fail_running(self, condition: str, params: tuple, error: str) -> builtins.list[str]:
         """Mark the running jobs that meet `condition` failed with `error`; their ids."""
         rows = self._rows(
             "UPDATE jobs SET status = 'failed', error = %s, finished = %s "
@@ -311,7 +320,7 @@ class PostgresJobStore(JobStore):
             (error, time.time(), *params))
         return [row[0] for row in rows]
 
-    def fail_claimed(self, worker: str, error: str) -> list[str]:
+    def fail_claimed(self, worker: str, error: str) -> builtins.list[str]:
         return self._fail_running("worker = %s", (worker,), error)
 
     def request_cancel(self, job_id: str) -> JobRecord | None:
@@ -322,7 +331,7 @@ class PostgresJobStore(JobStore):
             "WHERE id = %s AND status IN ('queued', 'running')", (time.time(), job_id))
         return self.get(job_id)
 
-    def renew(self, workers: list[str], lease_until: float) -> dict[str, bool]:
+    def renew(self, workers: builtins.list[str], lease_until: float) -> dict[str, bool]:
         if not workers:
             return {}
         rows = self._rows(
@@ -337,12 +346,12 @@ class PostgresJobStore(JobStore):
                                      "interrupted": INTERRUPTED, "now": now})
         return dict(rows)
 
-    def interrupt(self, owner: str) -> list[str]:
+    def interrupt(self, owner: str) -> builtins.list[str]:
         return self._fail_running("owner = %s AND starts_with(worker, %s)",
                                   (owner, owner + "/"), INTERRUPTED)
 
     def create_batch(self, batch_id: str, spec: dict[str, Any],
-                     members: list[tuple[str, dict[str, Any]]], owner: str,
+                     members: builtins.list[tuple[str, dict[str, Any]]], owner: str,
                      limit: int | None = None) -> bool:
         now = time.time()
         with self._connection() as conn, conn.transaction():

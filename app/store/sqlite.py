@@ -15,6 +15,7 @@ shutdown, so the `-wal` file never holds more than that interval's jobs.
 
 from __future__ import annotations
 
+import builtins
 import contextlib
 import json
 import logging
@@ -276,7 +277,7 @@ class SqliteJobStore(JobStore):
         return [_record(row) for row in rows]
 
     def count_by_status(self) -> dict[str, int]:
-        counts = dict.fromkeys(STATUSES, 0)
+        counts: dict[str, int] = dict.fromkeys(STATUSES, 0)
         for status, count in self._rows("SELECT status, COUNT(*) FROM jobs GROUP BY status"):
             counts[status] = count
         return counts
@@ -331,7 +332,7 @@ class SqliteJobStore(JobStore):
             (error, time.time(), job_id))
         return bool(rows)
 
-    def _fail_running(self, condition: str, params: tuple, error: str) -> list[str]:
+    def _fail_running(self, condition: str, params: tuple, error: str) -> builtins.list[str]:
         """Mark the running jobs that meet `condition` failed with `error`; their ids."""
         rows = self._write(
             "UPDATE jobs SET status = 'failed', error = ?, finished = ? "
@@ -339,7 +340,7 @@ class SqliteJobStore(JobStore):
             (error, time.time(), *params))
         return [row[0] for row in rows]
 
-    def fail_claimed(self, worker: str, error: str) -> list[str]:
+    def fail_claimed(self, worker: str, error: str) -> builtins.list[str]:
         return self._fail_running("worker = ?", (worker,), error)
 
     def request_cancel(self, job_id: str) -> JobRecord | None:
@@ -350,7 +351,7 @@ class SqliteJobStore(JobStore):
                     (job_id,))
         return self.get(job_id)
 
-    def renew(self, workers: list[str], lease_until: float) -> dict[str, bool]:
+    def renew(self, workers: builtins.list[str], lease_until: float) -> dict[str, bool]:
         if not workers:
             return {}
         marks = ", ".join("?" * len(workers))
@@ -366,12 +367,12 @@ class SqliteJobStore(JobStore):
                                      "interrupted": INTERRUPTED, "now": now})
         return dict(rows)
 
-    def interrupt(self, owner: str) -> list[str]:
+    def interrupt(self, owner: str) -> builtins.list[str]:
         return self._fail_running("owner = ? AND substr(worker, 1, ?) = ?",
                                   (owner, len(owner) + 1, owner + "/"), INTERRUPTED)
 
     def create_batch(self, batch_id: str, spec: dict[str, Any],
-                     members: list[tuple[str, dict[str, Any]]], owner: str,
+                     members: builtins.list[tuple[str, dict[str, Any]]], owner: str,
                      limit: int | None = None) -> bool:
         now = time.time()
         with self._transaction() as conn:

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+from bench.scenes import fixed_duration
 from planner.dynamics import functions, selection
 from planner.model import Structure, parameters
 from planner.ocp.accuracy import interval_errors
@@ -88,7 +89,7 @@ def build(scene: Scene, wall_time: float = WALL_CAP) -> Baseline:
     p = ca.DM(parameters(robot, s))
     f = functions(s)
     Bsel = ca.DM(selection(s))
-    T = float(task.duration)
+    T = fixed_duration(scene)
     h = T / N
     root, C, D, Bq = collocation_coefficients(d)
 
@@ -102,7 +103,7 @@ def build(scene: Scene, wall_time: float = WALL_CAP) -> Baseline:
     start_block = np.array(f["M"](task.initial.q, p))[np.ix_(s.passive_idx, s.active_idx)]
     sign = float(np.sign(np.linalg.det(start_block))) if square else 0.0
 
-    def keep_margin(q: ca.MX) -> None:
+    def keep_margin(q: ca.MX, margin: float) -> None:
         mpa = f["M"](q, p)[s.passive_idx, s.active_idx]
         gram = ca.mtimes(mpa, mpa.T) if mpa.size1() <= mpa.size2() else ca.mtimes(mpa.T, mpa)
         shifted = gram / margin**2 - ca.MX.eye(gram.size1())
@@ -116,7 +117,7 @@ def build(scene: Scene, wall_time: float = WALL_CAP) -> Baseline:
     X = opti.variable(2 * n, N + 1)
     Xc = [opti.variable(2 * n, d) for _ in range(N)]
     U = [opti.variable(na, d) for _ in range(N)]
-    cost = 0
+    cost = ca.MX(0)
     for k in range(N):
         end = D[0] * X[:, k]
         for j in range(1, d + 1):
@@ -127,11 +128,11 @@ def build(scene: Scene, wall_time: float = WALL_CAP) -> Baseline:
             cost = cost + task.objective.effort * Bq[j] * ca.sumsqr(U[k][:, j - 1]) * h
             end = end + D[j] * Xc[k][:, j - 1]
             if margin is not None:
-                keep_margin(Xc[k][:n, j - 1])
+                keep_margin(Xc[k][:n, j - 1], margin)
         opti.subject_to(X[:, k + 1] == end)
     if margin is not None:
         for k in range(N + 1):
-            keep_margin(X[:n, k])
+            keep_margin(X[:n, k], margin)
     if task.torque_limit is not None:
         limit = np.broadcast_to(np.asarray(task.torque_limit, float), (na,))[:, None]
         for k in range(N):
@@ -149,7 +150,7 @@ def set_guess(opti: ca.Opti, scene: Scene, X: ca.MX, Xc: list[ca.MX], U: list[ca
               root: np.ndarray) -> None:
     """The planner's own initial guess (cubic Hermite motion and its torques)."""
     N = scene.transcription.intervals
-    guess = hermite_guess(scene, scene.robot, float(scene.task.duration))
+    guess = hermite_guess(scene, scene.robot, fixed_duration(scene))
     nodes = guess(np.linspace(0.0, 1.0, N + 1))
     opti.set_initial(X, np.vstack([nodes["q"].T, nodes["dq"].T]))
     for k in range(N):
@@ -203,7 +204,7 @@ def interpolant(scene: Scene, built: Baseline, value) -> Interpolant | None:
     blocks = {"q": X[:n], "dq": X[n:], "q_col": Xc[:n], "dq_col": Xc[n:], "tau": U}
     if not all(np.all(np.isfinite(b)) for b in blocks.values()):
         return None
-    breaks = np.linspace(0.0, float(scene.task.duration), N + 1)
+    breaks = np.linspace(0.0, fixed_duration(scene), N + 1)
     return Collocation(N, d, "legendre").interpolant(blocks, breaks, None)
 
 

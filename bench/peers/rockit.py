@@ -40,6 +40,7 @@ import time
 import casadi as ca
 import numpy as np
 
+from bench.scenes import fixed_duration
 from planner.dynamics import functions
 from planner.model import Structure, parameters
 from planner.ocp.accuracy import SAMPLES, interval_errors
@@ -92,7 +93,7 @@ def build(scene: Scene, method: str = "collocation", solver: str = "ipopt",
     n, na = s.n, len(s.active_idx)
     p = ca.DM(parameters(robot, s))
     f = functions(s)
-    T = float(task.duration)
+    T = fixed_duration(scene)
 
     ocp = Ocp(t0=0, T=T)
     q = ocp.state(n)
@@ -165,7 +166,7 @@ def interpolant(scene: Scene, built: dict, sol) -> Interpolant | None:
     """The plan rockit reports, as the planner's interpolant (see the module's docstring);
     None when it has non-finite entries."""
     N = scene.transcription.intervals
-    breaks = np.linspace(0.0, float(scene.task.duration), N + 1)
+    breaks = np.linspace(0.0, fixed_duration(scene), N + 1)
     _, q = sol.sample(built["q"], grid="integrator", refine=SAMPLES)
     _, dq = sol.sample(built["dq"], grid="integrator", refine=SAMPLES)
     _, tau = sol.sample(built["tau"], grid="control")

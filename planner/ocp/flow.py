@@ -72,6 +72,8 @@ def integrator(s: Structure, degree: int, outputs: int, tol: float = TOL,
 def _integrator(s: Structure, degree: int, outputs: int, tol: float,
                 compiled: bool) -> ca.Function:
     dae = _compiled_dae(s, degree) if compiled else _dae(s, degree)
+    if dae is None:  # `integrator` asks for the compiled one only once it is loaded
+        raise RuntimeError("the compiled flow is not loaded yet")
     grid = list(np.linspace(0.0, 1.0, outputs + 1)[1:])
     return ca.integrator("flow", "cvodes", dae, 0.0, grid,
                          {"abstol": tol, "reltol": tol, "show_eval_warnings": False,

@@ -187,10 +187,14 @@ class Tracking(Term):
         return stage.common(self.name) * _integral(stage, ca.sum1((knots[passive, :] - ref)**2))
 
     def common_values(self, num: Numeric) -> np.ndarray:
-        return np.array([num.scene.task.tracking.weight])
+        tracking = num.scene.task.tracking
+        assert tracking is not None  # wanted only then
+        return np.array([tracking.weight])
 
     def local_values(self, num: Numeric) -> np.ndarray:
-        T, motion = num.T, num.scene.task.tracking.motion
+        tracking = num.scene.task.tracking
+        assert tracking is not None  # wanted only then
+        T, motion = num.T, tracking.motion
         times = num.knot_times()
         ref = motion.evaluate(times.ravel() * T, T)[0]  # (stages * m, n_passive)
         return ref.reshape(times.shape[0], -1)  # per stage: knot-major, passive within
@@ -215,6 +219,7 @@ class TipTarget(Term):
 
     def common_values(self, num: Numeric) -> np.ndarray:
         target = num.scene.task.tip_target
+        assert target is not None  # wanted only then
         return np.array([target.x, target.y])
 
 

@@ -90,16 +90,24 @@ class Transcription(Protocol):
     order: int
     """Order p of the local error of its interpolant: about C h^p on an interval of width h
     (the refinement's model)."""
-    knot_positions: tuple[float, ...]
-    """Where a stage's knots sit in its interval (fractions), in the order of knot_q."""
     terminal_knots: int
     """Knots at the final node (0 or 1)."""
-    link: tuple[str, ...]
-    """The leading parts of a stage (and of the terminal) that the previous stage reads."""
-    knot_blocks: tuple[str, ...]
-    """The angle blocks at the knots (where exact tracking holds)."""
-    symbolic: type
-    """ca.SX, or ca.MX where a stage calls what SX cannot hold (an integrator)."""
+
+    @property
+    def knot_positions(self) -> tuple[float, ...]:
+        """Where a stage's knots sit in its interval (fractions), in the order of knot_q."""
+
+    @property
+    def link(self) -> tuple[str, ...]:
+        """The leading parts of a stage (and of the terminal) that the previous stage reads."""
+
+    @property
+    def knot_blocks(self) -> tuple[str, ...]:
+        """The angle blocks at the knots (where exact tracking holds)."""
+
+    @property
+    def symbolic(self) -> type:
+        """ca.SX, or ca.MX where a stage calls what SX cannot hold (an integrator)."""
 
     def node_count(self) -> int:
         """Time points the NLP holds variables at (server limits count these)."""

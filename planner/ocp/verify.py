@@ -69,8 +69,9 @@ def singular_crossings(robot: Robot, interp: Interpolant,
     if not np.all(np.isfinite(sigma)):
         return [], sigma
     times: list[float] = []
-    if det is not None:
-        times += coupling_block.zeros_along(waveless, interp.q, t).tolist()
+    zeros = coupling_block.zeros_along(waveless, interp.q, t) if det is not None else None
+    if zeros is not None:
+        times += zeros.tolist()
     else:
         floor = 1e-3 * float(sigma.max())
         def sig_at(x: float) -> float:

@@ -75,6 +75,7 @@ def _design(request: WaveDesignRequest, deadline: float | None) -> WaveDesignRes
         c, cert = _exchange(problem, start, upper, floor)
         if cert.beats(best[1] if best else None):
             best = (c, cert)
+    assert best is not None  # starts >= 1, and the first certificate beats None
     c, cert = best
     status = "certified" if cert.value >= request.margin else "infeasible"
     certified = max(cert.value, 0.0)
@@ -110,4 +111,5 @@ def _exchange(problem: Problem, start: Candidate, upper: np.ndarray,
             break
         previous = c.bound
         problem.exchange(cert)
+    assert best is not None  # the first round's certificate beats None
     return best

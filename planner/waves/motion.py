@@ -59,6 +59,8 @@ class MotionProblem:
 
     def __init__(self, request: WaveDesignRequest, s: Structure, base: Robot,
                  deadline: float | None = None):
+        if request.motion is None:
+            raise ValueError("a motion design needs request.motion")
         self.s, self.base, self.motion, self.deadline = s, base, request.motion, deadline
         self.p = parameters(base, s)
         self.times = np.linspace(0.0, self.motion.duration, self.LADDER[0] + 1)

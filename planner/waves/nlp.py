@@ -8,6 +8,8 @@ to lambda_min(M_pa M_pa^T) >= s^2 at every sample, as smooth dimensionless const
 
 from __future__ import annotations
 
+from typing import Any
+
 import casadi as ca
 import numpy as np
 
@@ -16,8 +18,8 @@ from planner.waves.screening import Candidate, wrap
 
 WHAT = "the wave design"
 """How budget messages name the design."""
-IPOPT = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",
-         "ipopt.max_iter": 250, "ipopt.tol": 1e-9, "ipopt.acceptable_tol": 1e-6}
+IPOPT: dict[str, Any] = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes",
+                         "ipopt.max_iter": 250, "ipopt.tol": 1e-9, "ipopt.acceptable_tol": 1e-6}
 """Ipopt settings. The motion NLP is also expanded to SX (builds once per ladder size,
 then evaluates ten times faster); the region NLP, rebuilt at every exchange, is not."""
 

@@ -41,6 +41,8 @@ class RegionProblem:
                  deadline: float | None = None):
         self.s, self.base, self.deadline = s, base, deadline
         self.p = parameters(base, s)
+        if request.region is None:
+            raise ValueError("a region design needs request.region")
         lower, upper = np.array(request.region.lower), np.array(request.region.upper)
         self.free = np.flatnonzero(upper > lower)
         d = max(len(self.free), 1)

@@ -68,7 +68,7 @@ class WaveDesignRequest(BaseModel):
             if any(u < lo for lo, u in zip(self.region.lower, self.region.upper, strict=True)):
                 raise ValueError("region.upper: every entry must be >= the matching entry "
                                  "of lower")
-        else:
+        elif self.motion is not None:  # (the other of the two)
             m = self.motion
             check_motion(self.robot, m.passive_motion, m.duration, m.active_initial, "motion.")
         if self.screening > MAX_SCREENING:

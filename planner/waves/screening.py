@@ -80,7 +80,9 @@ def diverse(cands: list[Candidate], scores: list[float], count: int) -> list[int
     """Indices of the `count` best candidates, the best of each frequency combination
     first, so that the starts do not all fall into one basin."""
     order = list(np.argsort(scores)[::-1])
-    seen, first, rest = set(), [], []
+    seen: set[tuple[float, ...]] = set()
+    first: list[int] = []
+    rest: list[int] = []
     for k in order:
         key = tuple(cands[k].frequency)
         (rest if key in seen or scores[k] <= 0.0 else first).append(k)

@@ -65,7 +65,8 @@ class Collocation:
         return mesh.widths[:, None] * self.B[None, :], np.zeros(0)
 
     def interpolant(self, sol: dict[str, np.ndarray], breaks: np.ndarray,
-                    fd: Accelerations) -> Interpolant:
+                    fd: Accelerations | None) -> Interpolant:
+        """(fd unused: the collocation states carry the accelerations.)"""
         N, d = self.intervals, self.degree
         points = np.array(self.knot_positions)
         nodes_at = np.concatenate([[0.0], points])
