@@ -31,18 +31,16 @@ from psycopg.types.json import Jsonb
 from psycopg_pool import ConnectionPool, PoolTimeout
 
 from app.store.base import (
-    BUILDING,
     CANCELLED_ON_REQUEST,
     INTERRUPTED,
     MAX_ATTEMPTS,
-    STATUSES,
     BatchRecord,
     JobRecord,
     JobStatus,
-    JobStore,
     MemberRecord,
     StoreUnavailable,
 )
+from app.store.sql import COLUMNS, SqlJobStore
 
 _MIGRATIONS: tuple[tuple[str, ...], ...] = (
     (  # 1: the jobs table
@@ -84,8 +82,6 @@ _MIGRATIONS: tuple[tuple[str, ...], ...] = (
 SCHEMA_VERSION = len(_MIGRATIONS)
 _MIGRATION_LOCK = 0x756E6474  # advisory lock key held while migrating ("undt")
 
-_COLUMNS = ("id, status, scene, progress, plan, error, cancel_requested, owner, "
-            "created, started, finished, worker")
 _MEMBER_COLUMNS = ("id, member, status, error, (plan->'verification'->>'verified')::boolean, "
                    "(plan->>'objective')::double precision, started, finished")
 _REQUEUE = "NOT cancel_requested AND attempts < %(max)s"
@@ -99,7 +95,7 @@ _EXPIRED = (  # the settlement of a running job whose lease ran out (see JobStor
     f"worker = CASE WHEN {_REQUEUE} THEN NULL ELSE worker END, lease_until = NULL")
 
 
-def _json(value: Any) -> Jsonb | None:
+def _jsonb(value: Any) -> Jsonb | None:
     """A JSON parameter (no NaN or Inf: PostgreSQL's jsonb refuses them too)."""
     return None if value is None else Jsonb(value, dumps=_dumps)
 
@@ -108,7 +104,7 @@ def _dumps(value: Any) -> str:
     return json.dumps(value, allow_nan=False, separators=(",", ":"))
 
 
-def _record(row: tuple) -> JobRecord:
+def _job(row: tuple) -> JobRecord:
     (id_, status, scene, progress, plan, error, cancel, owner, created, started,
      finished, worker) = row
     return JobRecord(id=id_, status=status, scene=scene, progress=progress, plan=plan,
@@ -136,11 +132,13 @@ def _lock_key(owner: str) -> int:
     return zlib.crc32(owner.encode()) - 2**31
 
 
-class PostgresJobStore(JobStore):
+class PostgresJobStore(SqlJobStore):
     """Jobs in a PostgreSQL database at `url` ("postgresql://user:password@host:port/db").
 
     `pool_size` connections at most per process; a statement that cannot get one within
     `timeout` seconds, or fails on the server, raises StoreUnavailable."""
+
+    claim_lock = "FOR UPDATE SKIP LOCKED"
 
     def __init__(self, url: str, pool_size: int = 4, timeout: float = 10.0):
         self.url, self.pool_size, self.timeout = url, pool_size, timeout
@@ -194,11 +192,26 @@ class PostgresJobStore(JobStore):
                 psycopg.errors.InternalError, PoolTimeout) as exc:
             raise self._unavailable(exc) from exc
 
-    def _rows(self, sql: str, params: tuple | dict = ()) -> list[tuple]:
-        """Every row of one statement (autocommit: a write is complete on return)."""
+    def _rows(self, sql: str, params: tuple | dict = ()) -> builtins.list[tuple]:
+        """Every row of one statement (autocommit: a write is complete on return); the
+        shared statements' `?` parameters become psycopg's `%s`."""
+        if isinstance(params, tuple):
+            sql = sql.replace("?", "%s")
         with self._connection() as conn:
             cursor = conn.execute(sql, params)
             return cursor.fetchall() if cursor.description is not None else []
+
+    def _write(self, sql: str, params: tuple | dict = ()) -> builtins.list[tuple]:
+        return self._rows(sql, params)
+
+    def _json(self, value: Any) -> Jsonb | None:
+        return _jsonb(value)
+
+    def _from_json(self, value: Any) -> Any:
+        return value  # jsonb columns come back decoded
+
+    def _record(self, row: tuple) -> JobRecord:
+        return _job(row)
 
     def _migrate(self) -> None:
         """Apply the migrations this database has not had yet, in one transaction."""
@@ -228,14 +241,14 @@ class PostgresJobStore(JobStore):
     def create(self, job_id: str, scene: dict[str, Any], owner: str,
                limit: int | None = None) -> JobRecord | None:
         insert = ("INSERT INTO jobs (id, status, scene, owner, created) "
-                  f"VALUES (%s, 'queued', %s, %s, %s) RETURNING {_COLUMNS}")
-        values = (job_id, _json(scene), owner, time.time())
+                  f"VALUES (%s, 'queued', %s, %s, %s) RETURNING {COLUMNS}")
+        values = (job_id, _jsonb(scene), owner, time.time())
         if limit is None:
-            return _record(self._rows(insert, values)[0])
+            return _job(self._rows(insert, values)[0])
         with self._connection() as conn, conn.transaction():
             if self._held(conn, owner) >= limit:
                 return None
-            return _record(_one(conn.execute(insert, values)))
+            return _job(_one(conn.execute(insert, values)))
 
     @staticmethod
     def _held(conn: psycopg.Connection, owner: str) -> int:
@@ -244,84 +257,6 @@ class PostgresJobStore(JobStore):
         conn.execute("SELECT pg_advisory_xact_lock(%s)", (_lock_key(owner),))
         return _one(conn.execute("SELECT COUNT(*) FROM jobs WHERE owner = %s AND status IN "
                                  "('queued', 'running')", (owner,)))[0]
-
-    def get(self, job_id: str) -> JobRecord | None:
-        rows = self._rows(f"SELECT {_COLUMNS} FROM jobs WHERE id = %s", (job_id,))
-        return _record(rows[0]) if rows else None
-
-    def list(self, status: JobStatus | None = None, limit: int = 50,
-             offset: int = 0) -> list[JobRecord]:
-        where, params = ("WHERE status = %s", (status,)) if status else ("", ())
-        rows = self._rows(f"SELECT {_COLUMNS} FROM jobs {where} ORDER BY created DESC, id "
-                          "LIMIT %s OFFSET %s", (*params, limit, offset))
-        return [_record(row) for row in rows]
-
-    def count_by_status(self) -> dict[str, int]:
-        counts: dict[str, int] = dict.fromkeys(STATUSES, 0)
-        for status, count in self._rows("SELECT status, COUNT(*) FROM jobs GROUP BY status"):
-            counts[status] = count
-        return counts
-
-    def claim(self, owner: str | None, worker: str, lease_until: float) -> JobRecord | None:
-        mine, params = ("AND owner = %s", (owner,)) if owner is not None else ("", ())
-        rows = self._rows(
-            "UPDATE jobs SET status = 'running', started = %s, worker = %s, lease_until = %s, "
-            "progress = %s, attempts = attempts + 1 WHERE status = 'queued' AND id = "
-            "(SELECT id FROM jobs "
-            f"WHERE status = 'queued' {mine} ORDER BY created, id LIMIT 1 "
-            f"FOR UPDATE SKIP LOCKED) RETURNING {_COLUMNS}",
-            (time.time(), worker, lease_until, _json(BUILDING), *params))
-        return _record(rows[0]) if rows else None
-
-    def release(self, job_id: str, worker: str) -> bool:
-        rows = self._rows(
-            "UPDATE jobs SET status = CASE WHEN cancel_requested THEN 'cancelled' "
-            "ELSE 'queued' END, finished = CASE WHEN cancel_requested THEN %s END, "
-            "started = NULL, worker = NULL, lease_until = NULL, progress = NULL, "
-            "attempts = attempts - 1 "
-            "WHERE id = %s AND worker = %s AND status = 'running' RETURNING id",
-            (time.time(), job_id, worker))
-        return bool(rows)
-
-    def report_progress(self, job_id: str, progress: dict[str, Any],
-                        worker: str | None = None) -> bool:
-        rows = self._rows(
-            "UPDATE jobs SET progress = %s WHERE id = %s AND status = 'running' "
-            "AND (%s::text IS NULL OR worker = %s) RETURNING cancel_requested",
-            (_json(progress), job_id, worker, worker))
-        return bool(rows) and not rows[0][0]
-
-    def finish(self, job_id: str, status: JobStatus, plan: dict[str, Any] | None,
-               error: str | None, solution: dict[str, Any] | None = None,
-               worker: str | None = None) -> bool:
-        rows = self._rows(
-            "UPDATE jobs SET status = %s, plan = %s, error = %s, finished = %s, solution = %s "
-            "WHERE id = %s AND status = 'running' AND (%s::text IS NULL OR worker = %s) "
-            "RETURNING id",
-            (status, _json(plan), error, time.time(), _json(solution), job_id, worker, worker))
-        return bool(rows)
-
-    def solution(self, job_id: str) -> dict[str, Any] | None:
-        rows = self._rows("SELECT solution FROM jobs WHERE id = %s", (job_id,))
-        return rows[0][0] if rows else None
-
-    def fail(self, job_id: str, error: str) -> bool:
-        rows = self._rows(
-            "UPDATE jobs SET status = 'failed', error = %s, finished = %s "
-            "WHERE id = %s AND status IN ('queued', 'running') RETURNING id",
-            (error, time.time(), job_id))
-        return bool(rows)
-
-    def _fail_running(self, condition: str, params: tuple, error: str) -> builtins.list[str]:
-        """Mark the running jobs that meet `condition` failed with `error`; their ids."""
-        rows = self._rows(
-            "UPDATE jobs SET status = 'failed', error = %s, finished = %s "
-            f"WHERE status = 'running' AND {condition} RETURNING id",
-            (error, time.time(), *params))
-        return [row[0] for row in rows]
-
-    def fail_claimed(self, worker: str, error: str) -> builtins.list[str]:
-        return self._fail_running("worker = %s", (worker,), error)
 
     def request_cancel(self, job_id: str) -> JobRecord | None:
         self._rows(
@@ -358,12 +293,12 @@ class PostgresJobStore(JobStore):
             if limit is not None and self._held(conn, owner) + len(members) > limit:
                 return False
             conn.execute("INSERT INTO batches (id, owner, created, spec) "
-                         "VALUES (%s, %s, %s, %s)", (batch_id, owner, now, _json(spec)))
+                         "VALUES (%s, %s, %s, %s)", (batch_id, owner, now, _jsonb(spec)))
             with conn.cursor() as cursor:
                 cursor.executemany(
                     "INSERT INTO jobs (id, status, scene, owner, created, batch, member) "
                     "VALUES (%s, 'queued', %s, %s, %s, %s, %s)",
-                    [(job_id, _json(scene), owner, now, batch_id, index)
+                    [(job_id, _jsonb(scene), owner, now, batch_id, index)
                      for index, (job_id, scene) in enumerate(members)])
         return True
 

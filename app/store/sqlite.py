@@ -27,19 +27,17 @@ from pathlib import Path
 from typing import Any
 
 from app.store.base import (
-    BUILDING,
     CANCELLED_ON_REQUEST,
     INTERRUPTED,
     MAX_ATTEMPTS,
-    STATUSES,
     BatchRecord,
     JobRecord,
     JobStatus,
-    JobStore,
     MemberRecord,
     StoreDamaged,
     StoreUnavailable,
 )
+from app.store.sql import COLUMNS, SqlJobStore
 
 log = logging.getLogger("undertow.store")
 
@@ -82,8 +80,6 @@ _MIGRATIONS: tuple[tuple[str, ...], ...] = (
 )
 SCHEMA_VERSION = len(_MIGRATIONS)
 
-_COLUMNS = ("id, status, scene, progress, plan, error, cancel_requested, owner, "
-            "created, started, finished, worker")
 _MEMBER_COLUMNS = ("id, member, status, error, json_extract(plan, '$.verification.verified'), "
                    "json_extract(plan, '$.objective'), started, finished")
 _EXPIRED = (  # the settlement of a running job whose lease ran out (see JobStore.expire)
@@ -101,7 +97,7 @@ def _loads(text: str | None) -> Any:
     return None if text is None else json.loads(text)
 
 
-def _record(row: tuple) -> JobRecord:
+def _job(row: tuple) -> JobRecord:
     (id_, status, scene, progress, plan, error, cancel, owner, created, started,
      finished, worker) = row
     return JobRecord(id=id_, status=status, scene=_loads(scene), progress=_loads(progress),
@@ -130,7 +126,7 @@ def _identity(path: str) -> tuple[int, int] | None:
     return stat.st_dev, stat.st_ino
 
 
-class SqliteJobStore(JobStore):
+class SqliteJobStore(SqlJobStore):
     """Jobs in one SQLite file (created with its directory if missing).
 
     Raises StoreDamaged when the file fails its integrity check."""
@@ -245,6 +241,15 @@ class SqliteJobStore(JobStore):
             self.checkpoint()
         return rows
 
+    def _json(self, value: Any) -> str | None:
+        return _dumps(value)
+
+    def _from_json(self, value: Any) -> Any:
+        return _loads(value)
+
+    def _record(self, row: tuple) -> JobRecord:
+        return _job(row)
+
     @property
     def journal_mode(self) -> str:
         """The journal mode in force ("wal")."""
@@ -255,93 +260,14 @@ class SqliteJobStore(JobStore):
         values = (job_id, _dumps(scene), owner, time.time())
         if limit is None:
             rows = self._write("INSERT INTO jobs (id, status, scene, owner, created) "
-                               f"VALUES (?, 'queued', ?, ?, ?) RETURNING {_COLUMNS}", values)
+                               f"VALUES (?, 'queued', ?, ?, ?) RETURNING {COLUMNS}", values)
         else:
             rows = self._write(
                 "INSERT INTO jobs (id, status, scene, owner, created) "
                 "SELECT ?, 'queued', ?, ?, ? WHERE (SELECT COUNT(*) FROM jobs "
                 "WHERE owner = ? AND status IN ('queued', 'running')) < ? "
-                f"RETURNING {_COLUMNS}", (*values, owner, limit))
-        return _record(rows[0]) if rows else None
-
-    def get(self, job_id: str) -> JobRecord | None:
-        rows = self._rows(f"SELECT {_COLUMNS} FROM jobs WHERE id = ?", (job_id,))
-        return _record(rows[0]) if rows else None
-
-    def list(self, status: JobStatus | None = None, limit: int = 50,
-             offset: int = 0) -> list[JobRecord]:
-        where, params = ("WHERE status = ?", (status,)) if status else ("", ())
-        rows = self._rows(
-            f"SELECT {_COLUMNS} FROM jobs {where} ORDER BY created DESC, id LIMIT ? OFFSET ?",
-            (*params, limit, offset))
-        return [_record(row) for row in rows]
-
-    def count_by_status(self) -> dict[str, int]:
-        counts: dict[str, int] = dict.fromkeys(STATUSES, 0)
-        for status, count in self._rows("SELECT status, COUNT(*) FROM jobs GROUP BY status"):
-            counts[status] = count
-        return counts
-
-    def claim(self, owner: str | None, worker: str, lease_until: float) -> JobRecord | None:
-        mine, params = ("AND owner = ?", (owner,)) if owner is not None else ("", ())
-        rows = self._write(
-            "UPDATE jobs SET status = 'running', started = ?, worker = ?, lease_until = ?, "
-            "progress = ?, attempts = attempts + 1 WHERE status = 'queued' AND id = "
-            "(SELECT id FROM jobs "
-            f"WHERE status = 'queued' {mine} ORDER BY created, id LIMIT 1) "
-            f"RETURNING {_COLUMNS}",
-            (time.time(), worker, lease_until, _dumps(BUILDING), *params))
-        return _record(rows[0]) if rows else None
-
-    def release(self, job_id: str, worker: str) -> bool:
-        rows = self._write(
-            "UPDATE jobs SET status = CASE WHEN cancel_requested THEN 'cancelled' "
-            "ELSE 'queued' END, finished = CASE WHEN cancel_requested THEN ? END, "
-            "started = NULL, worker = NULL, lease_until = NULL, progress = NULL, "
-            "attempts = attempts - 1 "
-            "WHERE id = ? AND worker = ? AND status = 'running' RETURNING id",
-            (time.time(), job_id, worker))
-        return bool(rows)
-
-    def report_progress(self, job_id: str, progress: dict[str, Any],
-                        worker: str | None = None) -> bool:
-        rows = self._write(
-            "UPDATE jobs SET progress = ? WHERE id = ? AND status = 'running' "
-            "AND (? IS NULL OR worker = ?) RETURNING cancel_requested",
-            (_dumps(progress), job_id, worker, worker))
-        return bool(rows) and not rows[0][0]
-
-    def finish(self, job_id: str, status: JobStatus, plan: dict[str, Any] | None,
-               error: str | None, solution: dict[str, Any] | None = None,
-               worker: str | None = None) -> bool:
-        rows = self._write(
-            "UPDATE jobs SET status = ?, plan = ?, error = ?, finished = ?, solution = ? "
-            "WHERE id = ? AND status = 'running' AND (? IS NULL OR worker = ?) RETURNING id",
-            (status, _dumps(plan), error, time.time(), _dumps(solution), job_id, worker,
-             worker))
-        return bool(rows)
-
-    def solution(self, job_id: str) -> dict[str, Any] | None:
-        rows = self._rows("SELECT solution FROM jobs WHERE id = ?", (job_id,))
-        return _loads(rows[0][0]) if rows else None
-
-    def fail(self, job_id: str, error: str) -> bool:
-        rows = self._write(
-            "UPDATE jobs SET status = 'failed', error = ?, finished = ? "
-            "WHERE id = ? AND status IN ('queued', 'running') RETURNING id",
-            (error, time.time(), job_id))
-        return bool(rows)
-
-    def _fail_running(self, condition: str, params: tuple, error: str) -> builtins.list[str]:
-        """Mark the running jobs that meet `condition` failed with `error`; their ids."""
-        rows = self._write(
-            "UPDATE jobs SET status = 'failed', error = ?, finished = ? "
-            f"WHERE status = 'running' AND {condition} RETURNING id",
-            (error, time.time(), *params))
-        return [row[0] for row in rows]
-
-    def fail_claimed(self, worker: str, error: str) -> builtins.list[str]:
-        return self._fail_running("worker = ?", (worker,), error)
+                f"RETURNING {COLUMNS}", (*values, owner, limit))
+        return _job(rows[0]) if rows else None
 
     def request_cancel(self, job_id: str) -> JobRecord | None:
         self._write(
