@@ -11,7 +11,7 @@ from planner.ocp.guess import Guess
 from planner.ocp.mesh import Mesh
 from planner.ocp.problem import Problem, ProblemKey, cached_problem, problem, torques
 from planner.ocp.terms import Numeric
-from planner.scene import Scene
+from planner.scene import DurationRange, Scene
 
 
 @dataclass(frozen=True)
@@ -100,9 +100,11 @@ def _bounds(scene: Scene, prob: Problem, robot: Robot, mesh: Mesh) -> tuple[np.n
             if k == "tau":
                 lbx[idx], ubx[idx] = -limit[:, None], limit[:, None]
     if task.tracking is not None and task.tracking.mode == "exact":
+        T = task.duration
+        assert not isinstance(T, DurationRange)  # the scene refuses tracking a free T
         for name in prob.transcription.knot_blocks:
             times = lay.times(name, mesh)
-            ref = task.tracking.motion.evaluate(times * task.duration, task.duration)[0]
+            ref = task.tracking.motion.evaluate(times * T, T)[0]
             idx = lay.blocks[name][1][robot.passive, :]
             lbx[idx], ubx[idx] = ref.T, ref.T
     q, dq = lay.blocks["q"][1], lay.blocks["dq"][1]
@@ -111,9 +113,11 @@ def _bounds(scene: Scene, prob: Problem, robot: Robot, mesh: Mesh) -> tuple[np.n
         _set_rows(bound, q[:, -1:], task.final.q)
         _set_rows(bound, dq[:, -1:], task.final.dq)
     if prob.key.free_time:
+        assert isinstance(task.duration, DurationRange)  # what makes the key's time free
         lay.put(lbx, "T", task.duration.min)
         lay.put(ubx, "T", task.duration.max)
     if prob.key.codesign:
+        assert task.co_design is not None  # what makes the key co-design
         amax = [min(task.co_design.amplitude_max, 0.95 * robot.links[j].length)
                 for j in robot.active]
         lay.put(lbx, "wave", np.array([v for _ in amax for v in (0.0, -2 * np.pi)])[:, None])
@@ -137,7 +141,10 @@ def initial_point(inst: Instance, guess: Guess, T: float, robot: Robot) -> np.nd
     if prob.key.free_time:
         lay.put(x0, "T", T)
     if prob.key.codesign:
-        lay.put(x0, "wave", np.array([v for j in robot.active
-                                      for v in (robot.links[j].wave.amplitude,
-                                                robot.links[j].wave.phase)])[:, None])
+        design: list[float] = []
+        for j in robot.active:
+            wave = robot.links[j].wave
+            assert wave is not None  # the co-design robot has a wave on every active joint
+            design += [wave.amplitude, wave.phase]
+        lay.put(x0, "wave", np.array(design)[:, None])
     return x0

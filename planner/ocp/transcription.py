@@ -41,10 +41,13 @@ class Model:
     p: ca.SX
 
     def accelerations(self, parts: dict[str, ca.SX], name: str, q: ca.SX, dq: ca.SX,
-                      tau: ca.SX) -> ca.SX:
-        """ddq (n x m) at m knots: the variables `name`, or the forward dynamics."""
+                      tau: ca.SX | None) -> ca.SX:
+        """ddq (n x m) at m knots: the variables `name`, or the forward dynamics of the
+        torques tau (which only the implicit form may lack)."""
         if self.implicit:
             return parts[name]
+        if tau is None:
+            raise ValueError("the explicit form needs the knots' torques")
         return self.fd.map(q.size2())(q, dq, tau, self.p)
 
 

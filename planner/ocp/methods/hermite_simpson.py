@@ -51,17 +51,19 @@ class HermiteSimpson:
         return (*node, *knot("_mid", 0.5)), node
 
     @staticmethod
-    def _knot(w: dict[str, ca.SX], model: Model, suffix: str = "") -> tuple[ca.SX, ...]:
-        """A knot's angles, rates, accelerations and torques (the next stage's linked
-        parts hold its torques only in the explicit form)."""
-        q, dq, tau = w[f"q{suffix}"], w[f"dq{suffix}"], w.get(f"tau{suffix}")
-        return q, dq, model.accelerations(w, f"ddq{suffix}", q, dq, tau), tau
+    def _knot(w: dict[str, ca.SX], model: Model,
+              suffix: str = "") -> tuple[ca.SX, ca.SX, ca.SX]:
+        """A knot's angles, rates and accelerations (the next stage's linked parts hold
+        its torques only in the explicit form, which needs them)."""
+        q, dq = w[f"q{suffix}"], w[f"dq{suffix}"]
+        return q, dq, model.accelerations(w, f"ddq{suffix}", q, dq, w.get(f"tau{suffix}"))
 
     def stage(self, w: dict[str, ca.SX], nxt: dict[str, ca.SX], h: ca.SX,
               model: Model) -> StagePiece:
-        q0, dq0, a0, tau0 = self._knot(w, model)
-        qm, dqm, am, taum = self._knot(w, model, "_mid")
-        q1, dq1, a1, _ = self._knot(nxt, model)
+        q0, dq0, a0 = self._knot(w, model)
+        qm, dqm, am = self._knot(w, model, "_mid")
+        q1, dq1, a1 = self._knot(nxt, model)
+        tau0, taum = w["tau"], w["tau_mid"]
         defects = ca.vertcat(qm - (q0 + q1) / 2 - h / 8 * (dq0 - dq1),
                              dqm - (dq0 + dq1) / 2 - h / 8 * (a0 - a1),
                              q1 - q0 - h / 6 * (dq0 + 4 * dqm + dq1),
@@ -72,7 +74,8 @@ class HermiteSimpson:
                           knots, taus, (0.0, 0.5))
 
     def terminal(self, w: dict[str, ca.SX], model: Model) -> StagePiece:
-        q, dq, a, tau = self._knot(w, model)
+        q, dq, a = self._knot(w, model)
+        tau = w["tau"]
         return StagePiece(ca.SX(0, 1), q, dq, a, tau, q, tau, (0.0,))
 
     def weights(self, mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
