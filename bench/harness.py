@@ -62,9 +62,9 @@ def build_instrumented(scene: Scene) -> tuple[float, CpuTimed]:
     """Build (or fetch) the NLP of the scene's first mesh; its build time [s] and its
     solver, wrapped to record the CPU time of each solve."""
     prob = problem(ProblemKey.of(scene), wait=True)
-    if not isinstance(prob.solver, CpuTimed):
-        prob.solver = CpuTimed(prob.solver)
-    return prob.build_time, prob.solver
+    timed = prob.solver if isinstance(prob.solver, CpuTimed) else CpuTimed(prob.solver)
+    prob.solver = timed  # type: ignore[assignment]  # a stand-in with the Function's calls
+    return prob.build_time, timed
 
 
 @contextlib.contextmanager
@@ -96,7 +96,7 @@ def machine_note() -> str:
     if names:
         cpu = names[0]
     return (f"{cpu}, {os.cpu_count()} cores shared with other work (load average {load()} "
-            f"at the start); Python {platform.python_version()}, CasADi {ca.__version__}, "
+            f"at the start); Python {platform.python_version()}, CasADi {ca.CasadiMeta.version()}, "
             f"NumPy {np.__version__}; planner/ at commit {planner_commit()}")
 
 

@@ -39,6 +39,7 @@ import numpy as np
 
 from bench import harness
 from bench.examples import BEFORE
+from bench.scenes import fixed_duration
 from planner.suite import COUNT, SEED, tasks
 
 CONFIGS = {
@@ -66,9 +67,11 @@ SECTION = "Task suite: verified plans and time to a verified plan"
 
 def _settings(config: str) -> dict:
     """Scene changes of a planner configuration."""
-    return {"refinement off": {"transcription": {"refinement": {"enabled": False}}},
-            "retries off": {"solver": {"retries": 0}},
-            "fatrop": {"solver": {"name": "fatrop"}}}.get(config, {})
+    changes: dict[str, dict] = {
+        "refinement off": {"transcription": {"refinement": {"enabled": False}}},
+        "retries off": {"solver": {"retries": 0}},
+        "fatrop": {"solver": {"name": "fatrop"}}}
+    return changes.get(config, {})
 
 
 def _merged(scene: dict, changes: dict) -> dict:
@@ -144,7 +147,7 @@ def run_opty(count: int, seed: int) -> dict:
     rows = []
     for name, scene in tasks(count, seed):
         nodes = scene.transcription.intervals + 1
-        guess = hermite_guess(scene, scene.robot, float(scene.task.duration))(
+        guess = hermite_guess(scene, scene.robot, fixed_duration(scene))(
             np.linspace(0.0, 1.0, nodes))
         check = peer_opty.check_state(scene.robot, rng)
         spec = {"robot": scene.robot.model_dump(), "task": scene.task.model_dump(),

@@ -37,7 +37,7 @@ def cache_dir() -> Path:
 def source_digest(*parts: str, sources: Iterable[Path] = ()) -> str:
     """A stable hash of some text and of the CasADi version and source files that decide
     the generated code."""
-    digest = hashlib.sha256(ca.__version__.encode())
+    digest = hashlib.sha256(ca.CasadiMeta.version().encode())
     for part in parts:
         digest.update(part.encode())
     for source in sources:

@@ -169,7 +169,7 @@ def _starts(scene: Scene, robot: Robot, T: float, warm_start: Plan | None,
     mesh = Mesh(np.asarray(tr.breaks)) if tr.breaks else Mesh.uniform(tr.intervals)
     guess, used = _guess(scene, robot, T, warm_start)
     earlier = warm_start.solution if warm_start is not None else None
-    if earlier is not None:
+    if warm_start is not None and earlier is not None:
         solved_on = Mesh(np.asarray(earlier.breaks))
         same = ProblemKey.of(scene, solved_on.intervals).fingerprint() == earlier.fingerprint
         if same and solved_on.intervals >= mesh.intervals:
@@ -239,7 +239,8 @@ def _solve_on(scene: Scene, inst: Instance, robot: Robot, T: float, guess: Guess
     solved = _solved_robot(inst, robot, solution.x) if finite else robot
     duration = _duration(scene, inst, solution.x) if finite else T
     interp = _interpolant(inst, solved, duration, solution.x)
-    errors, status, replayed = np.full(inst.mesh.intervals, np.inf), NOT_FINITE, (None, NOT_FINITE)
+    errors, status = np.full(inst.mesh.intervals, np.inf), NOT_FINITE
+    replayed: tuple[float | None, str] = (None, NOT_FINITE)
     if finite:
         errors, status = interval_errors(solved, interp, scene.solver.jit)
         replayed = open_loop(solved, interp, scene.solver.jit)
@@ -291,9 +292,10 @@ def _duration_guess(scene: Scene) -> float:
 
 
 def _duration(scene: Scene, inst: Instance, x: np.ndarray) -> float:
-    if inst.problem.key.free_time:
+    duration = scene.task.duration
+    if inst.problem.key.free_time or isinstance(duration, DurationRange):
         return float(inst.problem.layout.view(x, "T")[0, 0])
-    return float(scene.task.duration)
+    return float(duration)
 
 
 def _solved_robot(inst: Instance, robot: Robot, x: np.ndarray) -> Robot:
@@ -304,7 +306,10 @@ def _solved_robot(inst: Instance, robot: Robot, x: np.ndarray) -> Robot:
     amp, phase = values[0::2], values[1::2]
     waves = {}
     for col, joint in enumerate(robot.active):
-        freq = robot.links[joint].wave.frequency
+        wave = robot.links[joint].wave
+        if wave is None:
+            raise ValueError(f"co-designed joint {joint} has no wave to take its frequency from")
+        freq = wave.frequency
         a = float(np.clip(amp[col], 0.0, 0.95 * robot.links[joint].length))
         waves[joint] = Wave(amplitude=a, frequency=freq, phase=float(phase[col]))
     return robot.with_waves(waves)
