@@ -298,7 +298,7 @@ def _plot(rows: list[dict], configs: list[str]) -> None:
     ax.set_ylabel("share of the tasks verified")
     ax.set_ylim(0, 1.02)
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(loc="lower right")
+    ax.legend(loc="upper left", fontsize=8)
     fig.tight_layout()
     (harness.DOCS / "img").mkdir(parents=True, exist_ok=True)
     (harness.DOCS / "img" / "suite.png").write_bytes(render(fig))
@@ -338,6 +338,9 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--merge", action="store_true",
                         help="keep the other configurations' rows of the CSV (runs split "
                              "over processes or cores write one table)")
+    parser.add_argument("--note", default="",
+                        help="where and how the rows were measured, when they come from "
+                             "several invocations (printed above the manifest)")
     parser.add_argument("--configs", default=",".join(CONFIGS),
                         help="comma-separated, from: " + ", ".join(CONFIGS))
     args = parser.parse_args(argv)
@@ -407,6 +410,7 @@ def main(argv: list[str]) -> int:
         "along the plan, and the closed-loop replays add the plan's LQR feedback, from the "
         "planned start and from one perturbed by 1e-3 on every angle and rate.",
         _task_table(rows),
+        args.note,
         f"Rows: `bench/results/{csv}`. {harness.manifest('suite', argv, started, note)}"]
         if part)
     harness.write_section(DOC, SECTION if own else f"{SECTION}, seed {args.seed}", text)
