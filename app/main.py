@@ -85,7 +85,7 @@ def create_app(settings: Settings | None = None, solve: SolveFunction | None = N
     app.add_middleware(ApiKeyMiddleware, key=settings.api_key)
     app.add_middleware(MetricsMiddleware, metrics=app.state.metrics)
     app.add_middleware(RequestIdMiddleware)
-    app.openapi = lambda: document(app)
+    app.openapi = lambda: document(app)  # type: ignore[method-assign]  # FastAPI's documented override of its schema
     app.router.routes.extend(viewer.routes())
     return app
 
