@@ -14,8 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
-import tempfile
 import time
 from pathlib import Path
 
@@ -53,12 +51,7 @@ def scene(n: int) -> dict:
 
 
 def _build_at(root: Path, request: dict) -> dict:
-    run = subprocess.run([harness.PYTHON, "-c", _RUN.format(root=str(root)), json.dumps(request)],
-                         cwd=root, capture_output=True, text=True, timeout=1800, check=False)
-    for line in run.stdout.splitlines()[::-1]:
-        if line.startswith("RESULT "):
-            return json.loads(line[len("RESULT "):])
-    return {"failure": (run.stderr.strip().splitlines() or ["no output"])[-1][:200]}
+    return harness.run_at(root, _RUN.format(root=str(root)), [json.dumps(request)], 1800)
 
 
 def main(argv: list[str]) -> int:
@@ -68,19 +61,12 @@ def main(argv: list[str]) -> int:
     args = parser.parse_args(argv)
     started, note = time.perf_counter(), harness.machine_note()
     rows = []
-    with tempfile.TemporaryDirectory() as work:
-        old = Path(work) / "before"
-        subprocess.run(["git", "-C", str(harness.ROOT), "worktree", "add", "--detach",
-                        str(old), args.before], check=True, capture_output=True)
-        try:
-            for n in map(int, args.links.split(",")):
-                now, before = _build_at(harness.ROOT, scene(n)), _build_at(old, scene(n))
-                rows.append({"links": n, **{f"now_{k}": v for k, v in now.items()},
-                             **{f"before_{k}": v for k, v in before.items()}})
-                print(rows[-1], flush=True)
-        finally:
-            subprocess.run(["git", "-C", str(harness.ROOT), "worktree", "remove", "--force",
-                            str(old)], check=False, capture_output=True)
+    with harness.checkout(args.before) as old:
+        for n in map(int, args.links.split(",")):
+            now, before = _build_at(harness.ROOT, scene(n)), _build_at(old, scene(n))
+            rows.append({"links": n, **{f"now_{k}": v for k, v in now.items()},
+                         **{f"before_{k}": v for k, v in before.items()}})
+            print(rows[-1], flush=True)
     harness.write_csv(harness.RESULTS / "build.csv", rows)
     columns = [("links", "links"), ("before_build", "build before [s]"),
                ("before_peak_mb", "peak before [MB]"), ("now_build", "build now [s]"),

@@ -14,8 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
-import tempfile
 import time
 from pathlib import Path
 
@@ -48,13 +46,8 @@ print("RESULT " + json.dumps({{"iterations": result.solver.iterations,
 
 def _plan_at(root: Path, request: dict, repeats: int) -> dict:
     """The example planned by the planner under `root`, in a fresh process."""
-    run = subprocess.run([harness.PYTHON, "-c", _RUN.format(root=str(root), repeats=repeats),
-                          json.dumps(request)], cwd=root, capture_output=True, text=True,
-                         timeout=600, check=False)
-    for line in run.stdout.splitlines()[::-1]:
-        if line.startswith("RESULT "):
-            return json.loads(line[len("RESULT "):])
-    return {"failure": (run.stderr.strip().splitlines() or ["no output"])[-1][:200]}
+    return harness.run_at(root, _RUN.format(root=str(root), repeats=repeats),
+                          [json.dumps(request)], 600)
 
 
 def main(argv: list[str]) -> int:
@@ -65,20 +58,13 @@ def main(argv: list[str]) -> int:
     started, note = time.perf_counter(), harness.machine_note()
     plans = [e for e in examples() if e.kind == "plan"]
     rows = []
-    with tempfile.TemporaryDirectory() as work:
-        old = Path(work) / "before"
-        subprocess.run(["git", "-C", str(harness.ROOT), "worktree", "add", "--detach",
-                        str(old), args.before], check=True, capture_output=True)
-        try:
-            for example in plans:
-                now = _plan_at(harness.ROOT, example.request, args.repeats)
-                before = _plan_at(old, example.request, args.repeats)
-                rows.append({"example": example.name, **{f"now_{k}": v for k, v in now.items()},
-                             **{f"before_{k}": v for k, v in before.items()}})
-                print(rows[-1], flush=True)
-        finally:
-            subprocess.run(["git", "-C", str(harness.ROOT), "worktree", "remove", "--force",
-                            str(old)], check=False, capture_output=True)
+    with harness.checkout(args.before) as old:
+        for example in plans:
+            now = _plan_at(harness.ROOT, example.request, args.repeats)
+            before = _plan_at(old, example.request, args.repeats)
+            rows.append({"example": example.name, **{f"now_{k}": v for k, v in now.items()},
+                         **{f"before_{k}": v for k, v in before.items()}})
+            print(rows[-1], flush=True)
     harness.write_csv(harness.RESULTS / "examples.csv", rows)
     columns = [("example", "example"), ("before_iterations", "iterations before"),
                ("before_verified", "verified before"),

@@ -20,6 +20,7 @@ import shlex
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
@@ -135,16 +136,44 @@ def isolated(module: str, function: str, kwargs: dict, timeout: float) -> dict:
     code = (f"import json, sys; sys.path.insert(0, {str(ROOT)!r}); "
             f"from bench.{module} import {function} as f; "
             f"out = f(**json.loads(sys.argv[1])); print('RESULT ' + json.dumps(out))")
+    return run_at(ROOT, code, [json.dumps(kwargs)], timeout)
+
+
+def run_at(root: Path, code: str, args: Sequence[str], timeout: float) -> dict:
+    """Run the Python `code` with `args` in a fresh process whose working directory is
+    `root` (a checkout); the dict of its last "RESULT {json}" line, or {"failure": ...}."""
     try:
-        run = subprocess.run([PYTHON, "-c", code, json.dumps(kwargs)], cwd=ROOT, check=False,
+        run = subprocess.run([PYTHON, "-c", code, *args], cwd=root, check=False,
                              capture_output=True, text=True, timeout=timeout)
     except subprocess.TimeoutExpired:
         return {"failure": f"timeout after {timeout:g} s"}
-    for line in run.stdout.splitlines()[::-1]:
-        if line.startswith("RESULT "):
-            return json.loads(line[len("RESULT "):])
-    tail = (run.stderr.strip().splitlines() or ["no output"])[-1]
-    return {"failure": f"exit {run.returncode}: {tail[:200]}"}
+    results = result_lines(run.stdout)
+    return results[-1] if results else {"failure": f"exit {run.returncode}: {last_error(run)}"}
+
+
+def result_lines(stdout: str) -> list[dict]:
+    """The dicts of a child's "RESULT {json}" lines, in order."""
+    return [json.loads(line[len("RESULT "):]) for line in stdout.splitlines()
+            if line.startswith("RESULT ")]
+
+
+def last_error(run: subprocess.CompletedProcess) -> str:
+    """The last line a child wrote to stderr (200 characters at most)."""
+    return (run.stderr.strip().splitlines() or ["no output"])[-1][:200]
+
+
+@contextlib.contextmanager
+def checkout(commit: str) -> Iterator[Path]:
+    """This repository at `commit`, as a temporary git worktree removed on exit."""
+    with tempfile.TemporaryDirectory() as work:
+        path = Path(work) / "checkout"
+        subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(path),
+                        commit], check=True, capture_output=True)
+        try:
+            yield path
+        finally:
+            subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(path)],
+                           check=False, capture_output=True)
 
 
 def read_csv(path: Path) -> list[dict]:

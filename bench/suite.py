@@ -31,9 +31,7 @@ import importlib.util
 import json
 import math
 import subprocess
-import tempfile
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -219,29 +217,17 @@ def run_before(count: int, seed: int, commit: str) -> list[dict]:
     """Every task with the planner of an earlier commit (a temporary worktree)."""
     lines = "".join(json.dumps([name, scene.model_dump(mode="json", exclude_defaults=True)])
                     + "\n" for name, scene in tasks(count, seed))
-    rows = []
-    with tempfile.TemporaryDirectory() as work:
-        old = Path(work) / "before"
-        subprocess.run(["git", "-C", str(harness.ROOT), "worktree", "add", "--detach", str(old),
-                        commit], check=True, capture_output=True)
-        try:
-            run = subprocess.run([harness.PYTHON, "-c", _BEFORE_RUN.format(root=str(old))],
-                                 input=lines, cwd=old, capture_output=True, text=True,
-                                 timeout=count * (2 * WALL_TIME + 30), check=False)
-        finally:
-            subprocess.run(["git", "-C", str(harness.ROOT), "worktree", "remove", "--force",
-                            str(old)], check=False, capture_output=True)
-    for line in run.stdout.splitlines():
-        if line.startswith("RESULT "):
-            out = json.loads(line[len("RESULT "):])
-            rows.append({**out, "config": "before", "solves": 1, "intervals": 50,
-                         "time_to_verified": out["time"] if out["verified"] else math.nan,
-                         "local_error": math.nan, "growth_factor": math.nan,
-                         "closed_loop_error": math.nan, "perturbed_closed_loop_error": math.nan,
-                         "strategy": "direct"})
+    with harness.checkout(commit) as old:
+        run = subprocess.run([harness.PYTHON, "-c", _BEFORE_RUN.format(root=str(old))],
+                             input=lines, cwd=old, capture_output=True, text=True,
+                             timeout=count * (2 * WALL_TIME + 30), check=False)
+    rows = [{**out, "config": "before", "solves": 1, "intervals": 50,
+             "time_to_verified": out["time"] if out["verified"] else math.nan,
+             "local_error": math.nan, "growth_factor": math.nan,
+             "closed_loop_error": math.nan, "perturbed_closed_loop_error": math.nan,
+             "strategy": "direct"} for out in harness.result_lines(run.stdout)]
     if len(rows) != count:
-        raise RuntimeError(f"before: {len(rows)} of {count} tasks ran: "
-                           + (run.stderr.strip().splitlines() or ["no output"])[-1][:200])
+        raise RuntimeError(f"before: {len(rows)} of {count} tasks ran: {harness.last_error(run)}")
     return rows
 
 
