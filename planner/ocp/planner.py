@@ -292,8 +292,9 @@ def _duration_guess(scene: Scene) -> float:
 
 
 def _duration(scene: Scene, inst: Instance, x: np.ndarray) -> float:
+    """The duration [s]: the solution's own where it is free (a duration range)."""
     duration = scene.task.duration
-    if inst.problem.key.free_time or isinstance(duration, DurationRange):
+    if isinstance(duration, DurationRange):  # the key's free_time
         return float(inst.problem.layout.view(x, "T")[0, 0])
     return float(duration)
 
