@@ -59,6 +59,9 @@ def library(name: str, functions: Sequence[ca.Function], flags: str = "-O1",
     with _CODEGEN:
         if path in _LOADED:
             return _LOADED[path]
+        started = _BUILDING.get(path)
+        if not background and started is not None and started.poll() is None:
+            started.wait()  # the build this process started in the background, not a second
         if not path.exists():
             folder.mkdir(parents=True, exist_ok=True)
             if background:
