@@ -54,6 +54,8 @@ BENCHES = {
                                "service under faults"),
     "suite": ("bench.suite", "the task suite: verified plans and time to a verified plan, "
                              "against refinement off, retries off and a plain Opti script"),
+    "verification": ("bench.verification", "what a plan's checks cost, now and at an earlier "
+                                           "commit"),
     "time_vs_error": ("bench.time_vs_error", "run time against error of every transcription "
                                              "on the reference scenes"),
 }

@@ -36,10 +36,11 @@ Interpolation = Literal["zoh", "linear", "cubic"]
 Method = Literal["adams", "bdf"]
 
 MAX_STEPS = 200_000
-_METHODS: dict[str, dict[str, str]] = {
+METHODS: dict[str, dict[str, str]] = {
     "adams": {"linear_multistep_method": "adams", "nonlinear_solver_iteration": "functional"},
     "bdf": {"linear_multistep_method": "bdf", "nonlinear_solver_iteration": "newton"},
 }
+"""CVODES' options of each method."""
 _FAILURES = {
     "CV_TOO_MUCH_WORK": f"more than {MAX_STEPS} steps before the next output "
                         "(the motion is too fast for the tolerances)",
@@ -102,7 +103,7 @@ def _integrator(s: Structure, degree: int, n_out: int, rtol: float, atol: float,
     grid = np.linspace(0.0, 1.0, n_out + 1)[1:]
     opts: dict[str, Any] = {"abstol": atol, "reltol": rtol, "max_num_steps": MAX_STEPS,
                             "show_eval_warnings": False, "disable_internal_warnings": True,
-                            **_METHODS[method]}
+                            **METHODS[method]}
     return Exclusive(ca.integrator("sim", "cvodes", dae, 0.0, list(grid), opts))
 
 

@@ -3,6 +3,7 @@ independent computation."""
 
 from __future__ import annotations
 
+import casadi as ca
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
@@ -11,10 +12,11 @@ from planner import compiled as compiled_code
 from planner.dynamics import Dynamics
 from planner.examples import example
 from planner.model import Structure
+from planner.ocp import flow as flow_module
 from planner.ocp import planner as planner_module
 from planner.ocp.accuracy import SAMPLES, interval_errors
 from planner.ocp.feedback import PERTURBATION, growth_factor, linearise, replay
-from planner.ocp.flow import inputs, integrator
+from planner.ocp.flow import Flow, flow, inputs, integrator
 from planner.scene import Scene
 from planner.suite import tasks
 
@@ -69,6 +71,23 @@ def test_interval_errors_agree_with_an_independent_integrator(seed_arm):
         q_err = np.abs(sol.y[:n].T - interp.q(t)).max()
         dq_err = (b - a) * np.abs(sol.y[n:].T - interp.dq(t)).max()
         assert errors[k] == pytest.approx(max(q_err, dq_err), rel=1e-3, abs=1e-9)
+
+
+def test_where_adams_fails_bdf_integrates_the_intervals(seed_arm):
+    sc, _, interp = seed_arm
+    s = Structure.of(sc.robot)
+    degree = interp.tau.coeffs.shape[1] - 1
+    starts, params = inputs(sc.robot, interp)
+    N = starts.shape[1]
+    zero = np.zeros((len(s.active_idx), SAMPLES * N))
+    grid = list(np.arange(1, SAMPLES + 1) / SAMPLES)
+    one_step = ca.integrator("stalls", "cvodes", flow_module._dae(s, degree), 0.0, grid,
+                             {**flow_module.METHODS["adams"], "max_num_steps": 1})
+    with pytest.raises(RuntimeError):
+        one_step.map(N)(x0=starts, p=params, u=zero)
+    mapped = flow(s, degree, SAMPLES, N)
+    fallen_back = Flow(one_step.map(N), mapped.bdf)(starts, params, zero)
+    assert np.abs(fallen_back - mapped(starts, params, zero)).max() < 1e-8
 
 
 def test_the_growth_factor_agrees_with_cvodes_sensitivities(unstable):

@@ -1,13 +1,14 @@
 """Accuracy of a plan, interval by interval: does the delivered torque move the robot along
 the plan?
 
-Every interval is re-integrated by CVODES (rtol = atol = 1e-10) from the plan's own state
-at its start, with the plan's torque polynomial, and compared with the plan at `SAMPLES`
-points across it. The interval's error is the largest max(|q_sim - q_plan|,
-h |dq_sim - dq_plan|) there [rad] (h the interval's length: a rate error counts as the
-angle it adds over one more such interval). Starting every interval from the plan's state
-separates the transcription's error, which mesh refinement drives down, from the growth of
-errors along an unstable motion, which no transcription removes (`planner.ocp.feedback`).
+Every interval is re-integrated by CVODES (rtol = atol = 1e-10, `planner.ocp.flow`) from
+the plan's own state at its start, with the plan's torque polynomial, and compared with
+the plan at `SAMPLES` points across it. The interval's error is the largest
+max(|q_sim - q_plan|, h |dq_sim - dq_plan|) there [rad] (h the interval's length: a rate
+error counts as the angle it adds over one more such interval). Starting every interval
+from the plan's state separates the transcription's error, which mesh refinement drives
+down, from the growth of errors along an unstable motion, which no transcription removes
+(`planner.ocp.feedback`).
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from planner.model import Robot, Structure
-from planner.ocp.flow import inputs, integrator
+from planner.ocp.flow import flow, inputs
 from planner.ocp.transcription import Interpolant
 
 SAMPLES = 4  # comparison points per interval, at s = 1/4, 1/2, 3/4, 1
@@ -28,14 +29,13 @@ def interval_errors(robot: Robot, interp: Interpolant,
     s = Structure.of(robot)
     coeffs = interp.tau.coeffs
     N, degree = coeffs.shape[0], coeffs.shape[1] - 1
-    flow = integrator(s, degree, SAMPLES, compiled=compiled)
     starts, params = inputs(robot, interp)
     zero = np.zeros((len(s.active_idx), SAMPLES * N))  # u is held per output interval
     try:
-        ends = np.array(flow.map(N)(x0=starts, p=params, u=zero)["xf"])  # 2n x (SAMPLES N)
+        ends = flow(s, degree, SAMPLES, N, compiled=compiled)(starts, params, zero)
         status = "completed"
     except RuntimeError:
-        ends, status = _one_by_one(flow, starts, params, s.n)
+        ends, status = _one_by_one(s, degree, starts, params, compiled)
     breaks = interp.q.breaks
     h = np.diff(breaks)
     t = (breaks[:-1, None] + h[:, None] * np.arange(1, SAMPLES + 1)[None, :] / SAMPLES).ravel()
@@ -45,15 +45,18 @@ def interval_errors(robot: Robot, interp: Interpolant,
     return np.where(np.isfinite(worst), worst, np.inf), status
 
 
-def _one_by_one(flow, starts: np.ndarray, params: np.ndarray, n: int) -> tuple[np.ndarray, str]:
+def _one_by_one(s: Structure, degree: int, starts: np.ndarray, params: np.ndarray,
+                compiled: bool) -> tuple[np.ndarray, str]:
     """Each interval on its own, so that one that CVODES cannot integrate marks only itself."""
     N = starts.shape[1]
-    ends = np.full((2 * n, SAMPLES * N), np.nan)
+    ends = np.full((2 * s.n, SAMPLES * N), np.nan)
+    zero = np.zeros((len(s.active_idx), SAMPLES))
+    one = flow(s, degree, SAMPLES, 1, compiled=compiled)
     failed = []
     for k in range(N):
         try:
-            out = flow(x0=starts[:, k], p=params[:, k], u=np.zeros(flow.size_in("u")))
-            ends[:, k * SAMPLES:(k + 1) * SAMPLES] = np.array(out["xf"])
+            ends[:, k * SAMPLES:(k + 1) * SAMPLES] = one(starts[:, k:k + 1],
+                                                         params[:, k:k + 1], zero)
         except RuntimeError:
             failed.append(k)
     return ends, f"CVODES failed on {len(failed)} interval(s), the first is interval {failed[0]}"

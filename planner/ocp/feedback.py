@@ -23,13 +23,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import lru_cache
+from pathlib import Path
 
 import casadi as ca
 import numpy as np
 
+from planner.compiled import library, source_digest
 from planner.dynamics import functions
 from planner.model import Robot, Structure, parameters
-from planner.ocp.flow import inputs, integrator
+from planner.ocp.flow import flow, inputs
 from planner.ocp.result import Feedback
 from planner.ocp.transcription import Interpolant
 
@@ -39,6 +41,8 @@ PERTURBATION = 1e-3  # [rad, rad/s] added to every initial angle and rate
 REPLAY_SAMPLES = 4  # comparison points per interval
 REPLAY_TOL = 1e-8  # CVODES rtol = atol of the closed-loop replays
 SUBSTEPS = 4  # RK4 steps per interval of the variational equations
+_SOURCES = [Path(__file__).resolve().parents[1] / name
+            for name in ("dynamics.py", "model.py", "ocp/feedback.py")]
 
 
 @dataclass(frozen=True)
@@ -58,8 +62,17 @@ def _jacobians(s: Structure) -> ca.Function:
     return ca.Function("jacobians", [x, tau, p], [ca.jacobian(dx, x), ca.jacobian(dx, tau)])
 
 
-def linearise(robot: Robot, interp: Interpolant) -> Linearisation | None:
-    """The plan's interval-by-interval linearisation (None where it is not finite)."""
+def _compiled_jacobians(s: Structure) -> ca.Function:
+    """`_jacobians` compiled (`planner.compiled`) once it is on disk; interpreted while it
+    is built in the background."""
+    name = f"jacobians_{source_digest(repr(s), sources=_SOURCES)}"
+    loaded = library(name, (_jacobians(s),), background=True)
+    return _jacobians(s) if loaded is None else loaded["jacobians"]
+
+
+def linearise(robot: Robot, interp: Interpolant, compiled: bool = False) -> Linearisation | None:
+    """The plan's interval-by-interval linearisation (None where it is not finite;
+    compiled: the Jacobians compiled to C)."""
     s = Structure.of(robot)
     breaks = interp.q.breaks
     h = np.diff(breaks)
@@ -67,7 +80,8 @@ def linearise(robot: Robot, interp: Interpolant) -> Linearisation | None:
     fractions = np.arange(2 * SUBSTEPS + 1) / (2 * SUBSTEPS)  # substep ends and midpoints
     t = (breaks[:-1, None] + h[:, None] * fractions[None, :]).ravel()
     x = np.hstack([interp.q(t), interp.dq(t)])
-    jac_x, jac_u = _jacobians(s).map(t.size)(x.T, interp.tau(t).T, parameters(robot, s))
+    jacobians = _compiled_jacobians(s) if compiled else _jacobians(s)
+    jac_x, jac_u = jacobians.map(t.size)(x.T, interp.tau(t).T, parameters(robot, s))
     Ax = np.array(jac_x).reshape(n2, t.size, n2).transpose(1, 0, 2).reshape(N, -1, n2, n2)
     Bu = np.array(jac_u).reshape(n2, t.size, na).transpose(1, 0, 2).reshape(N, -1, n2, na)
     phi = np.broadcast_to(np.eye(n2), (N, n2, n2)).copy()
@@ -130,7 +144,7 @@ def replay(robot: Robot, interp: Interpolant, starts: np.ndarray, K: np.ndarray 
     coeffs = interp.tau.coeffs
     N, degree = coeffs.shape[0], coeffs.shape[1] - 1
     R = len(starts)
-    flow = integrator(s, degree, REPLAY_SAMPLES, tol, compiled).map(R)
+    integrate = flow(s, degree, REPLAY_SAMPLES, R, tol, compiled)
     _, params = inputs(robot, interp)
     breaks = interp.q.breaks
     planned = np.hstack([interp.q(breaks), interp.dq(breaks)])  # (N + 1, 2n)
@@ -144,8 +158,8 @@ def replay(robot: Robot, interp: Interpolant, starts: np.ndarray, K: np.ndarray 
         u = np.zeros((len(s.active_idx), R)) if K is None else -K[k] @ (x - planned[k][:, None])
         where = f"between t = {breaks[k]:.6g} s and t = {breaks[k + 1]:.6g} s"
         try:
-            states = np.array(flow(x0=x, p=np.repeat(params[:, k:k + 1], R, axis=1),
-                                   u=np.repeat(u, REPLAY_SAMPLES, axis=1))["xf"])
+            states = integrate(x, np.repeat(params[:, k:k + 1], R, axis=1),
+                               np.repeat(u, REPLAY_SAMPLES, axis=1))
             states = states.reshape(2 * s.n, R, REPLAY_SAMPLES)
         except RuntimeError:
             return [(None, f"CVODES failed {where}") if f is None else (None, f) for f in failed]

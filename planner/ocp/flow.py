@@ -4,11 +4,15 @@ On interval k, in normalised time s = (t - t_k) / h_k in [0, 1], the arm follows
 M ddq + h = B (tau_k(s) + u), tau_k the plan's torque polynomial and u a constant torque
 offset [N m] (0 for the plan itself, a feedback correction otherwise). The integrator is
 mapped over intervals, each started from its own state: one call re-integrates every
-interval of a plan.
+interval of a plan. CVODES integrates by Adams-Moulton with functional iteration, as
+`planner.simulate` does by default: the arms are not stiff, and on plans of the seed arm
+the interval check and the replays take a sixth to a half of BDF's time
+(`python -m bench verification`). Where Adams fails, BDF with Newton iteration takes over.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
@@ -19,6 +23,7 @@ from planner.compiled import library, source_digest
 from planner.dynamics import functions
 from planner.model import Robot, Structure, parameters
 from planner.ocp.transcription import Interpolant
+from planner.simulate import METHODS, Method
 
 TOL = 1e-10  # CVODES rtol = atol of the states
 _SOURCES = [Path(__file__).resolve().parents[1] / name
@@ -58,26 +63,57 @@ def _compiled_dae(s: Structure, degree: int) -> ca.Function | None:
 
 
 def integrator(s: Structure, degree: int, outputs: int, tol: float = TOL,
-               compiled: bool = False) -> ca.Function:
+               compiled: bool = False, method: Method = "adams") -> ca.Function:
     """(x0 (2n), p, u) -> xf (2n x outputs) at s = 1/outputs, 2/outputs, ..., 1;
     p = [robot parameters, torque coefficients (degree + 1 by na, power-major), h]; u the
     torque offset, na x outputs (one per output interval; an na vector holds for all).
     compiled: the right-hand side compiled to C (about twice as fast) once it is on disk,
-    interpreted while it is built in the background."""
+    interpreted while it is built in the background; method: CVODES' (`METHODS`)."""
     ready = compiled and _compiled_dae(s, degree) is not None
-    return _integrator(s, degree, outputs, tol, ready)
+    return _integrator(s, degree, outputs, tol, ready, method)
+
+
+@dataclass(frozen=True)
+class Flow:
+    """`integrator` mapped over B intervals, by Adams and by BDF."""
+
+    adams: ca.Function
+    bdf: ca.Function
+
+    def __call__(self, x0: np.ndarray, p: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """xf (2n x outputs B), interval b from x0[:, b] (2n x B) with p[:, b] and
+        u[:, b outputs:(b + 1) outputs]: by Adams, by BDF where Adams fails. Raises
+        RuntimeError when both fail."""
+        try:
+            return np.array(self.adams(x0=x0, p=p, u=u)["xf"])
+        except RuntimeError:
+            return np.array(self.bdf(x0=x0, p=p, u=u)["xf"])
+
+
+def flow(s: Structure, degree: int, outputs: int, batch: int, tol: float = TOL,
+         compiled: bool = False) -> Flow:
+    """The flow of `batch` intervals at once (see `integrator`)."""
+    ready = compiled and _compiled_dae(s, degree) is not None
+    return _flow(s, degree, outputs, batch, tol, ready)
+
+
+@lru_cache(maxsize=64)
+def _flow(s: Structure, degree: int, outputs: int, batch: int, tol: float,
+          compiled: bool) -> Flow:
+    return Flow(*(_integrator(s, degree, outputs, tol, compiled, method).map(batch)
+                  for method in ("adams", "bdf")))
 
 
 @lru_cache(maxsize=64)
 def _integrator(s: Structure, degree: int, outputs: int, tol: float,
-                compiled: bool) -> ca.Function:
+                compiled: bool, method: Method) -> ca.Function:
     dae = _compiled_dae(s, degree) if compiled else _dae(s, degree)
     if dae is None:  # `integrator` asks for the compiled one only once it is loaded
         raise RuntimeError("the compiled flow is not loaded yet")
     grid = list(np.linspace(0.0, 1.0, outputs + 1)[1:])
     return ca.integrator("flow", "cvodes", dae, 0.0, grid,
                          {"abstol": tol, "reltol": tol, "show_eval_warnings": False,
-                          "disable_internal_warnings": True})
+                          "disable_internal_warnings": True, **METHODS[method]})
 
 
 def inputs(robot: Robot, interp: Interpolant) -> tuple[np.ndarray, np.ndarray]:

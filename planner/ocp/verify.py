@@ -99,7 +99,7 @@ def torque_excess(tau: np.ndarray, limit: list[float] | float | None) -> float |
 def _feedback(robot: Robot, interp: Interpolant, torque_limit: list[float] | float | None,
               compiled: bool) -> tuple[Feedback | None, dict]:
     """The plan's LQR feedback and what it and the open-loop sensitivity measure."""
-    lin = linearise(robot, interp)
+    lin = linearise(robot, interp, compiled)
     if lin is None:
         return None, {}
     scale = max(float(np.max(torque_limit)) if torque_limit is not None
