@@ -3,14 +3,11 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TypeVar
 
-import casadi as ca
-
-X = TypeVar("X", ca.SX, ca.MX)
+from planner.symbolic import Sym
 
 
-def rk4_step(f: Callable[[X, float], X], x: X, h) -> X:
+def rk4_step(f: Callable[[Sym, float], Sym], x: Sym, h) -> Sym:
     """x after one RK4 step of x' = f(x, c) over a step of length h, where c in {0, 1/2, 1}
     is the fraction of the step at which f is evaluated (for time-varying inputs)."""
     k1 = f(x, 0.0)

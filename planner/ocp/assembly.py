@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import cast
 
 import casadi as ca
 import numpy as np
@@ -167,7 +168,8 @@ def _blocks(f: ca.Function, with_next: bool) -> Blocks:
     grad_rows = np.array(grad.sparsity().get_triplet()[0], dtype=int)
 
     def nz(m: ca.SX) -> ca.SX:
-        return ca.vertcat(*m.nonzeros()) if m.nnz() else ca.SX(0, 1)
+        # CasADi's stubs type the nonzeros as SXElem; Python receives each as a 1 x 1 SX.
+        return ca.vertcat(*cast(list[ca.SX], m.nonzeros())) if m.nnz() else ca.SX(0, 1)
 
     name = f.name()
     return Blocks(ca.Function(f"{name}_jac", ins, [nz(J)]),

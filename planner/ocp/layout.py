@@ -20,6 +20,7 @@ import casadi as ca
 import numpy as np
 
 from planner.ocp.mesh import Mesh
+from planner.symbolic import Sym
 
 
 @dataclass(frozen=True)
@@ -117,7 +118,7 @@ class Layout:
         return np.zeros(self.size)
 
 
-def split(parts: tuple[Part, ...], w: ca.SX) -> dict[str, ca.SX]:
+def split(parts: tuple[Part, ...], w: Sym) -> dict[str, Sym]:
     """The named parts of one stage's (or the terminal's) variable vector, rows x columns."""
     out = {}
     for part, start in zip(parts, _offsets(parts).values(), strict=True):

@@ -15,6 +15,7 @@ import time
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from pathlib import Path
+from typing import Generic, overload
 
 import casadi as ca
 import numpy as np
@@ -27,8 +28,9 @@ from planner.ocp.assembly import Derivatives, Kernels, assemble, derivatives
 from planner.ocp.layout import Layout, Part, split
 from planner.ocp.monitor import IterationMonitor
 from planner.ocp.terms import TERMS, Boundaries, Stage, Term
-from planner.ocp.transcription import Model, Transcription
+from planner.ocp.transcription import AnyTranscription, Model, Transcription
 from planner.scene import DurationRange, Scene
+from planner.symbolic import Sym
 
 
 @dataclass(frozen=True)
@@ -86,7 +88,7 @@ class ProblemKey:
             max_iter=scene.solver.max_iter if scene.solver.name == "fatrop" else 0,
         )
 
-    def transcription(self) -> Transcription:
+    def transcription(self) -> AnyTranscription:
         """The transcription method of this key."""
         return methods.create(self.method, self.intervals, self.degree, self.integrator,
                               self.steps, self.form == "implicit")
@@ -167,7 +169,7 @@ class Problem:
 
     key: ProblemKey
     layout: Layout
-    transcription: Transcription
+    transcription: AnyTranscription
     params: Parameters
     lbg: np.ndarray
     ubg: np.ndarray
@@ -197,7 +199,7 @@ class Problem:
         return self._warm
 
 
-def _parameters(key: ProblemKey, tr: Transcription, terms: list[Term]) -> Parameters:
+def _parameters(key: ProblemKey, tr: AnyTranscription, terms: list[Term]) -> Parameters:
     common = {"robot": key.structure.n_params}
     if not key.free_time:
         common["T"] = 1
@@ -226,37 +228,38 @@ def _offsets(named: tuple[tuple[str, int], ...]) -> dict[str, slice]:
     return _slices(dict(named))
 
 
-class _Symbols:
-    """The symbolic inputs of a stage function and what terms read from them."""
+class _Symbols(Generic[Sym]):
+    """The symbolic inputs of a stage function (in the transcription's Sym) and what terms
+    read from them."""
 
-    def __init__(self, key: ProblemKey, tr: Transcription, layout: Layout, params: Parameters,
+    def __init__(self, key: ProblemKey, tr: Transcription[Sym], layout: Layout, params: Parameters,
                  width: int, terminal: bool):
         sym, s = tr.symbolic, key.structure
-        self.w = sym.sym("w", width)
-        self.nxt = sym.sym("nxt", 0 if terminal else sum(
+        self.w: Sym = sym.sym("w", width)
+        self.nxt: Sym = sym.sym("nxt", 0 if terminal else sum(
             p.size for p in layout.stage if p.name in tr.link))
-        self.glob = sym.sym("glob", layout.globals_size)
-        self.common = sym.sym("common", params.n_common)
-        self.local = sym.sym("local", params.n_local)
+        self.glob: Sym = sym.sym("glob", layout.globals_size)
+        self.common: Sym = sym.sym("common", params.n_common)
+        self.local: Sym = sym.sym("local", params.n_local)
         globs = _offsets(layout.globals)
-        self.T = self.glob[globs["T"]] if key.free_time else self.common[params.common["T"]]
+        self.T: Sym = self.glob[globs["T"]] if key.free_time else self.common[params.common["T"]]
         entries = ca.vertsplit(self.common[params.common["robot"]])
         if key.codesign:
             waves = self.glob[globs["wave"]]
             for col, joint in enumerate(s.active_idx):
                 entries[wave_slots(s)[joint]] = waves[2 * col]
                 entries[wave_slots(s)[joint] + 2] = waves[2 * col + 1]
-        self.p = ca.vertcat(*entries)
+        self.p: Sym = ca.vertcat(*entries)
         self.params = params
 
-    def inputs(self, terminal: bool) -> list:
+    def inputs(self, terminal: bool) -> list[Sym]:
         return [self.w, self.glob, self.common, self.local] if terminal else \
             [self.w, self.nxt, self.glob, self.common, self.local]
 
-    def common_of(self, name: str):
+    def common_of(self, name: str) -> Sym:
         return self.common[self.params.common[name]]
 
-    def local_of(self, name: str):
+    def local_of(self, name: str) -> Sym:
         return self.local[self.params.local[name]]
 
 
@@ -264,9 +267,23 @@ RowGroups = list[tuple[float, float, int]]
 """Constraint rows in groups: lower bound, upper bound, count."""
 
 
-def _stage_function(key: ProblemKey, tr: Transcription, layout: Layout, params: Parameters,
+@overload
+def _stage_function(key: ProblemKey, tr: Transcription[ca.SX], layout: Layout,
+                    params: Parameters, terms: list[Term],
+                    terminal: bool) -> tuple[ca.Function, RowGroups]: ...
+
+
+@overload
+def _stage_function(key: ProblemKey, tr: Transcription[ca.MX], layout: Layout,
+                    params: Parameters, terms: list[Term],
+                    terminal: bool) -> tuple[ca.Function, RowGroups]: ...
+
+
+def _stage_function(key: ProblemKey, tr: Transcription[Sym], layout: Layout, params: Parameters,
                     terms: list[Term], terminal: bool) -> tuple[ca.Function, RowGroups]:
-    """A stage's (or the terminal's) rows and cost, and the bounds of its row groups."""
+    """A stage's (or the terminal's) rows and cost, and the bounds of its row groups,
+    written in the transcription's symbolic type (one overload each, so that a transcription
+    of either type can be passed)."""
     s = key.structure
     parts = layout.terminal if terminal else layout.stage
     sym = _Symbols(key, tr, layout, params, sum(p.size for p in parts), terminal)
@@ -343,7 +360,8 @@ def _boundary(key: ProblemKey, layout: Layout, params: Parameters, terms: list[T
                        ca.reshape(X[np.concatenate(after).tolist()], -1, len(after)),
                        T * local[params.local["boundary"], :len(before)],
                        lambda name: common[params.common[name]])
-        return sum(term.boundary_cost(b) for term in coupling)
+        costs = (term.boundary_cost(b) for term in coupling)
+        return sum((c for c in costs if c is not None), ca.MX(0))
 
     return cost
 
@@ -354,7 +372,7 @@ class Stages:
     functions with their derivative kernels, the variable parts, the parameters, and the
     bounds of the rows of a stage and of the terminal."""
 
-    transcription: Transcription
+    transcription: AnyTranscription
     kernels: Kernels
     derivatives: Derivatives | None
     parts: tuple[tuple[Part, ...], tuple[Part, ...]]

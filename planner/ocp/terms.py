@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Generic
 
 import casadi as ca
 import numpy as np
@@ -18,25 +19,27 @@ import numpy as np
 from planner.dynamics import derive, functions
 from planner.model import Robot, Structure
 from planner.ocp.mesh import Mesh
-from planner.ocp.transcription import StagePiece, Transcription
+from planner.ocp.transcription import AnyTranscription, StagePiece
 from planner.ocp.verify import coupling_along
 from planner.scene import Scene
+from planner.symbolic import Sym
 
 
 @dataclass(frozen=True)
-class Stage:
+class Stage(Generic[Sym]):
     """What a term builds on in one stage (or at the final node, `terminal`): the stage's
     symbolic piece, its knots' quadrature weights [s] (1 x m), its width h [s], the
-    duration T [s], the robot's parameters p, and the term's common and local parameters."""
+    duration T [s], the robot's parameters p, and the term's common and local parameters;
+    all in the stage's symbolic type Sym."""
 
     structure: Structure
-    piece: StagePiece
-    weights: ca.SX
-    h: ca.SX
-    T: ca.SX
-    p: ca.SX
-    common: Callable[[str], ca.SX]
-    local: Callable[[str], ca.SX]
+    piece: StagePiece[Sym]
+    weights: Sym
+    h: Sym
+    T: Sym
+    p: Sym
+    common: Callable[[str], Sym]
+    local: Callable[[str], Sym]
     terminal: bool
 
 
@@ -60,7 +63,7 @@ class Numeric:
     robot: Robot
     T: float
     mesh: Mesh
-    transcription: Transcription
+    transcription: AnyTranscription
 
     def knot_times(self) -> np.ndarray:
         """(N + 1, m) time fractions of every stage's knots (the terminal's: 1, padded)."""
@@ -69,7 +72,7 @@ class Numeric:
         return np.vstack([stages, np.ones((1, stages.shape[1]))])
 
 
-Rows = tuple[ca.SX, float, float]
+Rows = tuple[Sym, float, float]
 """Constraint rows with their lower and upper bound."""
 
 
@@ -86,14 +89,14 @@ class Term:
         """Parameters common to the whole NLP (default: one weight)."""
         return 1
 
-    def local_size(self, key, tr: Transcription) -> int:
+    def local_size(self, key, tr: AnyTranscription) -> int:
         """Parameters of every stage."""
         return 0
 
-    def cost(self, stage: Stage) -> ca.SX | None:
+    def cost(self, stage: Stage[Sym]) -> Sym | None:
         return None
 
-    def rows(self, stage: Stage) -> Rows | None:
+    def rows(self, stage: Stage[Sym]) -> Rows[Sym] | None:
         return None
 
     def boundary_cost(self, b: Boundaries) -> ca.MX | None:
@@ -107,7 +110,7 @@ class Term:
         return np.zeros((num.mesh.intervals + 1, 0))
 
 
-def _integral(stage: Stage, integrand: ca.SX) -> ca.SX:
+def _integral(stage: Stage[Sym], integrand: Sym) -> Sym:
     """Quadrature of a per-knot quantity (1 x m) over the stage [unit s]."""
     return ca.mtimes(stage.weights, integrand.T)
 
@@ -120,7 +123,7 @@ class Effort(Term):
     def wanted(self, key) -> bool:
         return key.effort
 
-    def cost(self, stage: Stage) -> ca.SX:
+    def cost(self, stage: Stage[Sym]) -> Sym:
         return stage.common(self.name) * _integral(stage, ca.sum1(stage.piece.knot_tau**2))
 
     def common_values(self, num: Numeric) -> np.ndarray:
@@ -135,7 +138,7 @@ class Time(Term):
     def wanted(self, key) -> bool:
         return key.time
 
-    def cost(self, stage: Stage) -> ca.SX | None:
+    def cost(self, stage: Stage[Sym]) -> Sym | None:
         return stage.common(self.name) * stage.T if stage.terminal else None
 
     def common_values(self, num: Numeric) -> np.ndarray:
@@ -151,7 +154,7 @@ class Smoothness(Term):
     def wanted(self, key) -> bool:
         return key.smoothness
 
-    def cost(self, stage: Stage) -> ca.SX | None:
+    def cost(self, stage: Stage[Sym]) -> Sym | None:
         taus, at = stage.piece.taus, stage.piece.tau_positions
         if len(at) < 2:
             return None
@@ -176,10 +179,10 @@ class Tracking(Term):
     def wanted(self, key) -> bool:
         return key.weighted_tracking
 
-    def local_size(self, key, tr: Transcription) -> int:
+    def local_size(self, key, tr: AnyTranscription) -> int:
         return len(key.structure.passive_idx) * len(tr.knot_positions)
 
-    def cost(self, stage: Stage) -> ca.SX:
+    def cost(self, stage: Stage[Sym]) -> Sym:
         passive = stage.structure.passive_idx
         knots = stage.piece.knot_q
         m = knots.size2()
@@ -211,7 +214,7 @@ class TipTarget(Term):
     def common_size(self, key) -> int:
         return 2
 
-    def rows(self, stage: Stage) -> Rows | None:
+    def rows(self, stage: Stage[Sym]) -> Rows[Sym] | None:
         if not stage.terminal:
             return None
         tip = functions(stage.structure)["tips"](stage.piece.path_q[:, -1], stage.p)[:, -1]
@@ -235,7 +238,7 @@ class CouplingMargin(Term):
     def common_size(self, key) -> int:
         return 2
 
-    def rows(self, stage: Stage) -> Rows:
+    def rows(self, stage: Stage[Sym]) -> Rows[Sym]:
         par, path = stage.common(self.name), stage.piece.path_q
         minors = margin_function(stage.structure).map(path.size2())(path, stage.p, par[0], par[1])
         return ca.vec(minors), 0.0, np.inf

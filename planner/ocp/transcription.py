@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Generic, Protocol, TypeAlias
 
 import casadi as ca
 import numpy as np
@@ -22,14 +22,15 @@ import numpy as np
 from planner.ocp.interpolant import PiecewisePolynomial
 from planner.ocp.layout import Part
 from planner.ocp.mesh import Mesh
+from planner.symbolic import Sym
 
 Accelerations = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 """fd(q, dq, tau) -> ddq, numeric, rows are samples: (K, n), (K, n), (K, na) -> (K, n)."""
 
 
 @dataclass(frozen=True)
-class Model:
-    """The symbolic dynamics a stage is written with (SX): n joints, na active; implicit:
+class Model(Generic[Sym]):
+    """The symbolic dynamics a stage is written with (in Sym): n joints, na active; implicit:
     the accelerations at the knots are variables (parts named ddq*) constrained by
     M ddq + h = B tau, else they are fd(q, dq, tau); p the robot's parameters."""
 
@@ -38,10 +39,10 @@ class Model:
     implicit: bool
     fd: ca.Function
     ode: ca.Function
-    p: ca.SX
+    p: Sym
 
-    def accelerations(self, parts: dict[str, ca.SX], name: str, q: ca.SX, dq: ca.SX,
-                      tau: ca.SX | None) -> ca.SX:
+    def accelerations(self, parts: dict[str, Sym], name: str, q: Sym, dq: Sym,
+                      tau: Sym | None) -> Sym:
         """ddq (n x m) at m knots: the variables `name`, or the forward dynamics of the
         torques tau (which only the implicit form may lack)."""
         if self.implicit:
@@ -52,7 +53,7 @@ class Model:
 
 
 @dataclass(frozen=True)
-class StagePiece:
+class StagePiece(Generic[Sym]):
     """The symbolic content of one stage (or of the final node).
 
     defects: equality rows; knot_q, knot_dq, knot_ddq (n x m), knot_tau (na x m): the
@@ -64,15 +65,15 @@ class StagePiece:
     the layout a structure-exploiting solver (fatrop) expects.
     """
 
-    defects: ca.SX
-    knot_q: ca.SX
-    knot_dq: ca.SX
-    knot_ddq: ca.SX
-    knot_tau: ca.SX
-    path_q: ca.SX
-    taus: ca.SX
+    defects: Sym
+    knot_q: Sym
+    knot_dq: Sym
+    knot_ddq: Sym
+    knot_tau: Sym
+    path_q: Sym
+    taus: Sym
     tau_positions: tuple[float, ...]
-    gaps: ca.SX | None = None
+    gaps: Sym | None = None
 
 
 @dataclass(frozen=True)
@@ -85,8 +86,8 @@ class Interpolant:
     tau: PiecewisePolynomial
 
 
-class Transcription(Protocol):
-    """What every transcription method implements."""
+class Transcription(Protocol[Sym]):
+    """What every transcription method implements, its stages written in Sym."""
 
     name: str
     intervals: int
@@ -109,7 +110,7 @@ class Transcription(Protocol):
         """The angle blocks at the knots (where exact tracking holds)."""
 
     @property
-    def symbolic(self) -> type:
+    def symbolic(self) -> type[Sym]:
         """ca.SX, or ca.MX where a stage calls what SX cannot hold (an integrator)."""
 
     def node_count(self) -> int:
@@ -121,11 +122,11 @@ class Transcription(Protocol):
     def parts(self, n: int, na: int) -> tuple[tuple[Part, ...], tuple[Part, ...]]:
         """The variables of a stage and of the terminal, the `link` parts first."""
 
-    def stage(self, w: dict[str, ca.SX], nxt: dict[str, ca.SX], h: ca.SX,
-              model: Model) -> StagePiece:
+    def stage(self, w: dict[str, Sym], nxt: dict[str, Sym], h: Sym,
+              model: Model[Sym]) -> StagePiece[Sym]:
         """One interval of width h [s]: its parts w and the next stage's `link` parts nxt."""
 
-    def terminal(self, w: dict[str, ca.SX], model: Model) -> StagePiece:
+    def terminal(self, w: dict[str, Sym], model: Model[Sym]) -> StagePiece[Sym]:
         """The final node."""
 
     def weights(self, mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
@@ -137,6 +138,10 @@ class Transcription(Protocol):
         """The states and torques between the knots of a solution (blocks by name, rows x
         columns in time order) on the mesh's breakpoints [s]; fd gives the accelerations
         where they are not variables."""
+
+
+AnyTranscription: TypeAlias = Transcription[ca.SX] | Transcription[ca.MX]
+"""A transcription whose stages are written in either symbolic type."""
 
 
 def nodes(n: int, position: float = 0.0) -> tuple[Part, Part]:

@@ -47,7 +47,7 @@ class Collocation:
         return (*nodes(n), *inner, *accel, Part("tau", "tau", na, at)), nodes(n)
 
     def stage(self, w: dict[str, ca.SX], nxt: dict[str, ca.SX], h: ca.SX,
-              model: Model) -> StagePiece:
+              model: Model[ca.SX]) -> StagePiece[ca.SX]:
         qc, dqc, tau = w["q_col"], w["dq_col"], w["tau"]
         ddqc = model.accelerations(w, "ddq", qc, dqc, tau)
         Q, DQ = ca.horzcat(w["q"], qc), ca.horzcat(w["dq"], dqc)
@@ -57,7 +57,7 @@ class Collocation:
         return StagePiece(defects, qc, dqc, ddqc, tau, ca.horzcat(w["q"], qc), tau,
                           self.knot_positions, gaps)
 
-    def terminal(self, w: dict[str, ca.SX], model: Model) -> StagePiece:
+    def terminal(self, w: dict[str, ca.SX], model: Model[ca.SX]) -> StagePiece[ca.SX]:
         empty, none = ca.SX(model.n, 0), ca.SX(model.na, 0)
         return StagePiece(ca.SX(0, 1), empty, empty, empty, none, w["q"], none, ())
 

@@ -51,7 +51,7 @@ class HermiteSimpson:
         return (*node, *knot("_mid", 0.5)), node
 
     @staticmethod
-    def _knot(w: dict[str, ca.SX], model: Model,
+    def _knot(w: dict[str, ca.SX], model: Model[ca.SX],
               suffix: str = "") -> tuple[ca.SX, ca.SX, ca.SX]:
         """A knot's angles, rates and accelerations (the next stage's linked parts hold
         its torques only in the explicit form, which needs them)."""
@@ -59,7 +59,7 @@ class HermiteSimpson:
         return q, dq, model.accelerations(w, f"ddq{suffix}", q, dq, w.get(f"tau{suffix}"))
 
     def stage(self, w: dict[str, ca.SX], nxt: dict[str, ca.SX], h: ca.SX,
-              model: Model) -> StagePiece:
+              model: Model[ca.SX]) -> StagePiece[ca.SX]:
         q0, dq0, a0 = self._knot(w, model)
         qm, dqm, am = self._knot(w, model, "_mid")
         q1, dq1, a1 = self._knot(nxt, model)
@@ -73,7 +73,7 @@ class HermiteSimpson:
         return StagePiece(defects, knots, ca.horzcat(dq0, dqm), ca.horzcat(a0, am), taus,
                           knots, taus, (0.0, 0.5))
 
-    def terminal(self, w: dict[str, ca.SX], model: Model) -> StagePiece:
+    def terminal(self, w: dict[str, ca.SX], model: Model[ca.SX]) -> StagePiece[ca.SX]:
         q, dq, a = self._knot(w, model)
         tau = w["tau"]
         return StagePiece(ca.SX(0, 1), q, dq, a, tau, q, tau, (0.0,))

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Generic
+
 import casadi as ca
 import numpy as np
 
@@ -16,14 +18,25 @@ from planner.ocp.transcription import (
     nodes,
 )
 from planner.rk4 import rk4_step
+from planner.symbolic import Sym
 
 CVODES_TOL = 1e-10  # CVODES' relative and absolute tolerance across a shooting interval
 
 
-class MultipleShooting:
+def multiple_shooting(intervals: int, integrator: str,
+                      steps: int) -> MultipleShooting[ca.SX] | MultipleShooting[ca.MX]:
+    """Multiple shooting across an interval by `integrator` ("rk4": `steps` fixed steps,
+    written out in SX; "cvodes": called from MX, which SX cannot hold)."""
+    if integrator == "cvodes":
+        return MultipleShooting(intervals, integrator, steps, ca.MX)
+    return MultipleShooting(intervals, integrator, steps, ca.SX)
+
+
+class MultipleShooting(Generic[Sym]):
     """Torques constant per interval; the end state by fixed-step RK4 or CVODES; the
     interpolant between nodes is the cubic Hermite through the node states and their
-    rates, each interval's accelerations at both ends under its own torque."""
+    rates, each interval's accelerations at both ends under its own torque. Its stages are
+    written in `symbolic` (`multiple_shooting` picks the one its integrator needs)."""
 
     name = "multiple-shooting"
     order = 4
@@ -32,10 +45,10 @@ class MultipleShooting:
     link = ("q", "dq")
     knot_blocks = ("q",)
 
-    def __init__(self, intervals: int, integrator: str, steps: int):
+    def __init__(self, intervals: int, integrator: str, steps: int, symbolic: type[Sym]):
         self.intervals, self.integrator, self.steps = intervals, integrator, steps
         self.implicit = False
-        self.symbolic = ca.MX if integrator == "cvodes" else ca.SX
+        self.symbolic: type[Sym] = symbolic
 
     def node_count(self) -> int:
         return self.intervals * self.steps
@@ -46,14 +59,15 @@ class MultipleShooting:
     def parts(self, n: int, na: int) -> tuple[tuple[Part, ...], tuple[Part, ...]]:
         return (*nodes(n), Part("tau", "tau", na, (0.5,))), nodes(n)
 
-    def stage(self, w: dict, nxt: dict, h, model: Model) -> StagePiece:
+    def stage(self, w: dict[str, Sym], nxt: dict[str, Sym], h: Sym,
+              model: Model[Sym]) -> StagePiece[Sym]:
         q, dq, tau = w["q"], w["dq"], w["tau"]
         end = self._end(ca.vertcat(q, dq), tau, h, model)
         ddq = model.fd(q, dq, tau, model.p)
         return StagePiece(self.symbolic(0, 1), q, dq, ddq, tau, q, tau, (0.5,),
                           ca.vertcat(nxt["q"], nxt["dq"]) - end)
 
-    def _end(self, x, tau, h, model: Model):
+    def _end(self, x: Sym, tau: Sym, h: Sym, model: Model[Sym]) -> Sym:
         """The state one interval of width h later under the constant torque."""
         if self.integrator == "cvodes":
             xs, us, ps, hs = (ca.SX.sym(k, size) for k, size in
@@ -67,7 +81,7 @@ class MultipleShooting:
             x = rk4_step(lambda state, _c: model.ode(state, tau, model.p), x, dt)
         return x
 
-    def terminal(self, w: dict, model: Model) -> StagePiece:
+    def terminal(self, w: dict[str, Sym], model: Model[Sym]) -> StagePiece[Sym]:
         empty, none = self.symbolic(model.n, 0), self.symbolic(model.na, 0)
         return StagePiece(self.symbolic(0, 1), empty, empty, empty, none, w["q"], none, ())
 

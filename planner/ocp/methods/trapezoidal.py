@@ -61,21 +61,21 @@ class Trapezoidal:
         return stage, stage
 
     @staticmethod
-    def _knot(w: dict[str, ca.SX], model: Model) -> tuple[ca.SX, ca.SX, ca.SX]:
+    def _knot(w: dict[str, ca.SX], model: Model[ca.SX]) -> tuple[ca.SX, ca.SX, ca.SX]:
         """A knot's angles, rates and accelerations (the next stage's linked parts hold
         its torques only in the explicit form, which needs them)."""
         q, dq = w["q"], w["dq"]
         return q, dq, model.accelerations(w, "ddq", q, dq, w.get("tau"))
 
     def stage(self, w: dict[str, ca.SX], nxt: dict[str, ca.SX], h: ca.SX,
-              model: Model) -> StagePiece:
+              model: Model[ca.SX]) -> StagePiece[ca.SX]:
         q0, dq0, a0 = self._knot(w, model)
         q1, dq1, a1 = self._knot(nxt, model)
         tau = w["tau"]
         defects = ca.vertcat(q1 - q0 - h / 2 * (dq0 + dq1), dq1 - dq0 - h / 2 * (a0 + a1))
         return StagePiece(defects, q0, dq0, a0, tau, q0, tau, (0.0,))
 
-    def terminal(self, w: dict[str, ca.SX], model: Model) -> StagePiece:
+    def terminal(self, w: dict[str, ca.SX], model: Model[ca.SX]) -> StagePiece[ca.SX]:
         q, dq, a = self._knot(w, model)
         tau = w["tau"]
         return StagePiece(ca.SX(0, 1), q, dq, a, tau, q, tau, (0.0,))
