@@ -34,10 +34,12 @@ def cache(tmp_path, monkeypatch):
 def test_a_new_structure_plans_at_once_and_compiles_in_the_background(cache):
     first = plan(_scene(0.3))
     assert first.solver.success and not first.solver.compiled
-    assert compiled.building()  # the stages' kernels and the flow, each in its own process
+    assert compiled.building()  # the stages' kernels, the flow and the linearisation's
+    # Jacobians, each in a process of its own
     compiled.wait(300)
     assert not compiled.building()
-    assert sorted(p.name.split("_")[0] for p in cache.glob("*.so")) == ["flow", "stages"]
+    assert sorted(p.name.split("_")[0] for p in cache.glob("*.so")) == ["flow", "jacobians",
+                                                                      "stages"]
     assert not [p for p in cache.iterdir() if p.is_dir()]  # the build folders are gone
 
     again = plan(_scene(0.3))

@@ -6,6 +6,7 @@ checks catch, without one, what would break or weaken that build.
 
 from __future__ import annotations
 
+import ast
 import json
 import re
 import shutil
@@ -161,6 +162,17 @@ def installed_closure(roots: set[str]) -> set[str]:
     return seen
 
 
+def top_level_imports(source: Path) -> set[str]:
+    """The top-level names of the modules a source file imports (relative imports aside)."""
+    names = set()
+    for node in ast.walk(ast.parse(source.read_text())):
+        if isinstance(node, ast.Import):
+            names |= {alias.name.split(".")[0] for alias in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            names.add(node.module.split(".")[0])
+    return names
+
+
 def test_image_installs_every_imported_distribution() -> None:
     """The image gets only pyproject.toml's dependencies and what they require: every
     third-party module that app/ and planner/ import must come from one of them."""
@@ -168,8 +180,7 @@ def test_image_installs_every_imported_distribution() -> None:
     installed = installed_closure({_name(d) for d in project["dependencies"]})
     imported = set()
     for source in [*(ROOT / "app").rglob("*.py"), *(ROOT / "planner").rglob("*.py")]:
-        imported |= set(re.findall(r"^\s*(?:from|import)\s+([A-Za-z_]\w*)",
-                                   source.read_text(), flags=re.M))
+        imported |= top_level_imports(source)
     owners = packages_distributions()
     third_party = imported - {"app", "planner"} - set(sys.stdlib_module_names)
     missing = sorted({canonicalize_name(dist) for module in third_party
