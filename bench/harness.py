@@ -35,6 +35,7 @@ ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results"
 DOCS = ROOT / "docs"
 PYTHON = sys.executable
+_TIMEOUT = "timeout after"  # how a child's failure says it was stopped
 
 
 class CpuTimed:
@@ -130,7 +131,7 @@ def isolated(module: str, function: str, kwargs: dict, timeout: float) -> dict:
     """Run bench.<module>.<function>(**kwargs) -> dict in a fresh Python process (module
     may be dotted: "peers.opti").
 
-    Returns its dict, or {"failure": "timeout after ... s" | "exit ...: ..."}: a point that
+    Returns its dict, or {"failure": "exit ...: ..."} or `timed_out(timeout)`: a point that
     hangs or crashes is recorded as such instead of ending the run.
     """
     code = (f"import json, sys; sys.path.insert(0, {str(ROOT)!r}); "
@@ -146,9 +147,19 @@ def run_at(root: Path, code: str, args: Sequence[str], timeout: float) -> dict:
         run = subprocess.run([PYTHON, "-c", code, *args], cwd=root, check=False,
                              capture_output=True, text=True, timeout=timeout)
     except subprocess.TimeoutExpired:
-        return {"failure": f"timeout after {timeout:g} s"}
+        return timed_out(timeout)
     results = result_lines(run.stdout)
     return results[-1] if results else {"failure": f"exit {run.returncode}: {last_error(run)}"}
+
+
+def timed_out(timeout: float) -> dict:
+    """What a child stopped after `timeout` [s] returns in place of its result."""
+    return {"failure": f"{_TIMEOUT} {timeout:g} s"}
+
+
+def stopped(out: dict) -> bool:
+    """Whether a child's dict is `timed_out`'s (it was stopped, rather than crashed)."""
+    return str(out.get("failure", "")).startswith(f"{_TIMEOUT} ")
 
 
 def result_lines(stdout: str) -> list[dict]:

@@ -135,7 +135,7 @@ def call_worker(spec: dict, timeout: float = WORKER_TIMEOUT) -> dict:
                                    str(dst)], cwd=harness.ROOT, capture_output=True,
                                   text=True, check=False, timeout=timeout)
         except subprocess.TimeoutExpired:
-            return {"failure": f"timeout after {timeout:g} s"}
+            return harness.timed_out(timeout)
         if dst.exists():
             return json.loads(dst.read_text())
         return {"failure": f"exit {done.returncode}: {last_error_line(done)}"}

@@ -5,15 +5,18 @@ instead of Ipopt, and its peers on the same 50 intervals: a plain CasADi Opti sc
 collocation with Ipopt, multiple shooting with fatrop) and opty (bench/peers/opty.py,
 midpoint, in its own virtualenv `.venv-opty`).
 
-Every configuration runs in a process of its own, its tasks one after the other as a
-service worker would (NLPs built once per structure and number of intervals stay cached;
-opty derives and compiles each task in a process of its own). A plan counts as verified
+Every planner configuration runs in a process of its own, its tasks one after the other as
+a service worker would (NLPs built once per structure and number of intervals stay cached);
+a peer runs each task in a process of its own (the Opti script and rockit build their
+problem per task anyway; opty derives and compiles it). A plan counts as verified
 when its solver succeeded and every interval, re-integrated from the plan's own state with
 the torque its transcription delivers, lands on the plan within
 solver.resimulation_tolerance (1e-3 rad); every peer's plans are checked by the same code.
 Every configuration has the same cap on a task, WALL_TIME: the planner stops itself there,
-a peer's Ipopt gets it as max_wall_time (opty: everything from derivation on), and a peer's
-plan that arrives later does not count (fatrop has no wall-time option). Time to a verified
+a peer's Ipopt gets it as max_wall_time (opty: everything from derivation on), a peer's
+plan that arrives later does not count, and a peer's process still running a grace period
+past the cap is stopped (fatrop has no wall-time option): its row is unverified, "stopped
+at the cap", with the cap as its time. Time to a verified
 plan is the wall time of the whole plan (build, every solve, mesh pass and retry, error
 estimates and verification), counted only for verified plans. A peer whose package is
 missing is skipped, with the reason printed and written.
@@ -58,6 +61,8 @@ ROCKIT = {"rockit": ("collocation", "ipopt"), "rockit fatrop": ("multiple shooti
 PEERS = ("Opti script", *ROCKIT)  # run in this project's environment
 OPTY_METHOD = "midpoint"
 OPTY_GRACE = 30.0  # [s] past WALL_TIME before an opty process is stopped (its cap is its own)
+PEER_GRACE = 10.0  # [s] past WALL_TIME before an Opti script or rockit task's process is
+# stopped: its start and imports (a few seconds), and the check of a plan that came at the cap
 WALL_TIME = 60.0  # [s] every configuration's cap on one task (the planner's default)
 DOC = harness.DOCS / "benchmarks.md"
 SECTION = "Task suite: verified plans and time to a verified plan"
@@ -117,19 +122,45 @@ def _peer_row(name: str, config: str, scene, out: dict, elapsed: float) -> dict:
             "objective": out["objective"], "strategy": "direct"}
 
 
-def run_peer(config: str, count: int, seed: int) -> dict:
-    """Every task with the Opti script or rockit (in this process)."""
+def peer_task(config: str, scene: dict) -> dict:
+    """One task with the Opti script or rockit, in this process: the peer's result (see
+    `bench.peers.opti.solve`) and its wall time [s] from the build through the check."""
     from bench.peers import opti, rockit
+    from planner.scene import Scene
 
+    task = Scene.model_validate(scene)
+    started = time.perf_counter()
+    if config == "Opti script":
+        out = opti.solve(task, wall_time=WALL_TIME)
+    else:
+        out = rockit.solve(task, *ROCKIT[config], wall_time=WALL_TIME)
+    return {**out, "time": time.perf_counter() - started}
+
+
+def run_peer(config: str, count: int, seed: int) -> list[dict]:
+    """Every task with the Opti script or rockit, each in a process of its own stopped at
+    WALL_TIME + PEER_GRACE (fatrop has no wall-time option of its own)."""
     rows = []
     for name, scene in tasks(count, seed):
         started = time.perf_counter()
-        if config == "Opti script":
-            out = opti.solve(scene, wall_time=WALL_TIME)
-        else:
-            out = rockit.solve(scene, *ROCKIT[config], wall_time=WALL_TIME)
-        rows.append(_peer_row(name, config, scene, out, time.perf_counter() - started))
-    return {"rows": rows}
+        out = harness.isolated("suite", "peer_task",
+                               {"config": config, "scene": scene.model_dump(mode="json")},
+                               WALL_TIME + PEER_GRACE)
+        elapsed = out.get("time", time.perf_counter() - started)
+        rows.append(_peer_row(name, config, scene, *_unfinished(out, elapsed)))
+    return rows
+
+
+def _unfinished(out: dict, elapsed: float) -> tuple[dict, float]:
+    """A peer's result and time [s]; for a process that returned none, a failed result
+    saying why, and the cap WALL_TIME as its time when it was stopped there."""
+    if "failure" not in out:
+        return out, elapsed
+    stopped = harness.stopped(out)
+    return ({"success": False, "iterations": 0, "objective": math.nan,
+             "status": f"stopped at the {WALL_TIME:g} s cap" if stopped else out["failure"][:80],
+             "local_error": math.nan, "resimulation_error": math.nan},
+            WALL_TIME if stopped else elapsed)
 
 
 def run_opty(count: int, seed: int) -> dict:
@@ -156,9 +187,7 @@ def run_opty(count: int, seed: int) -> dict:
         out = peer_opty.call_worker(spec, timeout=WALL_TIME + OPTY_GRACE)
         elapsed = time.perf_counter() - started
         if "failure" in out:
-            result = {"success": False, "status": out["failure"][:80], "iterations": 0,
-                      "objective": math.nan, "local_error": math.nan,
-                      "resimulation_error": math.nan}
+            result, elapsed = _unfinished(out, elapsed)
         else:
             solve = out["solves"][0]
             model_ok = (out["M_error"] <= peer_opty.CHECK_TOL * max(1.0, np.abs(check["M"]).max())
@@ -239,8 +268,7 @@ def _run(config: str, count: int, seed: int) -> list[dict]:
         timeout = count * (WALL_TIME + OPTY_GRACE + 30)
         out = harness.isolated("suite", "run_opty", {"count": count, "seed": seed}, timeout)
     elif config in PEERS:
-        out = harness.isolated("suite", "run_peer", {"config": config, "count": count,
-                                                     "seed": seed}, timeout)
+        return run_peer(config, count, seed)
     else:
         out = harness.isolated("suite", "run_planner",
                                {"config": config, "count": count, "seed": seed}, timeout)
@@ -372,8 +400,10 @@ def main(argv: list[str]) -> int:
         "|tau| <= 20 N m, effort objective. A plan is verified when its solver succeeded and "
         "every interval, re-integrated from the plan's own state with the torque its "
         "transcription delivers, lands within 1e-3 rad, within the same cap of "
-        f"{WALL_TIME:g} s a task; time to a verified plan is the wall time of the whole plan, "
-        "counted for verified plans only. Peers: the Opti script (bench/peers/opti.py), "
+        f"{WALL_TIME:g} s a task (a peer's task still running {PEER_GRACE:g} s past it, opty's "
+        f"{OPTY_GRACE:g} s, is stopped: fatrop has no wall-time option); time to a verified "
+        "plan is the wall time of the whole plan, counted for verified plans only. Peers: the "
+        "Opti script (bench/peers/opti.py), "
         "rockit (bench/peers/rockit.py; its states between the nodes as rockit samples "
         "them), opty (bench/peers/opty.py; its states cubic Hermite between the nodes).",
         "".join(f"Not run here: {c}, {why}. " for c, why in skipped.items()).strip(),
