@@ -27,6 +27,8 @@ BENCHES = {
                                      "two-link scenes"),
     "planner_internals": ("bench.planner_internals", "the residual form, compiled against "
                                                      "interpreted NLPs, the seed arm's accuracy"),
+    "plan_response": ("bench.plan_response", "where a GET of a finished plan job spends its "
+                                             "time"),
     "planner_speed": ("bench.planner_speed", "the planner against a plain Opti script on a seed "
                                              "scene, and where a solve's time goes"),
     "refinement": ("bench.refinement", "mesh refinement on the two-link example at other "
