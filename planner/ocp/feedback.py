@@ -62,11 +62,15 @@ def _jacobians(s: Structure) -> ca.Function:
     return ca.Function("jacobians", [x, tau, p], [ca.jacobian(dx, x), ca.jacobian(dx, tau)])
 
 
+@lru_cache(maxsize=64)
+def _library_name(s: Structure) -> str:
+    return f"jacobians_{source_digest(repr(s), sources=_SOURCES)}"
+
+
 def _compiled_jacobians(s: Structure) -> ca.Function:
     """`_jacobians` compiled (`planner.compiled`) once it is on disk; interpreted while it
     is built in the background."""
-    name = f"jacobians_{source_digest(repr(s), sources=_SOURCES)}"
-    loaded = library(name, (_jacobians(s),), background=True)
+    loaded = library(_library_name(s), (_jacobians(s),), background=True)
     return _jacobians(s) if loaded is None else loaded["jacobians"]
 
 
