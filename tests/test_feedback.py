@@ -120,7 +120,7 @@ def test_the_feedback_holds_a_perturbed_start_near_the_plan_where_open_loop_depa
     assert gains.shape == (len(result.t) - 1, len(sc.robot.active), 2 * sc.robot.n)
 
 
-def test_replays_from_several_starts_at_once_equal_each_alone(seed_arm):
+def test_replays_from_several_starts_equal_each_alone(seed_arm):
     sc, result, interp = seed_arm
     K = np.asarray(result.feedback.gains)
     start = np.concatenate([result.q[0], result.dq[0]])
@@ -130,6 +130,17 @@ def test_replays_from_several_starts_at_once_equal_each_alone(seed_arm):
     assert [status for _, status in together] == ["completed"] * 3
     assert np.allclose([e for e, _ in together], [e for e, _ in alone], rtol=1e-9, atol=0.0)
     assert together[0][0] == result.verification.closed_loop_error
+
+
+def test_a_start_that_diverges_leaves_the_other_replays_whole(seed_arm):
+    sc, result, interp = seed_arm
+    K = np.asarray(result.feedback.gains)
+    start = np.concatenate([result.q[0], result.dq[0]])
+    wild = start + np.concatenate([np.zeros(sc.robot.n), np.full(sc.robot.n, 1e4)])
+    (planned, status), (error, why) = replay(sc.robot, interp, np.stack([start, wild]), K)
+    assert status == "completed" and planned == result.verification.closed_loop_error
+    assert error is None and why.startswith(("CVODES failed between t = 0 s",
+                                             "the state became non-finite between t = 0 s"))
 
 
 def test_the_compiled_dynamics_give_the_same_checks(seed_arm, tmp_path, monkeypatch):

@@ -31,7 +31,7 @@ import numpy as np
 from planner.compiled import library, source_digest
 from planner.dynamics import functions
 from planner.model import Robot, Structure, parameters
-from planner.ocp.flow import flow, inputs
+from planner.ocp.flow import Flow, flow, inputs
 from planner.ocp.result import Feedback
 from planner.ocp.transcription import Interpolant
 
@@ -138,39 +138,53 @@ def gains(lin: Linearisation, h: np.ndarray, tau_scale: float) -> Feedback:
                     torque_weights=r_weights.tolist())
 
 
+@dataclass(frozen=True)
+class _Reference:
+    """What a replay follows: per interval k, the plan's state at its start planned[k]
+    (2n,), its angles q_plan[k] (REPLAY_SAMPLES, n) at the comparison points, the
+    integrator's parameters params[:, k] and, where given, the gains K[k] (na, 2n)."""
+
+    breaks: np.ndarray
+    planned: np.ndarray
+    q_plan: np.ndarray
+    params: np.ndarray
+    K: np.ndarray | None
+    na: int
+
+
 def replay(robot: Robot, interp: Interpolant, starts: np.ndarray, K: np.ndarray | None,
            tol: float = REPLAY_TOL, compiled: bool = False) -> list[tuple[float | None, str]]:
-    """Replays from each of `starts` (R, 2n) at once under the plan's torque and, with gains
+    """Replays from each of `starts` (R, 2n) under the plan's torque and, with gains
     K (N, na, 2n), the feedback: per start, max |q_sim - q_plan| [rad] over REPLAY_SAMPLES
     points per interval and "completed", or None and where CVODES failed (compiled: the
-    dynamics compiled to C)."""
+    dynamics compiled to C). Each start is replayed on its own: one that diverges leaves
+    the others' replays whole."""
     s = Structure.of(robot)
-    coeffs = interp.tau.coeffs
-    N, degree = coeffs.shape[0], coeffs.shape[1] - 1
-    R = len(starts)
-    integrate = flow(s, degree, REPLAY_SAMPLES, R, tol, compiled)
-    _, params = inputs(robot, interp)
+    N, degree = interp.tau.coeffs.shape[0], interp.tau.coeffs.shape[1] - 1
+    integrate = flow(s, degree, REPLAY_SAMPLES, 1, tol, compiled)
     breaks = interp.q.breaks
-    planned = np.hstack([interp.q(breaks), interp.dq(breaks)])  # (N + 1, 2n)
     fractions = np.arange(1, REPLAY_SAMPLES + 1) / REPLAY_SAMPLES
     t = (breaks[:-1, None] + np.diff(breaks)[:, None] * fractions[None, :]).ravel()
-    q_plan = interp.q(t).reshape(N, REPLAY_SAMPLES, -1)
-    x = np.asarray(starts, float).T.copy()  # 2n x R
-    worst = np.zeros(R)
-    failed: list[str | None] = [None] * R
-    for k in range(N):
-        u = np.zeros((len(s.active_idx), R)) if K is None else -K[k] @ (x - planned[k][:, None])
-        where = f"between t = {breaks[k]:.6g} s and t = {breaks[k + 1]:.6g} s"
+    ref = _Reference(breaks, np.hstack([interp.q(breaks), interp.dq(breaks)]),
+                     interp.q(t).reshape(N, REPLAY_SAMPLES, -1), inputs(robot, interp)[1], K,
+                     len(s.active_idx))
+    return [_replay_from(integrate, np.asarray(start, float), ref, s.n) for start in starts]
+
+
+def _replay_from(integrate: Flow, x: np.ndarray, ref: _Reference,
+                 n: int) -> tuple[float | None, str]:
+    """One replay from the state x (2n,) along `ref`."""
+    worst = 0.0
+    for k in range(len(ref.breaks) - 1):
+        u = np.zeros(ref.na) if ref.K is None else -ref.K[k] @ (x - ref.planned[k])
+        where = f"between t = {ref.breaks[k]:.6g} s and t = {ref.breaks[k + 1]:.6g} s"
         try:
-            states = integrate(x, np.repeat(params[:, k:k + 1], R, axis=1),
-                               np.repeat(u, REPLAY_SAMPLES, axis=1))
-            states = states.reshape(2 * s.n, R, REPLAY_SAMPLES)
+            states = integrate(x[:, None], ref.params[:, k:k + 1],
+                               np.repeat(u[:, None], REPLAY_SAMPLES, axis=1))
         except RuntimeError:
-            return [(None, f"CVODES failed {where}") if f is None else (None, f) for f in failed]
-        errors = np.abs(states[:s.n].transpose(1, 2, 0) - q_plan[k][None]).max(axis=(1, 2))
-        for r in np.flatnonzero(~np.isfinite(errors)):
-            failed[r] = failed[r] or f"the state became non-finite {where}"
-        worst = np.maximum(worst, np.where(np.isfinite(errors), errors, 0.0))
-        x = np.where(np.isfinite(states[:, :, -1]), states[:, :, -1], 0.0)
-    return [(float(w), "completed") if f is None else (None, f)
-            for w, f in zip(worst, failed, strict=True)]
+            return None, f"CVODES failed {where}"
+        if not np.all(np.isfinite(states)):
+            return None, f"the state became non-finite {where}"
+        worst = max(worst, float(np.abs(states[:n].T - ref.q_plan[k]).max()))
+        x = states[:, -1]
+    return worst, "completed"

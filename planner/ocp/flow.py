@@ -75,7 +75,8 @@ def integrator(s: Structure, degree: int, outputs: int, tol: float = TOL,
 
 @dataclass(frozen=True)
 class Flow:
-    """`integrator` mapped over B intervals, by Adams and by BDF."""
+    """`integrator` mapped over B intervals, by Adams and by BDF. (For one interval the
+    integrator itself: a mapped call that fails writes its inputs to stderr.)"""
 
     adams: ca.Function
     bdf: ca.Function
@@ -100,8 +101,8 @@ def flow(s: Structure, degree: int, outputs: int, batch: int, tol: float = TOL,
 @lru_cache(maxsize=64)
 def _flow(s: Structure, degree: int, outputs: int, batch: int, tol: float,
           compiled: bool) -> Flow:
-    return Flow(*(_integrator(s, degree, outputs, tol, compiled, method).map(batch)
-                  for method in ("adams", "bdf")))
+    one = [_integrator(s, degree, outputs, tol, compiled, method) for method in ("adams", "bdf")]
+    return Flow(*(f if batch == 1 else f.map(batch) for f in one))
 
 
 @lru_cache(maxsize=64)
