@@ -6,7 +6,7 @@ offset [N m] (0 for the plan itself, a feedback correction otherwise). The integ
 mapped over intervals, each started from its own state: one call re-integrates every
 interval of a plan. CVODES integrates by Adams-Moulton with functional iteration, as
 `planner.simulate` does by default: the arms are not stiff, and on plans of the seed arm
-the interval check and the replays take a sixth to two thirds of BDF's time
+the interval check and the replays take a quarter to a half of BDF's time
 (`python -m bench verification`). Where Adams fails, BDF with Newton iteration takes over.
 """
 
