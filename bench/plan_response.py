@@ -16,10 +16,8 @@ from __future__ import annotations
 
 import argparse
 import json
-import statistics
 import tempfile
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 from fastapi.testclient import TestClient
@@ -35,16 +33,6 @@ from planner.scene import Scene
 
 DOC = harness.DOCS / "benchmarks.md"
 SECTION = "Fetching a plan: GET /v1/plans/{id}"
-
-
-def _median_ms(fn: Callable[[], object], repeats: int) -> float:
-    """Median wall time of `fn` [ms]."""
-    times = []
-    for _ in range(repeats):
-        started = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - started)
-    return 1000 * statistics.median(times)
 
 
 def measure(stored: dict, repeats: int) -> list[dict]:
@@ -73,7 +61,8 @@ def measure(stored: dict, repeats: int) -> list[dict]:
                 raise RuntimeError("the service returned another plan than the stored one")
             parts["the whole GET"] = lambda: c.get("/v1/plans/job").json()
             parts["GET /healthz"] = lambda: c.get("/healthz").json()
-            rows = [{"part": name, "ms": _median_ms(fn, repeats)}
+            rows = [{"part": name,
+                     "ms": 1000 * harness.median(harness.timed(fn)[1] for _ in range(repeats))}
                     for name, fn in parts.items() if fn is not None]
         store.close()
     return rows

@@ -48,12 +48,7 @@ CASES = [("2-link, fully actuated", "arm-2", 100), ("seed 4-link, margin 0.02", 
 
 def median_cpu(fn: Callable[[], object], repeats: int) -> float:
     """Median CPU time [s] of fn() over `repeats` calls."""
-    times = []
-    for _ in range(repeats):
-        start = time.process_time()
-        fn()
-        times.append(time.process_time() - start)
-    return statistics.median(times)
+    return harness.median(harness.timed(fn)[2] for _ in range(repeats))
 
 
 def residual_forms() -> tuple[str, list[dict]]:
