@@ -16,7 +16,7 @@ from planner.ocp import flow as flow_module
 from planner.ocp import planner as planner_module
 from planner.ocp.accuracy import SAMPLES, interval_errors
 from planner.ocp.feedback import PERTURBATION, growth_factor, linearise, replay
-from planner.ocp.flow import Flow, flow, inputs, integrator
+from planner.ocp.flow import Flow, flow, inputs
 from planner.scene import Scene
 from planner.suite import tasks
 
@@ -94,8 +94,8 @@ def test_the_growth_factor_agrees_with_cvodes_sensitivities(unstable):
     sc, result, interp = unstable
     s = Structure.of(sc.robot)
     degree = interp.tau.coeffs.shape[1] - 1
-    flow = integrator(s, degree, 1, 1e-10)
-    jac = flow.factory("flow_jacobian", ["x0", "p", "u"], ["jac:xf:x0"])
+    one = flow(s, degree, 1, 1, 1e-10).bdf
+    jac = one.factory("flow_jacobian", ["x0", "p", "u"], ["jac:xf:x0"])
     starts, params = inputs(sc.robot, interp)
     phi, worst = np.eye(2 * s.n), 1.0
     for k in range(starts.shape[1]):

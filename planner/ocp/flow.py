@@ -62,21 +62,11 @@ def _compiled_dae(s: Structure, degree: int) -> ca.Function | None:
     return None if loaded is None else loaded["flow_ode"]
 
 
-def integrator(s: Structure, degree: int, outputs: int, tol: float = TOL,
-               compiled: bool = False, method: Method = "adams") -> ca.Function:
-    """(x0 (2n), p, u) -> xf (2n x outputs) at s = 1/outputs, 2/outputs, ..., 1;
-    p = [robot parameters, torque coefficients (degree + 1 by na, power-major), h]; u the
-    torque offset, na x outputs (one per output interval; an na vector holds for all).
-    compiled: the right-hand side compiled to C (about twice as fast) once it is on disk,
-    interpreted while it is built in the background; method: CVODES' (`METHODS`)."""
-    ready = compiled and _compiled_dae(s, degree) is not None
-    return _integrator(s, degree, outputs, tol, ready, method)
-
-
 @dataclass(frozen=True)
 class Flow:
-    """`integrator` mapped over B intervals, by Adams and by BDF. (For one interval the
-    integrator itself: a mapped call that fails writes its inputs to stderr.)"""
+    """CVODES over B intervals, by Adams and by BDF: each a Function (x0 (2n x B), p, u) ->
+    xf (2n x outputs B) (see `flow`); for one interval the integrator itself, unmapped (a
+    mapped call that fails writes its inputs to stderr)."""
 
     adams: ca.Function
     bdf: ca.Function
@@ -93,7 +83,11 @@ class Flow:
 
 def flow(s: Structure, degree: int, outputs: int, batch: int, tol: float = TOL,
          compiled: bool = False) -> Flow:
-    """The flow of `batch` intervals at once (see `integrator`)."""
+    """The flow of `batch` intervals at once. Per interval: x0 (2n) -> xf (2n x outputs) at
+    s = 1/outputs, 2/outputs, ..., 1 with p = [robot parameters, torque coefficients
+    (degree + 1 by na, power-major), h] and u the torque offset, na x outputs (one per
+    output interval). compiled: the right-hand side compiled to C (about twice as fast)
+    once it is on disk, interpreted while it is built in the background."""
     ready = compiled and _compiled_dae(s, degree) is not None
     return _flow(s, degree, outputs, batch, tol, ready)
 
@@ -109,7 +103,7 @@ def _flow(s: Structure, degree: int, outputs: int, batch: int, tol: float,
 def _integrator(s: Structure, degree: int, outputs: int, tol: float,
                 compiled: bool, method: Method) -> ca.Function:
     dae = _compiled_dae(s, degree) if compiled else _dae(s, degree)
-    if dae is None:  # `integrator` asks for the compiled one only once it is loaded
+    if dae is None:  # `flow` asks for the compiled one only once it is loaded
         raise RuntimeError("the compiled flow is not loaded yet")
     grid = list(np.linspace(0.0, 1.0, outputs + 1)[1:])
     return ca.integrator("flow", "cvodes", dae, 0.0, grid,
