@@ -28,7 +28,7 @@ from planner.ocp.assembly import Derivatives, Kernels, assemble, derivatives
 from planner.ocp.layout import Layout, Part, split
 from planner.ocp.monitor import IterationMonitor
 from planner.ocp.terms import TERMS, Boundaries, Stage, Term
-from planner.ocp.transcription import AnyTranscription, Model, Transcription
+from planner.ocp.transcription import AnyTranscription, Model, StagePiece, Transcription
 from planner.scene import DurationRange, Scene
 from planner.symbolic import Sym
 
@@ -56,6 +56,10 @@ class ProblemKey:
     jit: bool
     solver: str = "ipopt"
     max_iter: int = 0  # fatrop's, fixed when its solver is built (0 for Ipopt)
+    relaxed: bool = False
+    """Virtual torques on the passive joints too (the relaxed dynamics of a continuation,
+    `planner.ocp.continuation`): the torque vector holds the active joints' torques, then
+    the passive joints' virtual ones; implicit form only."""
 
     @classmethod
     def of(cls, scene: Scene, intervals: int | None = None) -> ProblemKey:
@@ -96,6 +100,10 @@ class ProblemKey:
     def terms(self) -> list[Term]:
         """The objective and constraint terms this key asks for."""
         return [term for term in TERMS if term.wanted(self)]
+
+    def torque_count(self) -> int:
+        """Rows of the torque variables: the active joints (and the passive ones, relaxed)."""
+        return self.structure.n if self.relaxed else len(self.structure.active_idx)
 
     def fingerprint(self) -> str:
         """A stable hash of the whole key (its number of intervals too) and of the code that
@@ -288,7 +296,7 @@ def _stage_function(key: ProblemKey, tr: Transcription[Sym], layout: Layout, par
     parts = layout.terminal if terminal else layout.stage
     sym = _Symbols(key, tr, layout, params, sum(p.size for p in parts), terminal)
     f = functions(s)
-    model = Model(s.n, len(s.active_idx), key.form == "implicit", f["fd"], f["ode"], sym.p)
+    model = Model(s.n, key.torque_count(), key.form == "implicit", f["fd"], f["ode"], sym.p)
     w = split(parts, sym.w)
     width = sym.local_of("width")
     h = sym.T * width
@@ -301,9 +309,7 @@ def _stage_function(key: ProblemKey, tr: Transcription[Sym], layout: Layout, par
     weights = sym.T * sym.local_of("weights")[:m].T if m else tr.symbolic(1, 0)
     rows: list[tuple] = [(piece.defects, 0.0, 0.0)] if piece.defects.numel() else []
     if model.implicit and m:
-        residual = f["residual"].map(m)(piece.knot_q, piece.knot_dq, piece.knot_ddq,
-                                        piece.knot_tau, sym.p)
-        rows.append((ca.vec(residual), 0.0, 0.0))
+        rows.append((ca.vec(_residual(key, f["residual"].map(m), piece, sym.p)), 0.0, 0.0))
     context = Stage(s, piece, weights, h, sym.T, sym.p, sym.common_of, sym.local_of, terminal)
     cost = tr.symbolic(0)
     for term in terms:
@@ -318,6 +324,20 @@ def _stage_function(key: ProblemKey, tr: Transcription[Sym], layout: Layout, par
     bounds = [(lo, hi, r.numel()) for r, lo, hi in rows]
     name = "terminal" if terminal else "stage"
     return ca.Function(name, sym.inputs(terminal), [g, cost]), bounds
+
+
+def _residual(key: ProblemKey, residual: ca.Function, piece: StagePiece[Sym], p: Sym) -> Sym:
+    """M ddq + h - B tau at a stage's knots (n x m); relaxed, less the passive joints'
+    virtual torques (the rows of the torque vector after the active ones)."""
+    s = key.structure
+    tau = piece.knot_tau
+    if not key.relaxed:
+        return residual(piece.knot_q, piece.knot_dq, piece.knot_ddq, tau, p)
+    na = len(s.active_idx)
+    scatter = np.zeros((s.n, len(s.passive_idx)))
+    scatter[s.passive_idx, range(len(s.passive_idx))] = 1.0
+    return residual(piece.knot_q, piece.knot_dq, piece.knot_ddq, tau[:na, :], p) \
+        - ca.mtimes(ca.DM(scatter), tau[na:, :])
 
 
 def torques(layout: Layout) -> tuple[list[np.ndarray], list[float], list[np.ndarray], list[float]]:
@@ -390,7 +410,7 @@ def stages(key: ProblemKey, compiled: bool = False) -> Stages:
         return plain if loaded is None else replace(plain, derivatives=loaded)
     s = key.structure
     tr, terms = key.transcription(), key.terms()
-    parts = tr.parts(s.n, len(s.active_idx))
+    parts = tr.parts(s.n, key.torque_count())
     layout = Layout(*parts, _globals(key), 1)
     params = _parameters(key, tr, terms)
     stage, stage_bounds = _stage_function(key, tr, layout, params, terms, False)

@@ -64,6 +64,9 @@ class Numeric:
     T: float
     mesh: Mesh
     transcription: AnyTranscription
+    virtual_weight: float | None = None
+    """The weight of the passive joints' virtual torques in a relaxed NLP's effort (None:
+    the NLP is not relaxed)."""
 
     def knot_times(self) -> np.ndarray:
         """(N + 1, m) time fractions of every stage's knots (the terminal's: 1, padded)."""
@@ -116,18 +119,26 @@ def _integral(stage: Stage[Sym], integrand: Sym) -> Sym:
 
 
 class Effort(Term):
-    """effort * int |tau|^2 dt [N^2 m^2 s]."""
+    """int sum_j w_j tau_j^2 dt [N^2 m^2 s]: w_j = effort on the active joints' torques, and
+    `virtual_weight` on the passive joints' virtual torques of a relaxed NLP."""
 
     name = "effort"
 
     def wanted(self, key) -> bool:
-        return key.effort
+        return key.effort or key.relaxed
+
+    def common_size(self, key) -> int:
+        return key.torque_count()
 
     def cost(self, stage: Stage[Sym]) -> Sym:
-        return stage.common(self.name) * _integral(stage, ca.sum1(stage.piece.knot_tau**2))
+        weights = stage.common(self.name)
+        return _integral(stage, ca.mtimes(weights.T, stage.piece.knot_tau**2))
 
     def common_values(self, num: Numeric) -> np.ndarray:
-        return np.array([num.scene.task.objective.effort])
+        active = np.full(len(num.robot.active), num.scene.task.objective.effort)
+        if num.virtual_weight is None:
+            return active
+        return np.concatenate([active, np.full(len(num.robot.passive), num.virtual_weight)])
 
 
 class Time(Term):
