@@ -76,7 +76,7 @@ def parameters_of(scene: Scene, prob: Problem, robot: Robot, mesh: Mesh, T: floa
     table[:N, local["weights"]] = stage_w
     table[N, local["weights"].start:local["weights"].start + terminal_w.size] = terminal_w
     table[:, local["boundary"]] = _boundary_durations(prob, mesh)[:, None]
-    num = Numeric(scene, robot, T, mesh, prob.transcription, virtual_weight)
+    num = Numeric(scene, robot, T, mesh, prob.transcription, prob.key, virtual_weight)
     for term in prob.key.terms():
         head[common[term.name]] = term.common_values(num)
         if term.name in local:

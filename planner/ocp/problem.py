@@ -11,6 +11,7 @@ and every mesh with its number of intervals. The NLP is written stage by stage
 from __future__ import annotations
 
 import hashlib
+import math
 import time
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
@@ -29,13 +30,18 @@ from planner.ocp.layout import Layout, Part, split
 from planner.ocp.monitor import IterationMonitor
 from planner.ocp.terms import TERMS, Boundaries, Stage, Term
 from planner.ocp.transcription import AnyTranscription, Model, StagePiece, Transcription
-from planner.scene import DurationRange, Scene
+from planner.scene import Bounds, DurationRange, Scene
 from planner.symbolic import Sym
 
 
 @dataclass(frozen=True)
 class ProblemKey:
-    """Everything that decides the NLP's symbolic form; numbers are not part of it."""
+    """Everything that decides the NLP's symbolic form; numbers are not part of it.
+
+    torque_limit, position_bounds, velocity_bounds (the joints bounded below and above): the
+    bounds that need rows beyond their variables' bounds to hold on whole intervals
+    (`Transcription.hulls`); a bound whose polynomials the variables bound alone is not
+    part of the key."""
 
     structure: Structure
     method: str
@@ -52,6 +58,9 @@ class ProblemKey:
     effort: bool
     time: bool
     smoothness: bool
+    torque_limit: bool
+    position_bounds: tuple[tuple[int, ...], tuple[int, ...]]
+    velocity_bounds: tuple[tuple[int, ...], tuple[int, ...]]
     tol: float
     jit: bool
     solver: str = "ipopt"
@@ -70,7 +79,7 @@ class ProblemKey:
         if task.co_design is not None:
             wavy = tuple(link.wavy or link.joint == "active" for link in robot.links)
         shooting = tr.method == "multiple-shooting"
-        return cls(
+        key = cls(
             structure=Structure.of(robot, wavy),
             method=tr.method,
             intervals=tr.intervals if intervals is None else intervals,
@@ -86,11 +95,18 @@ class ProblemKey:
             effort=task.objective.effort > 0,
             time=task.objective.time > 0,
             smoothness=task.objective.smoothness > 0,
+            torque_limit=task.torque_limit is not None,
+            position_bounds=_bounded(task.position_bounds),
+            velocity_bounds=_bounded(task.velocity_bounds),
             tol=scene.solver.tol,
             jit=scene.solver.jit,
             solver=scene.solver.name,
             max_iter=scene.solver.max_iter if scene.solver.name == "fatrop" else 0,
         )
+        hulls = _hulls(key.method, key.degree, key.integrator, key.steps, key.form)
+        return replace(key, torque_limit=key.torque_limit and "tau" in hulls,
+                       position_bounds=key.position_bounds if "q" in hulls else ((), ()),
+                       velocity_bounds=key.velocity_bounds if "dq" in hulls else ((), ()))
 
     def transcription(self) -> AnyTranscription:
         """The transcription method of this key."""
@@ -119,9 +135,24 @@ class ProblemKey:
         return hashlib.sha256(text.encode()).hexdigest()[:20]
 
 
+def _bounded(bounds: Bounds | None) -> tuple[tuple[int, ...], tuple[int, ...]]:
+    """The joints with a (finite) lower bound and those with an upper bound."""
+    if bounds is None:
+        return (), ()
+    def finite(values: list[float | None]) -> tuple[int, ...]:
+        return tuple(j for j, v in enumerate(values) if v is not None and math.isfinite(v))
+    return finite(bounds.lower), finite(bounds.upper)
+
+
+@lru_cache(maxsize=64)
+def _hulls(method: str, degree: int, integrator: str, steps: int, form: str) -> tuple[str, ...]:
+    """`Transcription.hulls` of a key's method."""
+    return methods.create(method, 1, degree, integrator, steps, form == "implicit").hulls
+
+
 FORMULATION_SOURCES = ("dynamics.py", "model.py", "rk4.py", "ocp/transcription.py",
-                       "ocp/methods", "ocp/terms.py", "ocp/assembly.py", "ocp/layout.py",
-                       "ocp/problem.py")
+                       "ocp/interpolant.py", "ocp/methods", "ocp/terms.py", "ocp/assembly.py",
+                       "ocp/layout.py", "ocp/problem.py")
 """The modules and packages (under planner/) whose code decides an NLP's symbolic form."""
 
 
@@ -310,7 +341,7 @@ def _stage_function(key: ProblemKey, tr: Transcription[Sym], layout: Layout, par
     rows: list[tuple] = [(piece.defects, 0.0, 0.0)] if piece.defects.numel() else []
     if model.implicit and m:
         rows.append((ca.vec(_residual(key, f["residual"].map(m), piece, sym.p)), 0.0, 0.0))
-    context = Stage(s, piece, weights, h, sym.T, sym.p, sym.common_of, sym.local_of, terminal)
+    context = Stage(key, s, piece, weights, h, sym.T, sym.p, sym.common_of, sym.local_of, terminal)
     cost = tr.symbolic(0)
     for term in terms:
         piece_cost, term_rows = term.cost(context), term.rows(context)
