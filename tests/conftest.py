@@ -9,6 +9,7 @@ from the test's node id, so a failure reproduces whatever the test order or work
 
 from __future__ import annotations
 
+import os
 import zlib
 from collections.abc import Callable, Iterator
 
@@ -20,6 +21,10 @@ from planner.examples import VERTICAL_SEED_ARM
 from planner.model import Robot
 from testbed import postgres as pg
 from testbed.robots import random_robot
+
+# One solver process per plan: the tests run two at a time already (pytest -n 2), and which
+# process of a portfolio wins depends on timing; tests/test_portfolio.py sets its own.
+os.environ.setdefault("UNDERTOW_SOLVER_PROCESSES", "1")
 
 
 def seed_arm(gravity: float = 9.81, waves: bool = True,

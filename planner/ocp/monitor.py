@@ -14,7 +14,7 @@ from planner.ocp.result import Progress
 
 Handler = Callable[[Progress], bool]
 
-STALL_WINDOW = 40
+STALL_WINDOW = 100
 """Iterations over which a solve that may stall must make progress towards feasibility."""
 STALL_FLOOR = 1e-3
 """Constraint violation below which a solve is never stopped as stalled."""

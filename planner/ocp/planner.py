@@ -139,12 +139,12 @@ def plan(scene: Scene, progress: Handler | None = None, warm_start: Plan | None 
     companion = portfolio.Companion(
         lambda guard: _planned(scene, relaxed, replace(budget), guard))
     try:
-        superseded = _superseded_by(companion, progress)
-        _attempt(scene, (s for s in starts if not s.relaxed), attempts, budget, superseded)
-        if companion.verified() and companion.plan is not None:
+        handler = _Watch(companion, progress)
+        _attempt(scene, (s for s in starts if not s.relaxed), attempts, budget, handler)
+        if not handler.cancelled and companion.verified() and companion.plan is not None:
             return _joined(companion.plan, _passes_of(attempts), budget)
         own = _result(scene, attempts, budget)
-        if own.solver.success and own.verification.verified:
+        if handler.cancelled or own.solver.success and own.verification.verified:
             return _joined(own, [], budget)
         other = companion.wait(budget.deadline + COMPANION_GRACE)
         return _joined(own if other is None or _better(own, other) else other,
@@ -181,15 +181,19 @@ def _planned(scene: Scene, start: Start, budget: Budget, progress: Handler) -> P
     return _result(scene, attempts, budget)
 
 
-def _superseded_by(companion: portfolio.Companion, progress: Handler | None) -> Handler:
-    """The plan's own progress handler that also stops its solve once the companion has
-    a verified plan."""
-    def handler(report: Progress) -> bool:
-        if companion.verified():
-            return False
-        return True if progress is None else progress(report)
+class _Watch:
+    """The plan's own progress handler beside a companion: it passes reports on, and also
+    stops the solve once the companion has a verified plan; `cancelled`: the caller's
+    handler stopped it."""
 
-    return handler
+    def __init__(self, companion: portfolio.Companion, progress: Handler | None):
+        self.companion, self.progress, self.cancelled = companion, progress, False
+
+    def __call__(self, report: Progress) -> bool:
+        if self.progress is not None and self.progress(report) is False:
+            self.cancelled = True
+            return False
+        return not self.companion.verified()
 
 
 def _better(own: Plan, other: Plan) -> bool:
