@@ -15,21 +15,23 @@ its category (`<category>-<index>`), one of:
   (at least one passive, no more passive than active; as many passive as active for half
   of the even numbers of links), across a waveless singularity where M_pa is square, every
   joint moved by up to LINKS_MOVE = 0.8 rad;
-- `torque-limit`: the seed arm time-optimal (duration 0.5 to 4 s, time weight 1, effort
-  1e-2) under a torque limit, which binds at a time-optimal plan; in gravity the limit is
-  at least twice the active joints' holding torque at the start and the goal;
-- `free-time`: random 2- to 4-link arms, free final time (1 to 4 s) with a time weight of
-  0.5 to 5 beside the effort;
+- `torque-limit`: the seed arm across a waveless singularity (moves up to 1 rad),
+  time-optimal (duration 0.5 to 4 s, time weight 1, effort 1e-2) under a torque limit,
+  which binds at a time-optimal plan; in gravity the limit is at least twice the active
+  joints' holding torque at the start and the goal;
+- `free-time`: random 2- to 4-link arms (across a waveless singularity where M_pa is
+  square, moves up to 1 rad), free final time (1 to 4 s) with a time weight of 0.5 to 5
+  beside the effort;
 - `tip-target`: random 3- to 5-link arms whose final angles are free: the tip must reach
   the tip of a random goal configuration (reachable by construction), at rest;
-- `bounds`: the seed arm with position bounds (start and goal at least BOUND_MARGIN
-  inside) and velocity bounds (at least 2.5 times the mean rate of a straight move: the
-  cubic interpolation's peak is 1.5 times it);
+- `bounds`: the seed arm across a waveless singularity (moves up to 1 rad) with position
+  bounds (start and goal at least BOUND_MARGIN inside) and velocity bounds (at least 2.5
+  times the mean rate of a straight move: the cubic interpolation's peak is 1.5 times it);
 - `co-design`: the seed arm with its wave amplitudes and phases co-designed (amplitude at
-  most 0.06 m, frequencies 4) and a coupling margin, across a waveless singularity:
-  with the seed's designed waves (a design the co-design may choose) sigma_min(M_pa) keeps
-  twice the margin along the straight segment, and det M_pa keeps the sign it has at the
-  start for the planner's first design.
+  most 0.06 m, frequencies 4) and a coupling margin of 0.005, across a waveless
+  singularity (moves up to 1 rad): with the seed's designed waves (a design the co-design
+  may choose) sigma_min(M_pa) keeps twice the margin along the straight segment, and
+  det M_pa keeps the sign it has at the start for the planner's first design.
 
 Where a category does not fix it, gravity alternates between g = 0 and g = 9.81 from one
 round of CYCLE to the next.
