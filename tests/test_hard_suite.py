@@ -77,6 +77,17 @@ def test_seed_arm_crossings_cross_a_waveless_singularity(suite):
             assert np.abs(np.subtract(goal, start)).max() <= MOVE + 1e-9, name
 
 
+def test_random_arms_with_a_square_block_cross_a_waveless_singularity(suite):
+    square = 0
+    for name, scene in suite:
+        robot = scene.robot
+        if category(name) in ("links-5to8", "free-time") \
+                and len(robot.passive) == len(robot.active):
+            square += 1
+            assert crosses(robot, scene.task.initial.q, scene.task.final.q), name
+    assert square > 0
+
+
 def test_swings_move_an_active_joint_by_two_radians_in_gravity(suite):
     for name, scene in suite:
         if category(name) == "seed-swing":
