@@ -167,3 +167,26 @@ def test_scenes_keep_the_default_transcription_and_solver(suite):
     for name, scene in suite:
         assert scene.transcription.model_dump() == type(scene.transcription)().model_dump(), name
         assert scene.solver.model_dump() == type(scene.solver)().model_dump(), name
+
+
+IPOPT_LOG = """\
+iter    objective    inf_pr   inf_du lg(mu)  ||d||  lg(rg) alpha_du alpha_pr  ls
+Least square estimates max(y_c) = 6.684418e+04, max(y_d) = 1.104530e+00
+   0  2.5221651e-02 1.23e-01 1.00e+00   0.0 0.00e+00    -  0.00e+00 0.00e+00   0
+Number of trial factorizations performed: 1
+   1  2.5212587e-02 1.23e-01 2.61e+00   0.3 1.01e+03    -  1.60e-01 4.82e-05h 12
+Number of trial factorizations performed: 3
+  44r 2.5319039e+00 1.09e+01 9.99e+02   1.0 0.00e+00  -4.1 0.00e+00 8.32e-11R  2
+Number of trial factorizations performed: 2
+  45r 2.5675835e+00 1.04e+01 9.99e+02  -5.0 5.35e+04    -  1.71e-04 2.56e-05f  1
+"""
+
+
+def test_the_bench_counts_restoration_iterations_and_factorizations_in_ipopts_log():
+    from bench.suite import log_counts, supported
+
+    assert log_counts(IPOPT_LOG, 3) == {"restoration": 2, "factorizations": 7}
+    assert all(math.isnan(v) for v in log_counts("no log here", 10).values())
+    assert log_counts("", 0) == {"restoration": 0, "factorizations": 0}
+    kinds = {category(name) for name, scene in hard_tasks(12, SEED) if supported(scene)}
+    assert kinds == {"seed-g0-cross", "seed-g9.81-cross", "seed-swing", "links-5to8"}
