@@ -16,9 +16,11 @@ its category (`<category>-<index>`), one of:
   of the even numbers of links), across a waveless singularity where M_pa is square, every
   joint moved by up to LINKS_MOVE = 0.8 rad;
 - `torque-limit`: the seed arm across a waveless singularity (moves up to 1 rad),
-  time-optimal (duration 0.5 to 4 s, time weight 1, effort 1e-2) under a torque limit,
-  which binds at a time-optimal plan; in gravity the limit is at least twice the active
-  joints' holding torque at the start and the goal;
+  time-optimal (duration up to 4 s, time weight 1, effort 1e-2) under a torque limit: at
+  least twice the holding torque at the start and the goal and 1.5 times the largest torque
+  of the straight (cubic) move in 4 s (`guess_peak`), plus 0.5 to 2 N m; the shortest
+  duration allowed (0.5 s or less) would need 1.5 times the limit for that move, so the
+  limit, not the duration's bound, is what a time-optimal plan runs into;
 - `free-time`: random 2- to 4-link arms (across a waveless singularity where M_pa is
   square, moves up to 1 rad), free final time (1 to 4 s) with a time weight of 0.5 to 5
   beside the effort;
@@ -57,7 +59,7 @@ from planner.coupling_block import along, zeros_along
 from planner.dynamics import Dynamics
 from planner.examples import SEED_WAVES, seed_arm
 from planner.model import Robot, Wave
-from planner.scene import Scene
+from planner.scene import DurationRange, Scene
 from planner.suite import random_robot, singular_configuration
 
 SEED = 20261125
@@ -76,7 +78,8 @@ MOVE = 1.5  # [rad] largest joint move of a seed-arm crossing
 SWING = 2.0  # [rad] the swung joint's move
 LINKS_MOVE = 0.8  # [rad] largest joint move of a 5- to 8-link arm
 FREE_TIME = (1.0, 4.0)  # [s] duration range of a free-time task
-TIME_OPTIMAL = (0.5, 4.0)  # [s] duration range of a time-optimal task
+TIME_OPTIMAL = (0.5, 4.0)  # [s] duration range of a time-optimal task (its min or less)
+ROOM = 1.5  # limit / the slowest straight move's peak torque, and the fastest's / limit
 BOUND_MARGIN = 0.1  # [rad] least distance of start and goal from a position bound
 SPEED_FACTOR = 2.5  # velocity bound / mean rate of the move
 MARGIN = 0.005  # [kg m^2] coupling margin of a co-design task (the seed-arm example's)
@@ -154,6 +157,15 @@ def _moved(rng: np.random.Generator, robot: Robot, move: float) -> tuple[np.ndar
     return centre - step / 2, centre + step / 2
 
 
+def guess_peak(scene: Scene, duration: float) -> float:
+    """The largest active torque [N m] of the planner's interpolation guess (the cubic rest
+    to rest move, torques from the active rows of the dynamics) at `duration` [s]."""
+    from planner.ocp.guess import hermite_guess
+
+    guess = hermite_guess(scene, scene.robot, duration)(np.linspace(0.0, 1.0, 201))
+    return float(np.abs(guess["tau"]).max())
+
+
 def holding_torque(robot: Robot, q) -> float:
     """The largest active joint's gravity torque at rest at q [N m]."""
     return float(np.abs(Dynamics(robot).gravity(q)[robot.active]).max())
@@ -207,9 +219,14 @@ def _task(category: str, rng: np.random.Generator, gravity: float) -> Scene:
         robot = _seed_robot(gravity)
         start, goal = _crossing(rng, robot, 1.0)
         hold = max(holding_torque(robot, start), holding_torque(robot, goal))
-        limit = max(round(2 * hold + rng.uniform(0.5, 2.0), 2), 1.0)
+        plain = _scene(robot, start, goal)
+        slow = ROOM * guess_peak(plain, TIME_OPTIMAL[1])
+        limit = round(max(2 * hold, slow, 1.0) + rng.uniform(0.5, 2.0), 2)
+        shortest = TIME_OPTIMAL[0]
+        while guess_peak(plain, shortest) < ROOM * limit:
+            shortest /= 2
         return _scene(robot, start, goal, torque_limit=limit,
-                      duration={"min": TIME_OPTIMAL[0], "max": TIME_OPTIMAL[1]},
+                      duration={"min": round(shortest, 4), "max": TIME_OPTIMAL[1]},
                       objective={"effort": 1e-2, "time": 1.0})
     if category == "free-time":
         robot = _random_arm(rng, (2, 4), gravity)
@@ -279,7 +296,8 @@ def check(scene: Scene) -> list[str]:
     and goal within the position bounds by BOUND_MARGIN / 2 and at rest within the velocity
     bounds, sigma_min(M_pa) at least the margin at the start and the goal (co-design: for
     the robot's own waves), the tip target within reach (no farther than the links' longest
-    extent), a torque limit above the holding torque at the start and the goal."""
+    extent), a torque limit above the holding torque at the start and the goal (and, with a
+    free duration, ROOM times the peak torque of the straight move at the longest)."""
     task, robot = scene.task, scene.robot
     start = np.asarray(task.initial.q, float)
     goal = None if any(v is None for v in task.final.q) else np.asarray(task.final.q, float)
@@ -310,6 +328,10 @@ def check(scene: Scene) -> list[str]:
         hold = max(holding_torque(robot, q) for q in ends)
         if task.torque_limit <= hold:
             problems.append(f"torque limit {task.torque_limit:g} below the holding torque")
+    if isinstance(task.torque_limit, float) and isinstance(task.duration, DurationRange) \
+            and task.torque_limit < ROOM * guess_peak(scene, task.duration.max):
+        problems.append(f"torque limit {task.torque_limit:g} below {ROOM:g} times the "
+                        "straight move's peak at the longest duration")
     return problems
 
 

@@ -17,6 +17,7 @@ from planner.hard_suite import (
     COUNT,
     HELD_OUT,
     MOVE,
+    ROOM,
     SEED,
     SWING,
     category,
@@ -24,6 +25,7 @@ from planner.hard_suite import (
     crosses,
     crossing_zeros,
     design_start,
+    guess_peak,
     hard_tasks,
     segment,
 )
@@ -143,6 +145,9 @@ def test_free_time_and_torque_limits(suite):
         if kind == "torque-limit":
             assert isinstance(task.duration, DurationRange) and task.objective.time > 0.0
             assert isinstance(task.torque_limit, float) and task.torque_limit > 0.0
+            # the slowest straight move fits, the fastest allowed would exceed the limit
+            assert task.torque_limit >= ROOM * guess_peak(scene, task.duration.max), name
+            assert guess_peak(scene, task.duration.min) >= ROOM * task.torque_limit, name
 
 
 def test_co_design_keeps_the_margin_at_start_and_goal_and_has_a_witness(suite):
