@@ -60,3 +60,4 @@ def virtual_peak(interp: Interpolant, active: int) -> float:
     """[N m] the largest virtual torque of a relaxed plan at its breakpoints and between."""
     t = np.linspace(interp.tau.breaks[0], interp.tau.breaks[-1], 4 * len(interp.tau.breaks))
     return float(np.abs(interp.tau(t)[:, active:]).max(initial=0.0))
+

@@ -104,17 +104,24 @@ class Start:
 
 @dataclass
 class Attempt:
-    """The solves of one start: those that prepare its guess (on a coarse mesh, or of the
-    relaxed NLPs: `preliminary`), then on its mesh and the refinements of that
-    (`outcomes`); `artefact`: the refinement left an optimum that the mesh made up."""
+    """The solves of one start, in order (`passes`): those that prepare a guess (on a
+    coarse mesh, or of the relaxed NLPs) and those on its mesh and the refinements of that
+    (`outcomes`, the plans it offers); `artefact`: the refinement left an optimum that the
+    mesh made up."""
 
     start: Start
-    preliminary: list[Outcome]
+    passes: list[Outcome]
     outcomes: list[Outcome]
     artefact: bool = False
 
     def solves(self) -> list[Outcome]:
-        return [*self.preliminary, *self.outcomes]
+        return self.passes
+
+    def add(self, outcome: Outcome, offered: bool = True) -> None:
+        """Record a solve (offered: its plan is one the attempt may return)."""
+        self.passes.append(outcome)
+        if offered:
+            self.outcomes.append(outcome)
 
 
 def plan(scene: Scene, progress: Handler | None = None, warm_start: Plan | None = None) -> Plan:
@@ -164,9 +171,9 @@ def _attempt(scene: Scene, starts: Iterator[Start], attempts: list[Attempt], bud
     tolerance = scene.solver.resimulation_tolerance
     for start in starts:
         preliminary, first = _first_solves(scene, start, budget, progress, _passes(attempts))
-        attempt = Attempt(start, preliminary, [first])
+        attempt = Attempt(start, [*preliminary, first], [first])
         attempts.append(attempt)
-        attempt.artefact = _refine(scene, attempt.outcomes, budget, progress, _passes(attempts))
+        attempt.artefact = _refine(scene, attempt, budget, progress, _passes(attempts))
         last = attempt.outcomes[-1]
         settled = last.accurate(tolerance) or not scene.transcription.refinement.enabled
         if last.solution.success and settled or budget.spent \
@@ -256,14 +263,13 @@ def _continuation(scene: Scene, start: Start, budget: Budget, progress: Handler 
     the solution before, until the virtual torques are negligible, a solve fails or the
     budget is spent (at least one solve)."""
     na = len(start.robot.active)
-    guess = start.guess
     outcomes: list[Outcome] = []
     for weight in continuation.VIRTUAL_WEIGHTS:
-        inst = instance(scene, start.robot, start.mesh, start.T, weight)
         before = outcomes[-1].solution if outcomes else None
         point = None if before is None else (before.x, before.lam_x, before.lam_g)
-        outcome = _relaxed_solve(scene, inst, start, guess, point, budget, progress,
-                                 first_pass + len(outcomes), weight)
+        inst = instance(scene, start.robot, start.mesh, start.T, weight)
+        outcome = _relaxed_solve(scene, inst, start.robot, start.T, start.name, start.guess,
+                                 point, budget, progress, first_pass + len(outcomes), weight)
         outcomes.append(outcome)
         if not (outcome.finite and outcome.solution.success) or budget.spent \
                 or continuation.virtual_peak(outcome.interp, na) < continuation.NEGLIGIBLE:
@@ -328,11 +334,12 @@ def _inverse_dynamics_applies(robot: Robot) -> bool:
     return 0 < len(robot.passive) <= len(robot.active)
 
 
-def _refine(scene: Scene, outcomes: list[Outcome], budget: Budget,
+def _refine(scene: Scene, attempt: Attempt, budget: Budget,
             progress: Handler | None, first_pass: int) -> bool:
-    """Refine the mesh of the last outcome while it converged but is not accurate; True
-    when it stopped at an artefact of the mesh (`_artefact`)."""
+    """Refine the mesh of the attempt's last outcome while it converged but is not
+    accurate; True when it stopped at an artefact of the mesh (`_artefact`)."""
     refinement, tolerance = scene.transcription.refinement, scene.solver.resimulation_tolerance
+    outcomes = attempt.outcomes
     while refinement.enabled and len(outcomes) <= refinement.max_passes and not budget.spent:
         last = outcomes[-1]
         if len(outcomes) > 1 and _artefact(outcomes[-2], last):
@@ -344,9 +351,9 @@ def _refine(scene: Scene, outcomes: list[Outcome], budget: Budget,
         if mesh is None:
             return False
         inst = instance(scene, last.robot, mesh, last.T)
-        outcomes.append(_solve_on(scene, inst, last.robot, last.T,
-                                  interpolant_guess(last.interp, last.T), budget, progress,
-                                  first_pass + len(outcomes) - 1, last.record.strategy))
+        attempt.add(_solve_on(scene, inst, last.robot, last.T,
+                              interpolant_guess(last.interp, last.T), budget, progress,
+                              first_pass + len(attempt.passes) - 1, last.record.strategy))
     return False
 
 
@@ -398,7 +405,8 @@ def _solve_on(scene: Scene, inst: Instance, robot: Robot, T: float, guess: Guess
                    record=record)
 
 
-def _relaxed_solve(scene: Scene, inst: Instance, start: Start, guess: Guess,
+def _relaxed_solve(scene: Scene, inst: Instance, robot: Robot, T: float, name: str,
+                   guess: Guess,
                    point: tuple[np.ndarray, np.ndarray | None, np.ndarray | None] | None,
                    budget: Budget, progress: Handler | None, mesh_pass: int,
                    weight: float) -> Outcome:
@@ -408,11 +416,11 @@ def _relaxed_solve(scene: Scene, inst: Instance, start: Start, guess: Guess,
     started = time.perf_counter()
     x, lam_x, lam_g = point if point is not None else (None, None, None)
     if x is None:
-        x = initial_point(inst, guess, start.T, start.robot)
+        x = initial_point(inst, guess, T, robot)
     multipliers = (lam_x, lam_g) if lam_x is not None and lam_g is not None else None
     solution = solve(inst, x, budget, progress, mesh_pass, multipliers)
-    return _outcome(scene, inst, start.robot, start.T, solution,
-                    f"{start.name}: relaxed, virtual weight {weight:g}", started)
+    return _outcome(scene, inst, robot, T, solution,
+                    f"{name}: relaxed, virtual weight {weight:g}", started)
 
 
 def _outcome(scene: Scene, inst: Instance, robot: Robot, T: float, solution: Solution,
