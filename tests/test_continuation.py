@@ -11,6 +11,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from app.settings import Settings
 from planner.dynamics import Dynamics
 from planner.examples import seed_arm
 from planner.ocp import continuation, plan, portfolio
@@ -136,3 +137,11 @@ def test_a_companion_stops_once_the_process_that_forked_it_is_gone(
     assert guard(None) is True  # type: ignore[arg-type]
     monkeypatch.setattr(os, "getppid", lambda: 1)
     assert guard(None) is False  # type: ignore[arg-type]
+
+
+def test_the_service_shares_the_cores_among_its_solver_workers(monkeypatch: pytest.MonkeyPatch):
+    monkeypatch.setattr(os, "cpu_count", lambda: 8)
+    monkeypatch.delenv(portfolio.ENVIRONMENT)
+    assert Settings(workers=2).plan_processes(2) == 4
+    assert Settings(workers=16).plan_processes(16) == 1
+    assert Settings(solver_processes=2).plan_processes(16) == 2
