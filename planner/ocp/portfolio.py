@@ -4,8 +4,8 @@ A plan may use `solver_processes()` processes (`UNDERTOW_SOLVER_PROCESSES`; by d
 where the machine has two cores or more). With two, the process that plans forks a
 companion that solves the continuation start (`planner.ocp.continuation`) while it goes
 through its own starts; the first verified plan wins and the other process stops. The
-companion is forked, so it shares the built NLPs and needs no start-up; it stops by
-itself when the process that forked it is gone, and is killed when the plan ends.
+companion is forked, so it needs no start-up and shares the NLPs already built; it stops
+by itself when the process that forked it is gone, and is killed when the plan ends.
 """
 
 from __future__ import annotations
