@@ -5,9 +5,10 @@ from __future__ import annotations
 
 import pytest
 from pydantic import ValidationError
-from service_fixtures import client
+from service_fixtures import client, two_link_scene
 
 from planner.schema import STATE_MAX, JointState
+from testbed.fake_solvers import fake_plan
 
 WAVED = {"links": [{"length": 0.5, "mass": 1.0, "inertia": 0.01, "joint": "passive"},
                    {"length": 0.4, "mass": 0.8, "inertia": 0.008, "joint": "active",
@@ -22,7 +23,7 @@ ACTIVE = {"q": [0.8, -2.37], "dq": [0.0, 0.0]}
 
 @pytest.fixture(scope="module")
 def api(tmp_path_factory):
-    with client(tmp_path_factory.mktemp("bad-input")) as c:
+    with client(tmp_path_factory.mktemp("bad-input"), solve=fake_plan) as c:
         yield c
 
 
@@ -103,3 +104,22 @@ def test_the_bound_is_inclusive_and_the_largest_angle_still_computes(api):
         JointState(q=[STATE_MAX * (1 + 1e-15)], dq=[0.0])
     r = api.post("/v1/coupling", json=coupling([0.1, STATE_MAX, -0.7, -STATE_MAX]))
     assert r.status_code == 200, r.text
+
+
+@pytest.mark.parametrize("value", ["2", True, "1e308", None, [2.0]])
+@pytest.mark.parametrize("way", ["overrides", "grid"])
+def test_a_batch_parameter_must_be_a_json_number(api, way, value):
+    """Not read as 2.0, or as a duration of 1.0 s for true."""
+    body = {"base": two_link_scene(), way: [{"duration": value}] if way == "overrides"
+            else {"duration": [1.0, value]}}
+    error = only_error(api.post("/v1/batches", json=body))
+    loc = ["body", "overrides", 0, "duration"] if way == "overrides" \
+        else ["body", "grid", "duration", 1]
+    assert error["loc"] == loc, error
+    assert error["type"] in ("float_type", "list_type"), error
+
+
+def test_a_batch_parameter_may_be_an_integer(api):
+    r = api.post("/v1/batches", json={"base": two_link_scene(), "overrides": [{"duration": 2}]})
+    assert r.status_code == 202, r.text
+    assert api.get(r.headers["location"]).json()["members"][0]["parameters"] == {"duration": 2.0}
