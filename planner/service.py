@@ -3,7 +3,8 @@ reaches `planner.ocp`.
 
 The service needs the request (a `Scene`), the function that plans it, the result (`Plan`,
 its Ipopt iterate `NlpSolution` for a warm start, the `Progress` a solve reports), the
-reason a finished plan is not verified, and what a transcription costs: its time nodes
+reason a finished plan is not verified, the plan sampled at any times (`Plan.sample`,
+`PlanSample`), and what a transcription costs: its time nodes
 (the server's node limit) and its knots (the memory estimate). Everything else of the
 optimal-control package stays internal to the library and may change without the service
 noticing. `tests/test_service_interface.py` holds app/ to this module.
@@ -15,7 +16,7 @@ from typing import get_args
 
 from planner.ocp import methods
 from planner.ocp.planner import plan
-from planner.ocp.result import NlpSolution, Plan, Progress
+from planner.ocp.result import MAX_SAMPLE_TIMES, NlpSolution, Plan, PlanSample, Progress
 from planner.ocp.transcription import AnyTranscription
 from planner.ocp.verify import unverified_reason
 from planner.scene import DurationRange, Method, Scene, Transcription
@@ -48,6 +49,7 @@ def verdict_reason(result: Plan) -> str | None:
     return unverified_reason(result.verification)
 
 
-__all__ = ["METHODS", "DurationRange", "NlpSolution", "Plan", "Progress", "Scene",
+__all__ = ["MAX_SAMPLE_TIMES", "METHODS", "DurationRange", "NlpSolution", "Plan", "PlanSample",
+           "Progress", "Scene",
            "Transcription", "knot_count", "node_count", "plan", "transcription",
            "unverified_reason", "verdict_reason"]
