@@ -18,7 +18,7 @@ from planner.ocp.interpolant import PiecewisePolynomial
 from planner.torque import TorquePolynomial
 
 MAX_SAMPLE_TIMES = 1000
-"""The most times one `Plan.sample` call (and one GET /v1/plans/{id}/sample) evaluates."""
+"""The most times one `Plan.sample` call evaluates."""
 
 
 @dataclass(frozen=True)
