@@ -11,10 +11,11 @@ own) are compared with
 - central finite differences of f, g and of the Lagrangian's gradient along random
   directions, to truncation error,
 
-at random variables x, multipliers lam_g and objective factor sigma. The numbers (robot,
-mesh widths, quadrature weights, references, weights) are those a scene's solve uses, on a
-non-uniform mesh. A fault in any stage kernel or in the scatter fails these tests within
-seconds, where the OCP tests notice it (if at all) as solves that no longer converge.
+at random variables x, multipliers lam_g and objective factor sigma (and sigma = 0). The
+numbers (robot, mesh widths, quadrature weights, references, weights) are those a scene's
+solve uses, on a non-uniform mesh. A fault in any stage kernel or in the scatter fails
+these tests within seconds, where the OCP tests notice it (if at all) as solves that no
+longer converge.
 """
 
 from __future__ import annotations
@@ -191,8 +192,10 @@ def case(name: str) -> Case:
     plain = ca.Function("plain", [x, p, sigma, lam], [
         f, g, ca.gradient(f, x), ca.jacobian(g, x),
         ca.triu(ca.hessian(sigma * f + ca.dot(lam, g), x)[0])])
-    points = tuple(Point(_random_x(prob.layout, rng, robot), inst.P, float(rng.uniform(0.2, 3.0)),
-                         rng.normal(size=prob.lbg.size)) for _ in range(3))
+    # the last with sigma = 0, as Ipopt's restoration phase asks for the constraints alone
+    sigmas = [float(rng.uniform(0.2, 3.0)) for _ in range(2)] + [0.0]
+    points = tuple(Point(_random_x(prob.layout, rng, robot), inst.P, sigma,
+                         rng.normal(size=prob.lbg.size)) for sigma in sigmas)
     return Case(prob.key, prob.structured, ipopt, plain, fg, points)
 
 
