@@ -10,6 +10,7 @@ store.
 from __future__ import annotations
 
 import logging
+import os
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
@@ -27,7 +28,7 @@ from app.logging import RequestIdMiddleware, configure
 from app.metrics import Metrics, MetricsMiddleware
 from app.openapi import document
 from app.routes import batches, dynamics, examples, health, plans, plots, samples
-from app.settings import Settings, get_settings
+from app.settings import PLAN_PROCESSES, Settings, get_settings
 from app.store import StoreUnavailable
 from app.store.open import open_store
 from app.worker import SolveFunction, load_function
@@ -53,6 +54,7 @@ def create_app(settings: Settings | None = None, solve: SolveFunction | None = N
             log.critical("%s", exc)
             raise
         app.state.metrics.watch(store)
+        os.environ[PLAN_PROCESSES] = str(settings.plan_processes(settings.workers))
         runner = JobRunner(store, solve or load_function(settings.solve_function),
                            owner=settings.instance, workers=settings.workers,
                            max_queued=settings.max_queued, retry_after=settings.retry_after,

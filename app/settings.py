@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import socket
 from functools import lru_cache
 
@@ -9,6 +10,10 @@ from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from planner.model import MAX_LINKS
+
+PLAN_PROCESSES = "UNDERTOW_SOLVER_PROCESSES"
+"""The environment variable the planner reads for the processes one plan may use; the
+service sets it for its workers from `Settings.plan_processes`."""
 
 
 class Settings(BaseSettings):
@@ -28,6 +33,10 @@ class Settings(BaseSettings):
     workers: int = Field(default=2, ge=0, le=64, description=(
         "solver worker processes of this server (0: an API-only server, whose jobs "
         "`undertow worker` processes run)"))
+    solver_processes: int | None = Field(default=None, ge=1, le=8, description=(
+        "processes one plan may use (a plan's continuation start runs in a second one "
+        "beside its other starts; docs/planner.md, \"Both cores\"); unset: the machine's "
+        "cores shared among the solver workers, cores // workers, at least 1"))
     lease: float = Field(default=60.0, ge=1.0, le=3600.0, description=(
         "seconds a worker's claim on a job holds without renewal (renewed every 0.25 s); a "
         "job whose worker stays silent that long is requeued once, then marked interrupted"))
@@ -70,6 +79,13 @@ class Settings(BaseSettings):
     retry_after: int = Field(default=5, ge=1, description="Retry-After [s] when the queue is full")
     log_level: str = Field(default="INFO")
 
+
+    def plan_processes(self, workers: int) -> int:
+        """Processes each of `workers` concurrent plans may use (UNDERTOW_SOLVER_PROCESSES,
+        else the cores shared among them)."""
+        if self.solver_processes is not None:
+            return self.solver_processes
+        return max(1, (os.cpu_count() or 1) // max(workers, 1))
 
     @field_validator("db_url")
     @classmethod

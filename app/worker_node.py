@@ -18,7 +18,7 @@ import signal
 import threading
 
 from app.logging import configure
-from app.settings import Settings
+from app.settings import PLAN_PROCESSES, Settings
 from app.store.open import open_store
 from app.supervisor import Supervisor
 from app.worker import Outcome, load_function
@@ -37,6 +37,7 @@ def run(settings: Settings, processes: int, stop: threading.Event | None = None)
     configure(settings.log_level)
     store = open_store(settings)
     name = f"{settings.instance}:worker:{os.getpid()}"
+    os.environ[PLAN_PROCESSES] = str(settings.plan_processes(processes))
     supervisor = Supervisor(store, load_function(settings.solve_function), name, processes,
                             settings.worker_memory_mb, settings.wall_time_grace,
                             settings.log_level, on_done=_done, lease=settings.lease,

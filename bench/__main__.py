@@ -21,6 +21,8 @@ BENCHES = {
                                              "guesses on the underactuated scenes"),
     "ipopt_settings": ("bench.ipopt_settings", "MUMPS ordering and scaling and the barrier "
                                                "update: cost per iteration and where Ipopt ends"),
+    "limits": ("bench.limits", "torque limits held at the torque variables only against on "
+                               "whole intervals, on time-optimal tasks"),
     "passive_margin": ("bench.passive_margin", "the two-link example with its end state and "
                                                "duration moved: how many plans verify"),
     "peer_opty": ("bench.peer_opty", "the planner against the Opti script and opty on the "

@@ -22,25 +22,49 @@ estimates and verification), counted only for verified plans. A peer whose packa
 missing is skipped, with the reason printed and written.
 
     python -m bench suite [--count 48] [--seed 20261123] [--configs undertow,...] [--merge]
+    python -m bench suite --suite hard [--seed 20261125] [--categories seed-g0-cross,...]
 
 `--seed` other than the suite's own writes its own section and CSV (suite-seed-N.csv):
 tasks the planner was not tuned on.
+
+`--suite hard` runs `planner.hard_suite` (its own seed, and the two of
+`planner.hard_suite.HELD_OUT`) and reports per task what the solves cost as Ipopt counts
+it: iterations, restoration-phase iterations, KKT factorizations, CPU time (this process
+and its children) and wall time; and per configuration the share verified and the median,
+90th percentile and maximum time to a verified plan. It writes hard-suite.csv (or
+hard-suite-seed-N.csv) and its own section. Ipopt gives restoration iterations and
+factorizations only in its log: the planner runs with Ipopt's print level at LOG_LEVEL,
+its output (file descriptor 1) taken to a temporary file per task and counted. Peers run
+only the tasks they can state (fixed duration, state to state, effort objective: the
+crossings, swings and 5- to 8-link arms). `--cap` lowers every configuration's cap on a
+task (a quick check of the plumbing; a scene's own settings otherwise).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import ctypes
 import importlib.util
 import json
 import math
+import os
+import re
+import resource
 import subprocess
+import sys
+import tempfile
 import time
+from collections.abc import Callable, Iterator
 
 import numpy as np
+from pydantic import ValidationError
 
 from bench import harness
 from bench.examples import BEFORE
 from bench.scenes import fixed_duration
+from planner import hard_suite
+from planner.scene import DurationRange, Scene
 from planner.suite import COUNT, SEED, tasks
 
 CONFIGS = {
@@ -66,6 +90,81 @@ PEER_GRACE = 10.0  # [s] past WALL_TIME before an Opti script or rockit task's p
 WALL_TIME = 60.0  # [s] every configuration's cap on one task (the planner's default)
 DOC = harness.DOCS / "benchmarks.md"
 SECTION = "Task suite: verified plans and time to a verified plan"
+HARD_SECTION = "Hard suite: iterations, factorizations and time to a verified plan"
+SUITES = ("default", "hard")
+LOG_LEVEL = 6
+"""Ipopt's print level on the hard suite: its iteration table (restoration iterations marked
+"r") and, per search direction, "Number of trial factorizations performed" (level 6,
+J_DETAILED); about 4 kB a iteration, a few per cent of a solve's time."""
+_ITERATION = re.compile(r"^\s*\d+(r?)\s+[-+]?\d\.\d+e[-+]\d+\s", re.MULTILINE)
+_TRIALS = re.compile(r"^Number of trial factorizations performed:\s*(\d+)", re.MULTILINE)
+_ESTIMATES = re.compile(r"^Least square estimates", re.MULTILINE)
+
+
+def set_cap(cap: float) -> None:
+    """Every configuration's cap on one task [s] (WALL_TIME), in this process."""
+    global WALL_TIME
+    WALL_TIME = cap
+
+
+def suite_tasks(suite: str, count: int, seed: int,
+                categories: tuple[str, ...] = ()) -> list[tuple[str, Scene]]:
+    """The tasks of the default suite or the hard one (only `categories` of it, if given)."""
+    if suite == "hard":
+        out = hard_suite.hard_tasks(count, seed)
+        return [t for t in out if not categories or hard_suite.category(t[0]) in categories]
+    return tasks(count, seed)
+
+
+def supported(scene: Scene) -> bool:
+    """Whether the peers can state the task: a fixed duration, from a state to a state,
+    the effort objective alone, no bounds but a torque limit, no co-design or tracking."""
+    task = scene.task
+    return (not isinstance(task.duration, DurationRange)
+            and all(v is not None for v in [*task.final.q, *task.final.dq])
+            and task.tip_target is None and task.co_design is None and task.tracking is None
+            and task.position_bounds is None and task.velocity_bounds is None
+            and task.objective.time == 0.0 and task.objective.smoothness == 0.0)
+
+
+@contextlib.contextmanager
+def solver_log() -> Iterator[Callable[[], str]]:
+    """What is written to file descriptor 1 within (Ipopt's log, C stdio flushed), as a
+    function that returns it once the block has ended."""
+    libc = ctypes.CDLL(None)
+    sys.stdout.flush()
+    saved = os.dup(1)
+    text = ""
+    with tempfile.TemporaryFile(mode="w+", errors="replace") as log:
+        os.dup2(log.fileno(), 1)
+        try:
+            yield lambda: text
+        finally:
+            sys.stdout.flush()
+            libc.fflush(None)
+            os.dup2(saved, 1)
+            os.close(saved)
+            log.seek(0)
+            text = log.read()
+
+
+def log_counts(text: str, iterations: int) -> dict:
+    """Restoration iterations and KKT factorizations in Ipopt's log at LOG_LEVEL: iteration
+    rows marked "r", and the trial factorizations of every search direction plus one for
+    each least-squares multiplier estimate. NaN when the log holds no iteration row while
+    the plan made iterations (a solver that writes none: fatrop)."""
+    rows = _ITERATION.findall(text)
+    if not rows and iterations > 0:
+        return {"restoration": math.nan, "factorizations": math.nan}
+    return {"restoration": sum(1 for r in rows if r),
+            "factorizations": sum(int(k) for k in _TRIALS.findall(text))
+            + len(_ESTIMATES.findall(text))}
+
+
+def _cpu() -> float:
+    """CPU time [s] of this process and its waited-for children."""
+    child = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return time.process_time() + child.ru_utime + child.ru_stime
 
 
 def _settings(config: str) -> dict:
@@ -84,35 +183,66 @@ def _merged(scene: dict, changes: dict) -> dict:
     return out
 
 
-def run_planner(config: str, count: int, seed: int) -> dict:
-    """Every task with the planner in one configuration (in this process)."""
+def run_planner(config: str, count: int, seed: int, suite: str = "default",
+                cap: float | None = None, categories: tuple[str, ...] = ()) -> dict:
+    """Every task with the planner in one configuration (in this process); `cap` [s]: the
+    scene's solver.max_wall_time instead of its own."""
     from planner.ocp import plan
-    from planner.scene import Scene
 
+    changes = _settings(config)
+    if cap is not None:
+        changes = _merged(changes, {"solver": {"max_wall_time": cap}})
+    hard = suite == "hard"
     rows = []
-    for name, scene in tasks(count, seed):
-        scene = Scene.model_validate(_merged(scene.model_dump(mode="json"), _settings(config)))
-        started = time.perf_counter()
-        result = plan(scene)
-        elapsed = time.perf_counter() - started
-        v, s = result.verification, result.solver
-        ok = bool(s.success and v.verified)
-        rows.append({"task": name, "config": config, "verified": ok, "status": s.status,
-                     "iterations": s.iterations, "solves": len(result.mesh_passes),
-                     "intervals": len(result.t) - 1, "time": elapsed,
-                     "time_to_verified": elapsed if ok else math.nan,
-                     "local_error": v.local_error, "resimulation_error": v.resimulation_error,
-                     "growth_factor": v.growth_factor, "closed_loop_error": v.closed_loop_error,
-                     "perturbed_closed_loop_error": v.perturbed_closed_loop_error,
-                     "objective": result.objective, "strategy": s.strategy})
+    with harness.ipopt_options({"print_level": LOG_LEVEL} if hard else {}):
+        for name, scene in suite_tasks(suite, count, seed, tuple(categories)):
+            try:
+                scene = Scene.model_validate(_merged(scene.model_dump(mode="json"), changes))
+            except ValidationError:  # a task this configuration cannot state (fatrop: free
+                continue  # time, co-design), left out as the peers leave theirs
+            cpu = _cpu()
+            with solver_log() as log:
+                started = time.perf_counter()
+                result = plan(scene)
+                elapsed = time.perf_counter() - started
+            cpu = _cpu() - cpu
+            v, s = result.verification, result.solver
+            ok = bool(s.success and v.verified)
+            row = {"task": name, "config": config, "verified": ok, "status": s.status,
+                   "iterations": s.iterations, "solves": len(result.mesh_passes),
+                   "intervals": len(result.t) - 1, "time": elapsed,
+                   "time_to_verified": elapsed if ok else math.nan,
+                   "local_error": v.local_error, "resimulation_error": v.resimulation_error,
+                   "growth_factor": v.growth_factor, "closed_loop_error": v.closed_loop_error,
+                   "perturbed_closed_loop_error": v.perturbed_closed_loop_error,
+                   "objective": result.objective, "strategy": s.strategy}
+            if hard:
+                row = {"task": name, "category": hard_suite.category(name), **row,
+                       **log_counts(log(), s.iterations), "cpu": cpu,
+                       "time_to_plan": elapsed if s.success else math.nan,
+                       "duration": result.duration}
+            rows.append(row)
     return {"rows": rows}
 
 
-def _peer_row(name: str, config: str, scene, out: dict, elapsed: float) -> dict:
+def _peer_row(name: str, config: str, scene, out: dict, elapsed: float,
+              hard: bool = False) -> dict:
     """A peer's row: verified when its solver succeeded, its plan passes the planner's
-    interval check and it came within the cap WALL_TIME."""
+    interval check and it came within the cap WALL_TIME (on the hard suite with its
+    columns, the counts in Ipopt's log unknown)."""
     ok = bool(out["success"] and out["local_error"] <= scene.solver.resimulation_tolerance
               and elapsed <= WALL_TIME)
+    row = _peer_columns(name, config, scene, out, elapsed, ok)
+    if hard:
+        row = {"task": name, "category": hard_suite.category(name), **row,
+               "restoration": math.nan, "factorizations": math.nan,
+               "cpu": out.get("cpu", math.nan),
+               "time_to_plan": elapsed if out["success"] and elapsed <= WALL_TIME else math.nan,
+               "duration": scene.task.duration}
+    return row
+
+
+def _peer_columns(name: str, config: str, scene, out: dict, elapsed: float, ok: bool) -> dict:
     return {"task": name, "config": config, "verified": ok, "status": out["status"],
             "iterations": out["iterations"], "solves": 1,
             "intervals": scene.transcription.intervals, "time": elapsed,
@@ -122,32 +252,39 @@ def _peer_row(name: str, config: str, scene, out: dict, elapsed: float) -> dict:
             "objective": out["objective"], "strategy": "direct"}
 
 
-def peer_task(config: str, scene: dict) -> dict:
+def peer_task(config: str, scene: dict, cap: float = WALL_TIME) -> dict:
     """One task with the Opti script or rockit, in this process: the peer's result (see
-    `bench.peers.opti.solve`) and its wall time [s] from the build through the check."""
+    `bench.peers.opti.solve`), its wall time [s] from the build through the check and its
+    CPU time [s]."""
     from bench.peers import opti, rockit
-    from planner.scene import Scene
 
+    set_cap(cap)
     task = Scene.model_validate(scene)
-    started = time.perf_counter()
+    started, cpu = time.perf_counter(), _cpu()
     if config == "Opti script":
         out = opti.solve(task, wall_time=WALL_TIME)
     else:
         out = rockit.solve(task, *ROCKIT[config], wall_time=WALL_TIME)
-    return {**out, "time": time.perf_counter() - started}
+    return {**out, "time": time.perf_counter() - started, "cpu": _cpu() - cpu}
 
 
-def run_peer(config: str, count: int, seed: int) -> list[dict]:
-    """Every task with the Opti script or rockit, each in a process of its own stopped at
-    WALL_TIME + PEER_GRACE (fatrop has no wall-time option of its own)."""
+def run_peer(config: str, count: int, seed: int, suite: str = "default",
+             categories: tuple[str, ...] = ()) -> list[dict]:
+    """Every task (that the peers can state) with the Opti script or rockit, each in a
+    process of its own stopped at WALL_TIME + PEER_GRACE (fatrop has no wall-time option
+    of its own)."""
     rows = []
-    for name, scene in tasks(count, seed):
+    for name, scene in suite_tasks(suite, count, seed, categories):
+        if not supported(scene):
+            continue
         started = time.perf_counter()
         out = harness.isolated("suite", "peer_task",
-                               {"config": config, "scene": scene.model_dump(mode="json")},
+                               {"config": config, "scene": scene.model_dump(mode="json"),
+                                "cap": WALL_TIME},
                                WALL_TIME + PEER_GRACE)
         elapsed = out.get("time", time.perf_counter() - started)
-        rows.append(_peer_row(name, config, scene, *_unfinished(out, elapsed)))
+        rows.append(_peer_row(name, config, scene, *_unfinished(out, elapsed),
+                              hard=suite == "hard"))
     return rows
 
 
@@ -163,7 +300,8 @@ def _unfinished(out: dict, elapsed: float) -> tuple[dict, float]:
             WALL_TIME if stopped else elapsed)
 
 
-def run_opty(count: int, seed: int) -> dict:
+def run_opty(count: int, seed: int, suite: str = "default", cap: float = WALL_TIME,
+             categories: tuple[str, ...] = ()) -> dict:
     """Every task with opty (midpoint on the same intervals), each in a process of the opty
     venv that derives, compiles and solves it within WALL_TIME (in this process: the
     check of its plan)."""
@@ -172,9 +310,12 @@ def run_opty(count: int, seed: int) -> dict:
     from planner.ocp.guess import hermite_guess
     from planner.ocp.verify import open_loop
 
+    set_cap(cap)
     rng = np.random.default_rng(seed)
     rows = []
-    for name, scene in tasks(count, seed):
+    for name, scene in suite_tasks(suite, count, seed, tuple(categories)):
+        if not supported(scene):
+            continue
         nodes = scene.transcription.intervals + 1
         guess = hermite_guess(scene, scene.robot, fixed_duration(scene))(
             np.linspace(0.0, 1.0, nodes))
@@ -203,7 +344,7 @@ def run_opty(count: int, seed: int) -> dict:
                       "iterations": solve["iterations"], "objective": solve["nlp_objective"],
                       "local_error": local if math.isfinite(local) else math.nan,
                       "resimulation_error": math.nan if replay is None else replay}
-        rows.append(_peer_row(name, "opty", scene, result, elapsed))
+        rows.append(_peer_row(name, "opty", scene, result, elapsed, hard=suite == "hard"))
     return {"rows": rows}
 
 
@@ -242,10 +383,13 @@ for line in sys.stdin:
 """
 
 
-def run_before(count: int, seed: int, commit: str) -> list[dict]:
+def run_before(count: int, seed: int, commit: str, suite: str = "default",
+               categories: tuple[str, ...] = ()) -> list[dict]:
     """Every task with the planner of an earlier commit (a temporary worktree)."""
+    chosen = suite_tasks(suite, count, seed, categories)
+    count = len(chosen)
     lines = "".join(json.dumps([name, scene.model_dump(mode="json", exclude_defaults=True)])
-                    + "\n" for name, scene in tasks(count, seed))
+                    + "\n" for name, scene in chosen)
     with harness.checkout(commit) as old:
         run = subprocess.run([harness.PYTHON, "-c", _BEFORE_RUN.format(root=str(old))],
                              input=lines, cwd=old, capture_output=True, text=True,
@@ -255,23 +399,31 @@ def run_before(count: int, seed: int, commit: str) -> list[dict]:
              "local_error": math.nan, "growth_factor": math.nan,
              "closed_loop_error": math.nan, "perturbed_closed_loop_error": math.nan,
              "strategy": "direct"} for out in harness.result_lines(run.stdout)]
+    if suite == "hard":
+        rows = [{"task": r["task"], "category": hard_suite.category(r["task"]), **r,
+                 "restoration": math.nan, "factorizations": math.nan, "cpu": math.nan,
+                 "time_to_plan": math.nan, "duration": math.nan} for r in rows]
     if len(rows) != count:
         raise RuntimeError(f"before: {len(rows)} of {count} tasks ran: {harness.last_error(run)}")
     return rows
 
 
-def _run(config: str, count: int, seed: int) -> list[dict]:
+def _run(config: str, count: int, seed: int, suite: str = "default",
+         categories: tuple[str, ...] = (), cap: float | None = None) -> list[dict]:
     timeout = count * (2 * WALL_TIME + 30)
     if config == "before":
-        return run_before(count, seed, BEFORE)
+        return run_before(count, seed, BEFORE, suite, categories)
     if config == "opty":
         timeout = count * (WALL_TIME + OPTY_GRACE + 30)
-        out = harness.isolated("suite", "run_opty", {"count": count, "seed": seed}, timeout)
+        out = harness.isolated("suite", "run_opty",
+                               {"count": count, "seed": seed, "suite": suite, "cap": WALL_TIME,
+                                "categories": list(categories)}, timeout)
     elif config in PEERS:
-        return run_peer(config, count, seed)
+        return run_peer(config, count, seed, suite, categories)
     else:
         out = harness.isolated("suite", "run_planner",
-                               {"config": config, "count": count, "seed": seed}, timeout)
+                               {"config": config, "count": count, "seed": seed, "suite": suite,
+                                "cap": cap, "categories": list(categories)}, timeout)
     if "failure" in out:
         raise RuntimeError(f"{config}: {out['failure']}")
     return out["rows"]
@@ -347,17 +499,41 @@ def _task_table(rows: list[dict]) -> str:
 
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench suite", description=__doc__)
-    parser.add_argument("--count", type=int, default=COUNT)
-    parser.add_argument("--seed", type=int, default=SEED)
+    parser.add_argument("--suite", choices=SUITES, default="default",
+                        help="default: planner.suite; hard: planner.hard_suite")
+    parser.add_argument("--count", type=int, default=None,
+                        help=f"tasks (default {COUNT}; hard: {hard_suite.COUNT})")
+    parser.add_argument("--seed", type=int, default=None,
+                        help=f"default {SEED}; hard: {hard_suite.SEED}, held out: "
+                             + ", ".join(map(str, hard_suite.HELD_OUT)))
+    parser.add_argument("--categories", default="",
+                        help="hard suite only: comma-separated categories to run, from: "
+                             + ", ".join(hard_suite.CATEGORIES))
+    parser.add_argument("--cap", type=float, default=None,
+                        help=f"every configuration's cap on a task [s] (default {WALL_TIME:g}, "
+                             "the planner's max_wall_time)")
     parser.add_argument("--merge", action="store_true",
                         help="keep the other configurations' rows of the CSV (runs split "
                              "over processes or cores write one table)")
     parser.add_argument("--note", default="",
                         help="where and how the rows were measured, when they come from "
                              "several invocations (printed above the manifest)")
-    parser.add_argument("--configs", default=",".join(CONFIGS),
-                        help="comma-separated, from: " + ", ".join(CONFIGS))
+    parser.add_argument("--configs", default=None,
+                        help="comma-separated, from: " + ", ".join(CONFIGS)
+                             + " (default: all of them; hard: undertow)")
     args = parser.parse_args(argv)
+    hard = args.suite == "hard"
+    args.count = args.count or (hard_suite.COUNT if hard else COUNT)
+    args.seed = args.seed if args.seed is not None else hard_suite.SEED if hard else SEED
+    args.configs = args.configs or ("undertow" if hard else ",".join(CONFIGS))
+    categories = tuple(c.strip() for c in args.categories.split(",") if c.strip())
+    wrong = [c for c in categories if c not in hard_suite.CATEGORIES]
+    if categories and not hard:
+        parser.error("--categories: only with --suite hard")
+    if wrong:
+        parser.error(f"--categories: unknown: {', '.join(wrong)}")
+    if args.cap is not None:
+        set_cap(args.cap)
     configs = [c.strip() for c in args.configs.split(",") if c.strip()]
     started = time.perf_counter()
     note = harness.machine_note()
@@ -369,14 +545,17 @@ def main(argv: list[str]) -> int:
     for config, why in skipped.items():
         print(f"skipping {config}: {why}", flush=True)
     configs = [c for c in configs if c not in skipped]
+    chosen = len(suite_tasks(args.suite, args.count, args.seed, categories))
     for config in configs:
-        print(f"running {config} on {args.count} tasks ...", flush=True)
+        print(f"running {config} on {chosen} tasks ...", flush=True)
         try:
-            rows += _run(config, args.count, args.seed)
+            rows += _run(config, args.count, args.seed, args.suite, categories, args.cap)
         except RuntimeError as exc:  # a configuration that hangs or crashes: the rest stand
             print(f"{exc}", flush=True)
             skipped[config] = f"its run ended without results ({exc})"
     configs = [c for c in configs if c not in skipped]
+    if hard:
+        return report_hard(args, argv, configs, rows, skipped, started, note)
     own = args.seed == SEED
     csv = "suite.csv" if own else f"suite-seed-{args.seed}.csv"
     kept: list[dict] = []
@@ -432,4 +611,115 @@ def main(argv: list[str]) -> int:
     harness.write_section(DOC, SECTION if own else f"{SECTION}, seed {args.seed}", text)
     for row in summary:
         print(row)
+    return 0
+
+
+# --------------------------------------------------------------------------- the hard suite
+
+
+def nearest_rank(values: list[float], share: float) -> float:
+    """The nearest-rank percentile (share in (0, 1]) of values; inf (never) counts."""
+    ordered = sorted(values)
+    return ordered[max(math.ceil(share * len(ordered)) - 1, 0)] if ordered else math.nan
+
+
+def _never(value: float) -> float | str:
+    return "never" if math.isinf(value) else value
+
+
+def hard_summary(rows: list[dict], config: str, key: str = "config") -> dict:
+    """Of a configuration's (or category's, `key`) rows: the share verified; the median,
+    90th percentile and maximum time to a verified plan with unverified tasks counted as
+    never, the median over the verified ones; median iterations, restoration iterations,
+    factorizations and CPU time; the median time to a plan the solver accepted (verified
+    or not)."""
+    mine = [r for r in rows if r[key] == config]
+    verified = sum(bool(r["verified"]) for r in mine)
+    every = [r["time_to_verified"] if r["verified"] else math.inf for r in mine]
+    plans = [r["time_to_plan"] if math.isfinite(r["time_to_plan"]) else math.inf for r in mine]
+    return {key: config, "tasks": len(mine), "verified": verified,
+            "share": f"{100 * verified / len(mine):.0f} %" if mine else "–",
+            "median_verified": harness.median([r["time_to_verified"] for r in mine
+                                               if r["verified"]]),
+            "median_all": _never(nearest_rank(every, 0.5)),
+            "p90_all": _never(nearest_rank(every, 0.9)),
+            "max_all": _never(max(every, default=math.nan)),
+            "median_plan": _never(nearest_rank(plans, 0.5)),
+            "median_iterations": harness.median([r["iterations"] for r in mine]),
+            "median_restoration": harness.median([r["restoration"] for r in mine]),
+            "median_factorizations": harness.median([r["factorizations"] for r in mine]),
+            "median_cpu": harness.median([r["cpu"] for r in mine])}
+
+
+_SUMMARY_COLUMNS = [("tasks", "tasks"), ("verified", "verified"), ("share", "share"),
+                    ("median_all", "median time to a verified plan [s]"),
+                    ("p90_all", "90th percentile [s]"), ("max_all", "max [s]"),
+                    ("median_verified", "median of the verified [s]"),
+                    ("median_plan", "median time to a plan the solver accepted [s]"),
+                    ("median_iterations", "median iterations"),
+                    ("median_restoration", "median restoration iterations"),
+                    ("median_factorizations", "median KKT factorizations"),
+                    ("median_cpu", "median CPU [s]")]
+
+
+def hard_task_table(rows: list[dict], configs: list[str]) -> str:
+    """Per task and configuration: verdict, status and what the plan cost."""
+    lines = [{**r, "ok": "yes" if r["verified"] else "no"}
+             for config in configs for r in rows if r["config"] == config]
+    return harness.table(lines, [
+        ("task", "task"), ("config", "configuration"), ("ok", "verified"), ("status", "status"),
+        ("iterations", "iterations"), ("restoration", "restoration iterations"),
+        ("factorizations", "KKT factorizations"), ("solves", "solves"),
+        ("cpu", "CPU [s]"), ("time", "wall [s]"), ("time_to_verified", "time to verified [s]"),
+        ("local_error", "interval error [rad]"), ("strategy", "strategy")])
+
+
+def report_hard(args, argv: list[str], configs: list[str], rows: list[dict],
+                skipped: dict[str, str], started: float, note: str) -> int:
+    """The hard suite's CSV and section of docs/benchmarks.md."""
+    own = args.seed == hard_suite.SEED
+    csv = "hard-suite.csv" if own else f"hard-suite-seed-{args.seed}.csv"
+    kept: list[dict] = []
+    if args.merge and (harness.RESULTS / csv).exists():
+        kept = [r for r in harness.read_csv(harness.RESULTS / csv) if r["config"] not in configs]
+        rows = [r for r in kept if r["config"] in CONFIGS] + rows
+        configs = [c for c in CONFIGS if c in {r["config"] for r in rows}]
+    if not rows:
+        print("no rows", flush=True)
+        return 1
+    harness.write_csv(harness.RESULTS / csv, rows)
+    summary = [{**hard_summary(rows, c), "what": CONFIGS[c]} for c in configs]
+    ours = [r for r in rows if r["config"] == "undertow"]
+    kinds = list(dict.fromkeys(r["category"] for r in ours))
+    by_kind = [hard_summary(ours, k, "category") for k in kinds]
+    cap = f"{WALL_TIME:g} s" + (" (lowered by --cap)" if args.cap is not None else "")
+    text = "\n\n".join(part for part in [
+        f"{len({r['task'] for r in rows})} tasks of `planner.hard_suite` (seed {args.seed}"
+        + (f", categories {args.categories}" if args.categories else "") + "), every "
+        f"configuration capped at {cap} a task. Time to a verified plan is the wall time of "
+        "the whole plan, unverified tasks counted as never in the median, 90th percentile "
+        "(nearest rank) and maximum. Iterations are Ipopt's over every solve of a plan; "
+        "restoration iterations and KKT factorizations (the trial factorizations of every "
+        "search direction and the least-squares multiplier estimates) are counted in Ipopt's "
+        f"log at print level {LOG_LEVEL}; CPU is this process's and its children's. Peers "
+        "run only the tasks they can state (fixed duration, state to state, effort), a "
+        "planner configuration the tasks its settings can state (fatrop: no free time or "
+        "co-design); fatrop writes no log to count in.",
+        "".join(f"Not run here: {c}, {why}. " for c, why in skipped.items()).strip(),
+        ("Rows of " + ", ".join(sorted({r["config"] for r in kept})) + " come from an earlier "
+         "invocation on the same tasks, kept by `--merge`." if kept else ""),
+        harness.table(summary, [("config", "configuration"), ("what", "settings"),
+                                *_SUMMARY_COLUMNS]),
+        "The default planner by category:" if by_kind else "",
+        harness.table(by_kind, [("category", "category"), *_SUMMARY_COLUMNS]) if by_kind else "",
+        hard_task_table(rows, configs),
+        args.note,
+        f"Rows: `bench/results/{csv}`. {harness.manifest('suite', argv, started, note)}"]
+        if part)
+    heading = HARD_SECTION if own else f"{HARD_SECTION}, seed {args.seed}"
+    harness.write_section(DOC, heading, text)
+    for row in summary:
+        print(row, flush=True)
+    for row in by_kind:
+        print(row, flush=True)
     return 0

@@ -106,9 +106,15 @@ class Task(BaseModel):
     tracking: Tracking | None = None
     tip_target: TipTarget | None = None
     torque_limit: list[float] | float | None = Field(
-        default=None, description="|tau| bound [N m], per active joint or one for all")
-    position_bounds: Bounds | None = None
-    velocity_bounds: Bounds | None = None
+        default=None, description="|tau| bound [N m], per active joint or one for all; held "
+                                  "by the delivered torque polynomial on the whole of every "
+                                  "interval, not only at its nodes")
+    position_bounds: Bounds | None = Field(
+        default=None, description="[rad] bounds on the planned angles, held on the whole of "
+                                  "every interval")
+    velocity_bounds: Bounds | None = Field(
+        default=None, description="[rad/s] bounds on the planned rates, held on the whole of "
+                                  "every interval")
     objective: Objective = Objective()
     coupling_margin: float | None = Field(
         default=None, gt=0.0, description="sigma_min(M_pa) >= margin along the path")

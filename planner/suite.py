@@ -37,7 +37,9 @@ def splits(n: int) -> list[str]:
             if 1 <= kinds.count("P") <= kinds.count("A")]
 
 
-def _robot(rng: np.random.Generator, kinds: str, gravity: float) -> Robot:
+def random_robot(rng: np.random.Generator, kinds: str, gravity: float) -> Robot:
+    """Links of the given joint kinds (P passive, A active) with random lengths, masses and
+    inertias, a wave on about half of the active joints."""
     links = []
     for kind in kinds:
         length, mass = rng.uniform(0.3, 0.6), rng.uniform(0.4, 1.2)
@@ -90,7 +92,7 @@ def tasks(count: int = COUNT, seed: int = SEED) -> list[tuple[str, Scene]]:
     for index in range(count):
         n, split = kinds[index % len(kinds)]
         gravity = 0.0 if index % 2 == 0 else 9.81
-        robot = _robot(rng, split, gravity)
+        robot = random_robot(rng, split, gravity)
         start, goal, crossing = _task(rng, robot)
         rest = [0.0] * n
         scene = Scene.model_validate({

@@ -10,6 +10,7 @@ from the test's node id, so a failure reproduces whatever the test order or work
 from __future__ import annotations
 
 import importlib.util
+import os
 import zlib
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -22,6 +23,10 @@ from planner.examples import VERTICAL_SEED_ARM
 from planner.model import Robot
 from testbed import postgres as pg
 from testbed.robots import random_robot
+
+# One solver process per plan: the tests run two at a time already (pytest -n 2), and which
+# process of a portfolio wins depends on timing; tests/test_portfolio.py sets its own.
+os.environ.setdefault("UNDERTOW_SOLVER_PROCESSES", "1")
 
 
 def seed_arm(gravity: float = 9.81, waves: bool = True,
@@ -131,9 +136,9 @@ def store(request: pytest.FixtureRequest, tmp_path) -> Iterator[JobStore]:
 SERVICE = frozenset({
     "test_api_budget.py", "test_api_compute.py", "test_api_plans.py", "test_api_service.py",
     "test_api_warm_start.py", "test_bad_input.py", "test_batches.py", "test_capacity.py",
-    "test_cli.py", "test_delivered_torque.py", "test_distributed.py", "test_dockerfile.py",
-    "test_e2e_server.py", "test_errors.py", "test_job_faults.py", "test_jobs.py",
-    "test_limits.py", "test_openapi.py", "test_openapi_client.py", "test_plots.py",
+    "test_cli.py", "test_continuation.py", "test_delivered_torque.py", "test_distributed.py",
+    "test_dockerfile.py", "test_e2e_server.py", "test_errors.py", "test_job_faults.py",
+    "test_jobs.py", "test_limits.py", "test_openapi.py", "test_openapi_client.py", "test_plots.py",
     "test_readme.py", "test_sampling.py", "test_scene_validation.py", "test_schemathesis.py",
     "test_server.py", "test_service_interface.py", "test_store.py", "test_stress.py",
     "test_viewer.py"})

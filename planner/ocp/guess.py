@@ -18,11 +18,12 @@ from planner.schema import JointState
 Guess = Callable[[np.ndarray], dict[str, np.ndarray]]
 
 
-def _torques(robot: Robot, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
-    """Active rows of M ddq + h [N m] along a motion (K, n) -> (K, n_active)."""
+def inverse_torques(robot: Robot, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray,
+                    rows: list[int]) -> np.ndarray:
+    """Rows `rows` of M ddq + h [N m] along a motion (K, n) -> (K, len(rows))."""
     s = Structure.of(robot)
     Q = functions(s)["id"].map(len(q))(q.T, dq.T, ddq.T, parameters(robot, s))
-    return np.array(Q)[s.active_idx, :].T
+    return np.array(Q)[rows, :].T
 
 
 def hermite_guess(scene: Scene, robot: Robot, T: float) -> Guess:
@@ -31,7 +32,8 @@ def hermite_guess(scene: Scene, robot: Robot, T: float) -> Guess:
 
     def guess(x: np.ndarray) -> dict[str, np.ndarray]:
         out = motion(x)
-        return {**out, "tau": _torques(robot, out["q"], out["dq"], out["ddq"])}
+        return {**out, "tau": inverse_torques(robot, out["q"], out["dq"], out["ddq"],
+                                              robot.active)}
 
     return guess
 

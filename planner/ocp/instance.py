@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -26,18 +26,23 @@ class Instance:
     cache_hit: bool
 
 
-def instance(scene: Scene, robot: Robot, mesh: Mesh, T: float) -> Instance:
+def instance(scene: Scene, robot: Robot, mesh: Mesh, T: float,
+             virtual_weight: float | None = None) -> Instance:
     """The NLP of a scene on a mesh (built or taken from the cache) and its numbers.
 
     robot: the robot whose numbers the NLP starts from (co-designed waves: their start);
-    T: the duration [s] (a free duration's starting value).
+    T: the duration [s] (a free duration's starting value); virtual_weight: the relaxed NLP,
+    whose passive joints have virtual torques of this effort weight (None: the scene's own).
     """
     key = ProblemKey.of(scene, mesh.intervals)
+    if virtual_weight is not None:
+        key = replace(key, relaxed=True)
     hits = cached_problem.cache_info().hits
     prob = problem(key)
     hit = cached_problem.cache_info().hits > hits
     lbx, ubx = _bounds(scene, prob, robot, mesh)
-    return Instance(prob, mesh, parameters_of(scene, prob, robot, mesh, T), lbx, ubx, hit)
+    return Instance(prob, mesh, parameters_of(scene, prob, robot, mesh, T, virtual_weight),
+                    lbx, ubx, hit)
 
 
 def _boundary_durations(prob: Problem, mesh: Mesh) -> np.ndarray:
@@ -54,9 +59,11 @@ def _boundary_durations(prob: Problem, mesh: Mesh) -> np.ndarray:
     return np.nan_to_num(out)
 
 
-def parameters_of(scene: Scene, prob: Problem, robot: Robot, mesh: Mesh, T: float) -> np.ndarray:
+def parameters_of(scene: Scene, prob: Problem, robot: Robot, mesh: Mesh, T: float,
+                  virtual_weight: float | None = None) -> np.ndarray:
     """The NLP's parameter vector: the common numbers (robot, T, every term's), then per
-    stage the mesh width, the quadrature weights, the boundary duration and every term's."""
+    stage the mesh width, the quadrature weights, the boundary duration and every term's
+    (virtual_weight: a relaxed NLP's, see `instance`)."""
     common, local = prob.params.common, prob.params.local
     N = mesh.intervals
     head = np.zeros(prob.params.n_common)
@@ -69,7 +76,7 @@ def parameters_of(scene: Scene, prob: Problem, robot: Robot, mesh: Mesh, T: floa
     table[:N, local["weights"]] = stage_w
     table[N, local["weights"].start:local["weights"].start + terminal_w.size] = terminal_w
     table[:, local["boundary"]] = _boundary_durations(prob, mesh)[:, None]
-    num = Numeric(scene, robot, T, mesh, prob.transcription)
+    num = Numeric(scene, robot, T, mesh, prob.transcription, prob.key, virtual_weight)
     for term in prob.key.terms():
         head[common[term.name]] = term.common_values(num)
         if term.name in local:
@@ -97,8 +104,9 @@ def _bounds(scene: Scene, prob: Problem, robot: Robot, mesh: Mesh) -> tuple[np.n
     if task.torque_limit is not None:
         limit = np.broadcast_to(np.asarray(task.torque_limit, float), (len(robot.active),))
         for k, idx in kinds.values():
-            if k == "tau":
-                lbx[idx], ubx[idx] = -limit[:, None], limit[:, None]
+            if k == "tau":  # the active joints' rows (a relaxed NLP's virtual ones are free)
+                active = idx[:len(limit)]
+                lbx[active], ubx[active] = -limit[:, None], limit[:, None]
     if task.tracking is not None and task.tracking.mode == "exact":
         T = task.duration
         assert not isinstance(T, DurationRange)  # the scene refuses tracking a free T

@@ -15,13 +15,14 @@ import itertools
 import math
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from planner.dynamics import Dynamics
 from planner.errors import InputError
 from planner.model import Robot, Wave
+from planner.ocp import continuation, portfolio
 from planner.ocp.accuracy import interval_errors
 from planner.ocp.feedback import REPLAY_SAMPLES
 from planner.ocp.guess import (
@@ -41,6 +42,7 @@ from planner.ocp.result import (
     MeshPass,
     NlpSolution,
     Plan,
+    Progress,
     SolverReport,
     StatePolynomials,
     Verification,
@@ -94,19 +96,33 @@ class Start:
     """An earlier solution of the same problem on the same mesh: the start, primal and dual."""
     coarse: Mesh | None = None
     """A coarser mesh solved first, whose plan (if it converged) starts the solve on `mesh`."""
+    relaxed: bool = False
+    """Start from the continuation of relaxed NLPs (`planner.ocp.continuation`) on `mesh`."""
+    may_stall: bool = False
+    """Stop its first solves when they stall (`planner.ocp.monitor`): the scene's own start,
+    which the other starts are there to rescue."""
 
 
 @dataclass
 class Attempt:
-    """The solves of one start: on its coarse mesh if it has one (`coarse`), then on its
-    mesh and the refinements of that (`outcomes`)."""
+    """The solves of one start, in order (`passes`): those that prepare a guess (on a
+    coarse mesh, or of the relaxed NLPs) and those on its mesh and the refinements of that
+    (`outcomes`, the plans it offers); `artefact`: the refinement left an optimum that the
+    mesh made up."""
 
     start: Start
-    coarse: list[Outcome]
+    passes: list[Outcome]
     outcomes: list[Outcome]
+    artefact: bool = False
 
     def solves(self) -> list[Outcome]:
-        return [*self.coarse, *self.outcomes]
+        return self.passes
+
+    def add(self, outcome: Outcome, offered: bool = True) -> None:
+        """Record a solve (offered: its plan is one the attempt may return)."""
+        self.passes.append(outcome)
+        if offered:
+            self.outcomes.append(outcome)
 
 
 def plan(scene: Scene, progress: Handler | None = None, warm_start: Plan | None = None) -> Plan:
@@ -115,24 +131,102 @@ def plan(scene: Scene, progress: Handler | None = None, warm_start: Plan | None 
     progress is called once per Ipopt iteration; returning False stops the plan.
     warm_start: an earlier plan whose trajectory seeds the initial guess.
     A failed solve is returned (success False, Ipopt's last iterate), never raised.
+    With two solver processes (`planner.ocp.portfolio`), the continuation start runs in a
+    forked companion beside the other starts, and the first verified plan wins.
     """
     budget = Budget.of(scene.solver.max_iter, scene.solver.max_wall_time)
     robot, T = _design_robot(scene), _duration_guess(scene)
-    tolerance = scene.solver.resimulation_tolerance
     attempts: list[Attempt] = []
     starts = itertools.islice(_starts(scene, robot, T, warm_start, attempts),
                               1 + scene.solver.retries)
+    if warm_start is not None or not continuation.applies(scene) \
+            or scene.solver.retries == 0 or portfolio.solver_processes() < 2:
+        _attempt(scene, starts, attempts, budget, progress)
+        return _result(scene, attempts, budget)
+    relaxed = _continuation_start(scene, robot, T)
+    companion = portfolio.Companion(
+        lambda guard: _planned(scene, relaxed, replace(budget), guard))
+    try:
+        handler = _Watch(companion, progress)
+        _attempt(scene, (s for s in starts if not s.relaxed), attempts, budget, handler)
+        if not handler.cancelled and companion.verified() and companion.plan is not None:
+            return _joined(companion.plan, _passes_of(attempts), budget)
+        own = _result(scene, attempts, budget)
+        if handler.cancelled or own.solver.success and own.verification.verified:
+            return _joined(own, [], budget)
+        other = companion.wait(budget.deadline + COMPANION_GRACE)
+        return _joined(own if other is None or _better(own, other) else other,
+                       [], budget)
+    finally:
+        companion.stop()
+
+
+COMPANION_GRACE = 5.0
+"""[s] past the budget the plan waits for its companion's plan (its checks)."""
+
+
+def _attempt(scene: Scene, starts: Iterator[Start], attempts: list[Attempt], budget: Budget,
+             progress: Handler | None) -> None:
+    """Solve and refine from each start in turn until one gives a settled converged plan
+    (accurate, or refinement off), the budget is spent or the plan is stopped."""
+    tolerance = scene.solver.resimulation_tolerance
     for start in starts:
-        coarse, first = _first_solves(scene, start, budget, progress, _passes(attempts))
-        outcomes = [first]
-        attempts.append(Attempt(start, coarse, outcomes))
-        _refine(scene, outcomes, budget, progress, _passes(attempts))
-        last = outcomes[-1]
+        preliminary, first = _first_solves(scene, start, budget, progress, _passes(attempts))
+        attempt = Attempt(start, [*preliminary, first], [first])
+        attempts.append(attempt)
+        attempt.artefact = _refine(scene, attempt, budget, progress, _passes(attempts))
+        last = attempt.outcomes[-1]
         settled = last.accurate(tolerance) or not scene.transcription.refinement.enabled
         if last.solution.success and settled or budget.spent \
                 or last.solution.status == "User_Requested_Stop":
             break
+
+
+def _planned(scene: Scene, start: Start, budget: Budget, progress: Handler) -> Plan:
+    """The plan of one start alone (what a companion process runs)."""
+    attempts: list[Attempt] = []
+    _attempt(scene, iter([start]), attempts, budget, progress)
     return _result(scene, attempts, budget)
+
+
+class _Watch:
+    """The plan's own progress handler beside a companion: it passes reports on, and also
+    stops the solve once the companion has a verified plan; `cancelled`: the caller's
+    handler stopped it."""
+
+    def __init__(self, companion: portfolio.Companion, progress: Handler | None):
+        self.companion, self.progress, self.cancelled = companion, progress, False
+
+    def __call__(self, report: Progress) -> bool:
+        if self.progress is not None and self.progress(report) is False:
+            self.cancelled = True
+            return False
+        return not self.companion.verified()
+
+
+def _better(own: Plan, other: Plan) -> bool:
+    """Whether `own` is at least as good as `other`: verified, then converged, then the
+    smaller largest interval error."""
+    def rank(p: Plan) -> tuple[bool, bool, float]:
+        error = p.verification.local_error
+        return (not p.verification.verified, not p.solver.success,
+                math.inf if error is None else error)
+
+    return rank(own) <= rank(other)
+
+
+def _passes_of(attempts: list[Attempt]) -> list[MeshPass]:
+    return [o.record for a in attempts for o in a.solves()]
+
+
+def _joined(chosen: Plan, also: list[MeshPass], budget: Budget) -> Plan:
+    """The chosen plan, with the solves of the process that lost listed too, and the
+    plan's whole wall time."""
+    report = chosen.solver.model_copy(update={
+        "iterations": chosen.solver.iterations + sum(p.iterations for p in also),
+        "total_time": time.perf_counter() - budget.started})
+    return chosen.model_copy(update={"solver": report,
+                                     "mesh_passes": [*also, *chosen.mesh_passes]})
 
 
 def _passes(attempts: list[Attempt]) -> int:
@@ -141,18 +235,47 @@ def _passes(attempts: list[Attempt]) -> int:
 
 def _first_solves(scene: Scene, start: Start, budget: Budget, progress: Handler | None,
                   first_pass: int) -> tuple[list[Outcome], Outcome]:
-    """An attempt's solve on its coarse mesh (if any), and its first solve on its own
-    mesh: from the coarse plan where that converged, else from the start's guess."""
-    guess, robot, T, coarse = start.guess, start.robot, start.T, []
+    """An attempt's preliminary solves (on its coarse mesh, or of the relaxed NLPs), and
+    its first solve on its own mesh: from the preliminary plan where that converged, else
+    from the start's guess."""
+    guess, robot, T, preliminary = start.guess, start.robot, start.T, []
     if start.coarse is not None:
-        coarse = [_solve_on(scene, instance(scene, robot, start.coarse, T), robot, T, guess,
-                            budget, progress, first_pass, start.name)]
-        if coarse[0].solution.success:
-            guess, robot, T = (interpolant_guess(coarse[0].interp, coarse[0].T),
-                               coarse[0].robot, coarse[0].T)
+        preliminary = [_solve_on(scene, instance(scene, robot, start.coarse, T), robot, T,
+                                 guess, budget, progress, first_pass, start.name,
+                                 stall=start.may_stall)]
+        if preliminary[0].solution.success:
+            guess, robot, T = (interpolant_guess(preliminary[0].interp, preliminary[0].T),
+                               preliminary[0].robot, preliminary[0].T)
+    if start.relaxed:
+        preliminary = _continuation(scene, start, budget, progress, first_pass)
+        last = preliminary[-1]
+        if last.finite:
+            guess = continuation.active_guess(last.interp, last.T, len(robot.active))
+            robot, T = last.robot, last.T
     first = _solve_on(scene, instance(scene, robot, start.mesh, T), robot, T, guess, budget,
-                      progress, first_pass + len(coarse), start.name, start.point)
-    return coarse, first
+                      progress, first_pass + len(preliminary), start.name, start.point,
+                      start.may_stall)
+    return preliminary, first
+
+
+def _continuation(scene: Scene, start: Start, budget: Budget, progress: Handler | None,
+                  first_pass: int) -> list[Outcome]:
+    """The relaxed NLPs' solves, each weight of `continuation.VIRTUAL_WEIGHTS` in turn from
+    the solution before, until the virtual torques are negligible, a solve fails or the
+    budget is spent (at least one solve)."""
+    na = len(start.robot.active)
+    outcomes: list[Outcome] = []
+    for weight in continuation.VIRTUAL_WEIGHTS:
+        before = outcomes[-1].solution if outcomes else None
+        point = None if before is None else (before.x, before.lam_x, before.lam_g)
+        inst = instance(scene, start.robot, start.mesh, start.T, weight)
+        outcome = _relaxed_solve(scene, inst, start.robot, start.T, start.name, start.guess,
+                                 point, budget, progress, first_pass + len(outcomes), weight)
+        outcomes.append(outcome)
+        if not (outcome.finite and outcome.solution.success) or budget.spent \
+                or continuation.virtual_peak(outcome.interp, na) < continuation.NEGLIGIBLE:
+            break
+    return outcomes
 
 
 def _starts(scene: Scene, robot: Robot, T: float, warm_start: Plan | None,
@@ -162,8 +285,9 @@ def _starts(scene: Scene, robot: Robot, T: float, warm_start: Plan | None,
     "Retries"): an earlier plan's own NLP solution where it solved the same problem on a
     mesh at least as fine as the scene's (its refined mesh is kept); the scene's own start
     (with refinement on, a uniform mesh of over COARSE_INTERVALS intervals solved on that
-    many first, unless an earlier plan is the guess); a restart from the last iterate of
-    a solve that did not converge;
+    many first, unless an earlier plan is the guess); the continuation from relaxed
+    dynamics (`planner.ocp.continuation`), where it applies; a restart from the last
+    iterate of the scene's start where that neither converged nor stalled;
     the classical inverse dynamics as the initial guess; a first mesh of twice, then of
     half the intervals."""
     tr = scene.transcription
@@ -178,11 +302,13 @@ def _starts(scene: Scene, robot: Robot, T: float, warm_start: Plan | None,
     if tr.refinement.enabled and warm_start is None and tr.breaks is None \
             and tr.intervals > COARSE_INTERVALS:
         yield Start("coarse to fine", mesh, guess, used, T, robot,
-                    coarse=Mesh.uniform(COARSE_INTERVALS))
+                    coarse=Mesh.uniform(COARSE_INTERVALS), may_stall=True)
     else:
-        yield Start("direct", mesh, guess, used, T, robot)
-    last = attempts[-1].outcomes[-1]
-    if last.finite and not last.solution.success:
+        yield Start("direct", mesh, guess, used, T, robot, may_stall=True)
+    if continuation.applies(scene):
+        yield _continuation_start(scene, robot, T)
+    last = [a for a in attempts if not a.start.relaxed][-1].outcomes[-1]
+    if last.finite and not last.solution.success and last.solution.status != "Stalled":
         yield Start("restart from the last iterate", last.inst.mesh,
                     interpolant_guess(last.interp, last.T), "the last iterate", last.T,
                     last.robot)
@@ -196,27 +322,56 @@ def _starts(scene: Scene, robot: Robot, T: float, warm_start: Plan | None,
                     "interpolation", T, robot)
 
 
+def _continuation_start(scene: Scene, robot: Robot, T: float) -> Start:
+    """The continuation start (`planner.ocp.continuation`) on the scene's first mesh."""
+    tr = scene.transcription
+    mesh = Mesh(np.asarray(tr.breaks)) if tr.breaks else Mesh.uniform(tr.intervals)
+    return Start("continuation", mesh, continuation.relaxed_guess(scene, robot, T),
+                 "relaxed dynamics", T, robot, relaxed=True)
+
+
 def _inverse_dynamics_applies(robot: Robot) -> bool:
     """The classical inverse dynamics needs passive joints and as many active ones."""
     return 0 < len(robot.passive) <= len(robot.active)
 
 
-def _refine(scene: Scene, outcomes: list[Outcome], budget: Budget,
-            progress: Handler | None, first_pass: int) -> None:
-    """Refine the mesh of the last outcome while it converged but is not accurate."""
+def _refine(scene: Scene, attempt: Attempt, budget: Budget,
+            progress: Handler | None, first_pass: int) -> bool:
+    """Refine the mesh of the attempt's last outcome while it converged but is not
+    accurate; True when it stopped at an artefact of the mesh (`_artefact`)."""
     refinement, tolerance = scene.transcription.refinement, scene.solver.resimulation_tolerance
+    outcomes = attempt.outcomes
     while refinement.enabled and len(outcomes) <= refinement.max_passes and not budget.spent:
         last = outcomes[-1]
+        if len(outcomes) > 1 and _artefact(outcomes[-2], last):
+            return True
         if not last.solution.success or last.accurate(tolerance):
-            return
+            return False
         mesh = refined(last.inst.mesh, last.errors, last.inst.problem.transcription.order,
                        tolerance, refinement.max_intervals)
         if mesh is None:
-            return
+            return False
         inst = instance(scene, last.robot, mesh, last.T)
-        outcomes.append(_solve_on(scene, inst, last.robot, last.T,
-                                  interpolant_guess(last.interp, last.T), budget, progress,
-                                  first_pass + len(outcomes) - 1, last.record.strategy))
+        attempt.add(_solve_on(scene, inst, last.robot, last.T,
+                              interpolant_guess(last.interp, last.T), budget, progress,
+                              first_pass + len(attempt.passes) - 1, last.record.strategy))
+    return False
+
+
+ARTEFACT_GROWTH = 2.0
+"""A refined plan whose objective exceeds its predecessor's by this factor, no more
+accurate than half its error, left an optimum that the coarser mesh made up."""
+
+
+def _artefact(before: Outcome, after: Outcome) -> bool:
+    """Whether refining `before` into `after` moved away from a mesh artefact: a refined
+    solve stays at a true optimum (a pass after the first changes the objective by the
+    discretisation error), while at an artefact the objective grows pass after pass."""
+    f0, f1 = before.solution.objective, after.solution.objective
+    if not (before.solution.success and math.isfinite(f0) and math.isfinite(f1)) or f0 <= 0:
+        return False
+    error0, error1 = float(before.errors.max()), float(after.errors.max())
+    return f1 > ARTEFACT_GROWTH * f0 and not error1 < error0 / 2
 
 
 def _rank(outcome: Outcome) -> tuple[bool, float]:
@@ -227,31 +382,65 @@ def _rank(outcome: Outcome) -> tuple[bool, float]:
 
 def _solve_on(scene: Scene, inst: Instance, robot: Robot, T: float, guess: Guess,
               budget: Budget, progress: Handler | None, mesh_pass: int,
-              strategy: str, point: NlpSolution | None = None) -> Outcome:
+              strategy: str, point: NlpSolution | None = None,
+              stall: bool = False) -> Outcome:
     """Solve on the instance's mesh from a guess (or from an earlier solution, primal and
-    dual), and estimate the plan's interval errors."""
+    dual; stall: a cold solve is stopped when it stalls), and estimate the plan's interval
+    errors."""
     started = time.perf_counter()
     if point is None:
-        solution = solve(inst, initial_point(inst, guess, T, robot), budget, progress, mesh_pass)
+        solution = solve(inst, initial_point(inst, guess, T, robot), budget, progress,
+                         mesh_pass, stall=stall)
     else:
         solution = solve(inst, np.asarray(point.x), budget, progress, mesh_pass,
                          (np.asarray(point.lam_x), np.asarray(point.lam_g)))
+    outcome = _outcome(scene, inst, robot, T, solution, strategy, started)
+    if not outcome.finite:
+        return outcome
+    errors, status = interval_errors(outcome.robot, outcome.interp, scene.solver.jit)
+    replayed = open_loop(outcome.robot, outcome.interp, scene.solver.jit)
+    record = outcome.record.model_copy(update={
+        "max_local_error": _finite_or_none(float(errors.max())),
+        "resimulation_error": replayed[0], "time": time.perf_counter() - started})
+    return replace(outcome, errors=errors, errors_status=status, replayed=replayed,
+                   record=record)
+
+
+def _relaxed_solve(scene: Scene, inst: Instance, robot: Robot, T: float, name: str,
+                   guess: Guess,
+                   point: tuple[np.ndarray, np.ndarray | None, np.ndarray | None] | None,
+                   budget: Budget, progress: Handler | None, mesh_pass: int,
+                   weight: float) -> Outcome:
+    """One solve of the relaxed NLP: from the guess, or from the previous relaxed solve's
+    solution (primal and, where it has them, dual). Its plan needs virtual torques, so it
+    is no motion of the robot: its interval errors are not computed (inf)."""
+    started = time.perf_counter()
+    x, lam_x, lam_g = point if point is not None else (None, None, None)
+    if x is None:
+        x = initial_point(inst, guess, T, robot)
+    multipliers = (lam_x, lam_g) if lam_x is not None and lam_g is not None else None
+    solution = solve(inst, x, budget, progress, mesh_pass, multipliers)
+    return _outcome(scene, inst, robot, T, solution,
+                    f"{name}: relaxed, virtual weight {weight:g}", started)
+
+
+def _outcome(scene: Scene, inst: Instance, robot: Robot, T: float, solution: Solution,
+             strategy: str, started: float) -> Outcome:
+    """What a solve gives (solved robot, duration, interpolant), its errors not yet
+    estimated (inf)."""
     finite = bool(np.all(np.isfinite(solution.x)))
     solved = _solved_robot(inst, robot, solution.x) if finite else robot
     duration = _duration(scene, inst, solution.x) if finite else T
     interp = _interpolant(inst, solved, duration, solution.x)
-    errors, status = np.full(inst.mesh.intervals, np.inf), NOT_FINITE
-    replayed: tuple[float | None, str] = (None, NOT_FINITE)
-    if finite:
-        errors, status = interval_errors(solved, interp, scene.solver.jit)
-        replayed = open_loop(solved, interp, scene.solver.jit)
+    errors = np.full(inst.mesh.intervals, np.inf)
+    status = NOT_FINITE if not finite else "not estimated: a preliminary solve"
     record = MeshPass(strategy=strategy, intervals=inst.mesh.intervals,
                       iterations=solution.iterations,
                       status=solution.status, objective=_finite_or_none(solution.objective),
-                      max_local_error=_finite_or_none(float(errors.max())),
-                      resimulation_error=replayed[0], time=time.perf_counter() - started)
-    return Outcome(inst, solution, solved, duration, interp, finite, errors, status, replayed,
-                   record)
+                      max_local_error=None, resimulation_error=None,
+                      time=time.perf_counter() - started)
+    return Outcome(inst, solution, solved, duration, interp, finite, errors, status,
+                   (None, status), record)
 
 
 def _guess(scene: Scene, robot: Robot, T: float, warm_start: Plan | None) -> tuple[Guess, str]:
@@ -342,7 +531,8 @@ def _result(scene: Scene, attempts: list[Attempt], budget: Budget) -> Plan:
                               for a, b in itertools.pairwise(breaks)] + [breaks[-1:]])
     verification, feedback = (verify(robot, interp, t_dense, best.errors, best.errors_status,
                                      best.replayed, tolerance, scene.task.torque_limit,
-                                     scene.solver.jit)
+                                     scene.solver.jit, scene.task.position_bounds,
+                                     scene.task.velocity_bounds)
                               if best.finite else (_unverified(tolerance), None))
     built = [o.inst for o in outcomes if not o.inst.cache_hit]
     refined_by = " + mesh refinement" if best is not attempt.outcomes[0] else ""

@@ -11,6 +11,7 @@ and every mesh with its number of intervals. The NLP is written stage by stage
 from __future__ import annotations
 
 import hashlib
+import math
 import time
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
@@ -28,14 +29,19 @@ from planner.ocp.assembly import Derivatives, Kernels, assemble, derivatives
 from planner.ocp.layout import Layout, Part, split
 from planner.ocp.monitor import IterationMonitor
 from planner.ocp.terms import TERMS, Boundaries, Stage, Term
-from planner.ocp.transcription import AnyTranscription, Model, Transcription
-from planner.scene import DurationRange, Scene
+from planner.ocp.transcription import AnyTranscription, Model, StagePiece, Transcription
+from planner.scene import Bounds, DurationRange, Scene
 from planner.symbolic import Sym
 
 
 @dataclass(frozen=True)
 class ProblemKey:
-    """Everything that decides the NLP's symbolic form; numbers are not part of it."""
+    """Everything that decides the NLP's symbolic form; numbers are not part of it.
+
+    torque_limit, position_bounds, velocity_bounds (the joints bounded below and above): the
+    bounds that need rows beyond their variables' bounds to hold on whole intervals
+    (`Transcription.hulls`); a bound whose polynomials the variables bound alone is not
+    part of the key."""
 
     structure: Structure
     method: str
@@ -52,10 +58,17 @@ class ProblemKey:
     effort: bool
     time: bool
     smoothness: bool
+    torque_limit: bool
+    position_bounds: tuple[tuple[int, ...], tuple[int, ...]]
+    velocity_bounds: tuple[tuple[int, ...], tuple[int, ...]]
     tol: float
     jit: bool
     solver: str = "ipopt"
     max_iter: int = 0  # fatrop's, fixed when its solver is built (0 for Ipopt)
+    relaxed: bool = False
+    """Virtual torques on the passive joints too (the relaxed dynamics of a continuation,
+    `planner.ocp.continuation`): the torque vector holds the active joints' torques, then
+    the passive joints' virtual ones; implicit form only."""
 
     @classmethod
     def of(cls, scene: Scene, intervals: int | None = None) -> ProblemKey:
@@ -66,7 +79,7 @@ class ProblemKey:
         if task.co_design is not None:
             wavy = tuple(link.wavy or link.joint == "active" for link in robot.links)
         shooting = tr.method == "multiple-shooting"
-        return cls(
+        key = cls(
             structure=Structure.of(robot, wavy),
             method=tr.method,
             intervals=tr.intervals if intervals is None else intervals,
@@ -82,11 +95,18 @@ class ProblemKey:
             effort=task.objective.effort > 0,
             time=task.objective.time > 0,
             smoothness=task.objective.smoothness > 0,
+            torque_limit=task.torque_limit is not None,
+            position_bounds=_bounded(task.position_bounds),
+            velocity_bounds=_bounded(task.velocity_bounds),
             tol=scene.solver.tol,
             jit=scene.solver.jit,
             solver=scene.solver.name,
             max_iter=scene.solver.max_iter if scene.solver.name == "fatrop" else 0,
         )
+        hulls = _hulls(key.method, key.degree, key.integrator, key.steps, key.form)
+        return replace(key, torque_limit=key.torque_limit and "tau" in hulls,
+                       position_bounds=key.position_bounds if "q" in hulls else ((), ()),
+                       velocity_bounds=key.velocity_bounds if "dq" in hulls else ((), ()))
 
     def transcription(self) -> AnyTranscription:
         """The transcription method of this key."""
@@ -96,6 +116,10 @@ class ProblemKey:
     def terms(self) -> list[Term]:
         """The objective and constraint terms this key asks for."""
         return [term for term in TERMS if term.wanted(self)]
+
+    def torque_count(self) -> int:
+        """Rows of the torque variables: the active joints (and the passive ones, relaxed)."""
+        return self.structure.n if self.relaxed else len(self.structure.active_idx)
 
     def fingerprint(self) -> str:
         """A stable hash of the whole key (its number of intervals too) and of the code that
@@ -111,9 +135,24 @@ class ProblemKey:
         return hashlib.sha256(text.encode()).hexdigest()[:20]
 
 
+def _bounded(bounds: Bounds | None) -> tuple[tuple[int, ...], tuple[int, ...]]:
+    """The joints with a (finite) lower bound and those with an upper bound."""
+    if bounds is None:
+        return (), ()
+    def finite(values: list[float | None]) -> tuple[int, ...]:
+        return tuple(j for j, v in enumerate(values) if v is not None and math.isfinite(v))
+    return finite(bounds.lower), finite(bounds.upper)
+
+
+@lru_cache(maxsize=64)
+def _hulls(method: str, degree: int, integrator: str, steps: int, form: str) -> tuple[str, ...]:
+    """`Transcription.hulls` of a key's method."""
+    return methods.create(method, 1, degree, integrator, steps, form == "implicit").hulls
+
+
 FORMULATION_SOURCES = ("dynamics.py", "model.py", "rk4.py", "ocp/transcription.py",
-                       "ocp/methods", "ocp/terms.py", "ocp/assembly.py", "ocp/layout.py",
-                       "ocp/problem.py")
+                       "ocp/interpolant.py", "ocp/methods", "ocp/terms.py", "ocp/assembly.py",
+                       "ocp/layout.py", "ocp/problem.py")
 """The modules and packages (under planner/) whose code decides an NLP's symbolic form."""
 
 
@@ -288,7 +327,7 @@ def _stage_function(key: ProblemKey, tr: Transcription[Sym], layout: Layout, par
     parts = layout.terminal if terminal else layout.stage
     sym = _Symbols(key, tr, layout, params, sum(p.size for p in parts), terminal)
     f = functions(s)
-    model = Model(s.n, len(s.active_idx), key.form == "implicit", f["fd"], f["ode"], sym.p)
+    model = Model(s.n, key.torque_count(), key.form == "implicit", f["fd"], f["ode"], sym.p)
     w = split(parts, sym.w)
     width = sym.local_of("width")
     h = sym.T * width
@@ -301,10 +340,8 @@ def _stage_function(key: ProblemKey, tr: Transcription[Sym], layout: Layout, par
     weights = sym.T * sym.local_of("weights")[:m].T if m else tr.symbolic(1, 0)
     rows: list[tuple] = [(piece.defects, 0.0, 0.0)] if piece.defects.numel() else []
     if model.implicit and m:
-        residual = f["residual"].map(m)(piece.knot_q, piece.knot_dq, piece.knot_ddq,
-                                        piece.knot_tau, sym.p)
-        rows.append((ca.vec(residual), 0.0, 0.0))
-    context = Stage(s, piece, weights, h, sym.T, sym.p, sym.common_of, sym.local_of, terminal)
+        rows.append((ca.vec(_residual(key, f["residual"].map(m), piece, sym.p)), 0.0, 0.0))
+    context = Stage(key, s, piece, weights, h, sym.T, sym.p, sym.common_of, sym.local_of, terminal)
     cost = tr.symbolic(0)
     for term in terms:
         piece_cost, term_rows = term.cost(context), term.rows(context)
@@ -318,6 +355,20 @@ def _stage_function(key: ProblemKey, tr: Transcription[Sym], layout: Layout, par
     bounds = [(lo, hi, r.numel()) for r, lo, hi in rows]
     name = "terminal" if terminal else "stage"
     return ca.Function(name, sym.inputs(terminal), [g, cost]), bounds
+
+
+def _residual(key: ProblemKey, residual: ca.Function, piece: StagePiece[Sym], p: Sym) -> Sym:
+    """M ddq + h - B tau at a stage's knots (n x m); relaxed, less the passive joints'
+    virtual torques (the rows of the torque vector after the active ones)."""
+    s = key.structure
+    tau = piece.knot_tau
+    if not key.relaxed:
+        return residual(piece.knot_q, piece.knot_dq, piece.knot_ddq, tau, p)
+    na = len(s.active_idx)
+    scatter = np.zeros((s.n, len(s.passive_idx)))
+    scatter[s.passive_idx, range(len(s.passive_idx))] = 1.0
+    return residual(piece.knot_q, piece.knot_dq, piece.knot_ddq, tau[:na, :], p) \
+        - ca.mtimes(ca.DM(scatter), tau[na:, :])
 
 
 def torques(layout: Layout) -> tuple[list[np.ndarray], list[float], list[np.ndarray], list[float]]:
@@ -390,7 +441,7 @@ def stages(key: ProblemKey, compiled: bool = False) -> Stages:
         return plain if loaded is None else replace(plain, derivatives=loaded)
     s = key.structure
     tr, terms = key.transcription(), key.terms()
-    parts = tr.parts(s.n, len(s.active_idx))
+    parts = tr.parts(s.n, key.torque_count())
     layout = Layout(*parts, _globals(key), 1)
     params = _parameters(key, tr, terms)
     stage, stage_bounds = _stage_function(key, tr, layout, params, terms, False)

@@ -132,9 +132,10 @@ class Verification(_Out):
         description='"completed", or on which intervals CVODES failed')
     verified: bool | None = Field(
         default=None,
-        description="local_error is at most `tolerance`: the delivered torque moves the "
-                    "robot along the plan, interval by interval (None in plans stored "
-                    "before the field existed)")
+        description="local_error is at most `tolerance` (the delivered torque moves the "
+                    "robot along the plan, interval by interval) and the plan keeps the "
+                    "task's limits everywhere (`limit_violations` is empty). None in plans "
+                    "stored before the field existed")
     tolerance: float | None = Field(
         default=None, description="[rad] the scene's solver.resimulation_tolerance")
     resimulation_error: float | None = Field(
@@ -164,8 +165,22 @@ class Verification(_Out):
         description="integral of |M ddq + h - B tau| [N m s] along the plan's interpolant")
     torque_excess: float | None = Field(
         default=None,
-        description="[N m] how far the delivered torque exceeds task.torque_limit anywhere "
-                    "(0 within it; None without a limit)")
+        description="[N m] how far the delivered torque exceeds task.torque_limit anywhere: "
+                    "the largest of the dense samples and every interval's exact extrema "
+                    "(0 within it; None without a limit). Beyond 1e-6 of the limit (relative) "
+                    "the plan is not verified")
+    position_excess: float | None = Field(
+        default=None,
+        description="[rad] how far the planned angles go beyond task.position_bounds "
+                    "anywhere, as torque_excess (None without bounds). Beyond 1e-6 x max(1, "
+                    "|bound|) the plan is not verified")
+    velocity_excess: float | None = Field(
+        default=None,
+        description="[rad/s] the same for the planned rates and task.velocity_bounds")
+    limit_violations: list[str] = Field(
+        default_factory=list,
+        description="every limit or bound the plan leaves beyond its tolerance: which joint, "
+                    "how far, and when; empty when it keeps them all")
     min_sigma: float | None = Field(description="min sigma_min(M_pa) along the plan")
     waveless_min_sigma: float | None = Field(
         description="min sigma_min(M_pa) along the plan for the robot without waves")

@@ -9,10 +9,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from planner.ocp.instance import Instance
-from planner.ocp.monitor import Handler
+from planner.ocp.monitor import STALL_WINDOW, Handler
 
 _STOP_STATUS = {"cancelled": "User_Requested_Stop", "max_iter": "Maximum_Iterations_Exceeded",
-                "max_wall_time": "Maximum_WallTime_Exceeded"}
+                "max_wall_time": "Maximum_WallTime_Exceeded", "stalled": "Stalled"}
 _FATROP_STATUS = {"SOLVER_RET_SUCCESS": "Solve_Succeeded",
                   "SOLVER_RET_LIMITED": "Maximum_Iterations_Exceeded",
                   "SOLVER_RET_NAN": "Invalid_Number_Detected",
@@ -28,7 +28,9 @@ def fatrop_status(stats: dict) -> str:
 _MESSAGES = {"User_Requested_Stop": "the solve was cancelled",
              "Maximum_Iterations_Exceeded": "the iteration limit was reached",
              "Maximum_WallTime_Exceeded": "the wall-time limit was reached",
-             "Infeasible_Problem_Detected": "the task is infeasible (constraints cannot all hold)"}
+             "Infeasible_Problem_Detected": "the task is infeasible (constraints cannot all hold)",
+             "Stalled": f"the solve stalled: no progress towards feasibility over "
+                        f"{STALL_WINDOW} iterations"}
 
 
 @dataclass
@@ -75,14 +77,16 @@ def message(status: str, success: bool) -> str:
 
 
 def solve(inst: Instance, x0: np.ndarray, budget: Budget, handler: Handler | None,
-          mesh_pass: int, multipliers: tuple[np.ndarray, np.ndarray] | None = None) -> Solution:
+          mesh_pass: int, multipliers: tuple[np.ndarray, np.ndarray] | None = None,
+          stall: bool = False) -> Solution:
     """Solve from x0 (with multipliers (lam_x, lam_g): the warm-start solver); adds its
-    iterations to `budget.used`. Never raises for a solver failure."""
+    iterations to `budget.used`; stall: stop it (status "Stalled") when it stalls
+    (`planner.ocp.monitor`). Never raises for a solver failure."""
     prob = inst.problem
     solver = prob.solver if multipliers is None else prob.warm_solver()
     monitor = prob.monitor
     monitor.reset(handler, budget.used, budget.max_iter, budget.deadline, prob.lbg, prob.ubg,
-                  solver if handler is not None else None, mesh_pass, budget.started)
+                  solver if handler is not None else None, mesh_pass, budget.started, stall)
     args = {"x0": x0, "lbx": inst.lbx, "ubx": inst.ubx, "lbg": prob.lbg, "ubg": prob.ubg,
             "p": inst.P}
     if multipliers is not None:

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Generic
+from typing import TYPE_CHECKING, Generic
 
 import casadi as ca
 import numpy as np
@@ -24,14 +24,18 @@ from planner.ocp.verify import coupling_along
 from planner.scene import Scene
 from planner.symbolic import Sym
 
+if TYPE_CHECKING:
+    from planner.ocp.problem import ProblemKey
+
 
 @dataclass(frozen=True)
 class Stage(Generic[Sym]):
     """What a term builds on in one stage (or at the final node, `terminal`): the stage's
     symbolic piece, its knots' quadrature weights [s] (1 x m), its width h [s], the
     duration T [s], the robot's parameters p, and the term's common and local parameters;
-    all in the stage's symbolic type Sym."""
+    all in the stage's symbolic type Sym; and the problem key the NLP is built for."""
 
+    key: ProblemKey
     structure: Structure
     piece: StagePiece[Sym]
     weights: Sym
@@ -57,13 +61,17 @@ class Boundaries:
 @dataclass(frozen=True)
 class Numeric:
     """What terms need to set their parameters: the scene, the robot whose numbers the NLP
-    starts from, the duration T [s], the mesh and its transcription."""
+    starts from, the duration T [s], the mesh and its transcription, and the NLP's key."""
 
     scene: Scene
     robot: Robot
     T: float
     mesh: Mesh
     transcription: AnyTranscription
+    key: ProblemKey
+    virtual_weight: float | None = None
+    """The weight of the passive joints' virtual torques in a relaxed NLP's effort (None:
+    the NLP is not relaxed)."""
 
     def knot_times(self) -> np.ndarray:
         """(N + 1, m) time fractions of every stage's knots (the terminal's: 1, padded)."""
@@ -116,18 +124,26 @@ def _integral(stage: Stage[Sym], integrand: Sym) -> Sym:
 
 
 class Effort(Term):
-    """effort * int |tau|^2 dt [N^2 m^2 s]."""
+    """int sum_j w_j tau_j^2 dt [N^2 m^2 s]: w_j = effort on the active joints' torques, and
+    `virtual_weight` on the passive joints' virtual torques of a relaxed NLP."""
 
     name = "effort"
 
     def wanted(self, key) -> bool:
-        return key.effort
+        return key.effort or key.relaxed
+
+    def common_size(self, key) -> int:
+        return key.torque_count()
 
     def cost(self, stage: Stage[Sym]) -> Sym:
-        return stage.common(self.name) * _integral(stage, ca.sum1(stage.piece.knot_tau**2))
+        weights = stage.common(self.name)
+        return _integral(stage, ca.mtimes(weights.T, stage.piece.knot_tau**2))
 
     def common_values(self, num: Numeric) -> np.ndarray:
-        return np.array([num.scene.task.objective.effort])
+        active = np.full(len(num.robot.active), num.scene.task.objective.effort)
+        if num.virtual_weight is None:
+            return active
+        return np.concatenate([active, np.full(len(num.robot.passive), num.virtual_weight)])
 
 
 class Time(Term):
@@ -273,6 +289,80 @@ def margin_function(s: Structure) -> ca.Function:
     return ca.Function("margin", [sym.q, sym.p, margin, sign], [ca.vertcat(*rows)])
 
 
+class TorqueLimit(Term):
+    """|tau| <= limit on the whole of every interval. The torque variables have the limit as
+    bounds (`planner.ocp.instance`); where the delivered torque polynomial is not just those
+    variables (`Transcription.hulls`), its other Bernstein coefficients (`StagePiece.hull`)
+    are held within the limit too, and the polynomial, which lies in their convex hull, with
+    them. Sufficient, exact at the interval's ends, and within O(h^2) of the polynomial's
+    own range. Rows limit - b >= 0 and limit + b >= 0, so that the limit is a parameter: one
+    NLP serves every limit, 0 included (no division by it). Common: the limit per active
+    joint [N m]."""
+
+    name = "torque_limit"
+
+    def wanted(self, key) -> bool:
+        return key.torque_limit
+
+    def common_size(self, key) -> int:
+        return len(key.structure.active_idx)
+
+    def rows(self, stage: Stage[Sym]) -> Rows[Sym] | None:
+        hull = stage.piece.hull.get("tau")
+        if stage.terminal or hull is None:
+            return None
+        hull = hull[:len(stage.structure.active_idx), :]  # a relaxed NLP's virtual rows: free
+        limit = ca.repmat(stage.common(self.name), 1, hull.size2())
+        return ca.vertcat(ca.vec(limit - hull), ca.vec(limit + hull)), 0.0, np.inf
+
+    def common_values(self, num: Numeric) -> np.ndarray:
+        limit = num.scene.task.torque_limit
+        assert limit is not None  # wanted only then
+        return np.broadcast_to(np.asarray(limit, float), (len(num.robot.active),)).copy()
+
+
+class StateBounds(Term):
+    """lower <= q (or dq) <= upper on the whole of every interval, for the joints the key
+    names as bounded below and above: as `TorqueLimit`, the variables have the bounds, and
+    the state polynomials' other Bernstein coefficients are held within them. Rows
+    b - lower >= 0 and upper - b >= 0. Common: the lower bounds of the joints bounded below,
+    then the upper bounds of those bounded above [rad or rad/s]."""
+
+    def __init__(self, kind: str, name: str):
+        self.kind, self.name = kind, name
+
+    def joints(self, key) -> tuple[tuple[int, ...], tuple[int, ...]]:
+        """The joints bounded below and above (the key's field of the term's name)."""
+        return getattr(key, self.name)
+
+    def wanted(self, key) -> bool:
+        return any(self.joints(key))
+
+    def common_size(self, key) -> int:
+        return sum(len(joints) for joints in self.joints(key))
+
+    def rows(self, stage: Stage[Sym]) -> Rows[Sym] | None:
+        hull = stage.piece.hull.get(self.kind)
+        if stage.terminal or hull is None:
+            return None
+        lower, upper = self.joints(stage.key)
+        values, r = stage.common(self.name), hull.size2()
+        rows = []
+        if lower:
+            rows.append(ca.vec(hull[list(lower), :] - ca.repmat(values[:len(lower)], 1, r)))
+        if upper:
+            rows.append(ca.vec(ca.repmat(values[len(lower):], 1, r) - hull[list(upper), :]))
+        return ca.vertcat(*rows), 0.0, np.inf
+
+    def common_values(self, num: Numeric) -> np.ndarray:
+        bounds = getattr(num.scene.task, self.name)
+        assert bounds is not None  # wanted only then
+        lower, upper = self.joints(num.key)
+        return np.array([bounds.lower[j] for j in lower] + [bounds.upper[j] for j in upper],
+                        dtype=float)
+
+
 TERMS: tuple[Term, ...] = (Effort(), Time(), Smoothness(), Tracking(), TipTarget(),
-                           CouplingMargin())
+                           CouplingMargin(), TorqueLimit(), StateBounds("q", "position_bounds"),
+                           StateBounds("dq", "velocity_bounds"))
 """Every term, in the order their costs and rows enter the NLP."""

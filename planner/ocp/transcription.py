@@ -13,7 +13,7 @@ verification feeds to an independent simulation. Time fractions are fractions of
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Generic, Protocol, TypeAlias
 
 import casadi as ca
@@ -63,6 +63,13 @@ class StagePiece(Generic[Sym]):
     next node state - F(stage variables) = 0 that close the gap to the next stage (a
     method whose defects read the next stage otherwise has none), the stage's first rows,
     the layout a structure-exploiting solver (fatrop) expects.
+
+    hull: by kind ("q", "dq", "tau"), the Bernstein coefficients (rows x r) of the stage's
+    interval polynomials (the interpolant's, `Transcription.interpolant`) that are not
+    variables; with the variables' bounds, bounding them bounds the whole polynomial on the
+    interval (it lies in their convex hull). A coefficient equal to the polynomial's end value
+    may be left out where a constraint makes it the next node's (bounded) value. Only the
+    kinds in `Transcription.hulls`, and only in stages (the terminal has no interval).
     """
 
     defects: Sym
@@ -74,6 +81,7 @@ class StagePiece(Generic[Sym]):
     taus: Sym
     tau_positions: tuple[float, ...]
     gaps: Sym | None = None
+    hull: dict[str, Sym] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -96,6 +104,11 @@ class Transcription(Protocol[Sym]):
     (the refinement's model)."""
     terminal_knots: int
     """Knots at the final node (0 or 1)."""
+    hulls: tuple[str, ...]
+    """The kinds ("q", "dq", "tau") whose interval polynomials have Bernstein coefficients
+    that are not variables (`StagePiece.hull`): a bound on such a kind holds on the whole
+    interval only with rows on them. A kind absent here is bounded everywhere by its
+    variables' bounds (a torque linear between nodes or constant per interval)."""
 
     @property
     def knot_positions(self) -> tuple[float, ...]:

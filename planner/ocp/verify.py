@@ -4,7 +4,10 @@
 - open-loop re-simulation: the delivered torque (the transcription's own torque
   polynomial) fed to CVODES (rtol = atol = 1e-10) from the planned initial state over the
   whole horizon (planner.ocp.feedback.replay);
-- the delivered torque against the task's torque limit, on the dense samples;
+- the delivered torque against the task's torque limit and the planned angles and rates
+  against its position and velocity bounds, on the dense samples and at every interior
+  extremum of their polynomials (exact: roots of the derivative), within `LIMIT_RTOL`
+  and `BOUND_TOL`;
 - open-loop sensitivity, a time-varying LQR feedback along the plan and its closed-loop
   replay (planner.ocp.feedback);
 - the dynamics defect of the interpolant, integral of |M ddq + h - B tau|_2 dt by
@@ -16,6 +19,8 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.optimize import minimize_scalar
 
@@ -23,10 +28,18 @@ from planner import coupling_block
 from planner.dynamics import functions
 from planner.model import Robot, Structure, parameters
 from planner.ocp.feedback import PERTURBATION, gains, growth_factor, linearise, replay
+from planner.ocp.interpolant import PiecewisePolynomial
 from planner.ocp.result import Crossing, Feedback, Verification
 from planner.ocp.transcription import Interpolant
+from planner.scene import Bounds
 
 RESIM_TOL = 1e-10
+LIMIT_RTOL = 1e-6
+"""A delivered torque keeps its limit L when |tau| <= L (1 + LIMIT_RTOL) (+ 1e-12 N m of
+rounding, for L = 0) everywhere."""
+BOUND_TOL = 1e-6
+"""A planned angle or rate keeps its bound b when it is beyond it by at most
+BOUND_TOL max(1, |b|) [rad, rad/s] anywhere."""
 _GAUSS_S, _GAUSS_W = np.polynomial.legendre.leggauss(5)
 
 
@@ -88,12 +101,75 @@ def singular_crossings(robot: Robot, interp: Interpolant,
     return crossings, sigma
 
 
-def torque_excess(tau: np.ndarray, limit: list[float] | float | None) -> float | None:
-    """How far torques (K, n_active) [N m] exceed |tau| <= limit (0 within it; None: no limit)."""
-    if limit is None:
-        return None
-    bound = np.broadcast_to(np.asarray(limit, float), (tau.shape[1],))
-    return float(np.maximum(np.abs(tau) - bound[None, :], 0.0).max(initial=0.0))
+def _beyond(pp: PiecewisePolynomial, t: np.ndarray, lower: np.ndarray,
+            upper: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per component (dim,): how far the piecewise polynomial goes below `lower` or above
+    `upper` (0 within them; NaN bounds: none), the value where it goes furthest and its
+    time [s]: on the samples t and at every interval's extrema (exact), whichever is
+    further."""
+    samples = pp(t)
+    ext = pp.extrema()
+    values = np.concatenate([samples, ext.low, ext.high])
+    times = np.concatenate([np.repeat(t[:, None], samples.shape[1], axis=1), ext.t_low,
+                            ext.t_high])
+    over = np.fmax(np.nan_to_num(lower[None, :] - values, nan=-np.inf),
+                   np.nan_to_num(values - upper[None, :], nan=-np.inf))
+    where = over.argmax(axis=0)
+    cols = np.arange(values.shape[1])
+    return np.maximum(over[where, cols], 0.0), values[where, cols], times[where, cols]
+
+
+def _bound_array(values: list[float | None]) -> np.ndarray:
+    return np.array([np.nan if v is None else v for v in values], dtype=float)
+
+
+@dataclass(frozen=True)
+class Limits:
+    """How far the plan goes beyond the task's limits ([N m], [rad], [rad/s]; None for a
+    limit the task does not set) and, beyond the tolerances, each violation in words."""
+
+    torque: float | None
+    position: float | None
+    velocity: float | None
+    violations: list[str]
+
+
+def limits(robot: Robot, interp: Interpolant, t: np.ndarray,
+           torque_limit: list[float] | float | None, position: Bounds | None,
+           velocity: Bounds | None) -> Limits:
+    """The delivered torque against |tau| <= torque_limit (tolerance `LIMIT_RTOL`) and the
+    planned angles and rates against the bounds (`BOUND_TOL`), each on the samples t [s] and
+    at every interval's extrema."""
+    violations: list[str] = []
+    torque = None
+    if torque_limit is not None:
+        L = np.broadcast_to(np.asarray(torque_limit, float), (len(robot.active),))
+        over, value, at = _beyond(interp.tau, t, -L, L)
+        torque = float(over.max(initial=0.0))
+        for col in np.flatnonzero(over > LIMIT_RTOL * L + 1e-12):
+            share = f", {100 * over[col] / L[col]:.3g} % over" if L[col] > 0 else ""
+            violations.append(
+                f"the delivered torque at joint {robot.active[col]} reaches {value[col]:.6g} N m "
+                f"at t = {at[col]:.4g} s, beyond its limit of {L[col]:g} N m by "
+                f"{over[col]:.3g} N m{share} (tolerance {LIMIT_RTOL:g} relative)")
+    found: dict[str, float | None] = {}
+    for name, bounds, pp, quantity, unit in (("position", position, interp.q, "angle", "rad"),
+                                             ("velocity", velocity, interp.dq, "rate", "rad/s")):
+        if bounds is None:
+            found[name] = None
+            continue
+        lower, upper = _bound_array(bounds.lower), _bound_array(bounds.upper)
+        over, value, at = _beyond(pp, t, lower, upper)
+        found[name] = float(over.max(initial=0.0))
+        for j in range(len(over)):
+            side, bound = ("lower", lower[j]) if value[j] < np.nan_to_num(lower[j], nan=-np.inf) \
+                else ("upper", upper[j])
+            if over[j] > BOUND_TOL * max(1.0, abs(bound)):
+                violations.append(
+                    f"the planned {quantity} of joint {j} reaches {value[j]:.6g} {unit} at "
+                    f"t = {at[j]:.4g} s, beyond its {side} bound of {bound:g} {unit} by "
+                    f"{over[j]:.3g} {unit} (tolerance {BOUND_TOL:g} x max(1, |bound|))")
+    return Limits(torque, found["position"], found["velocity"], violations)
 
 
 def _feedback(robot: Robot, interp: Interpolant, torque_limit: list[float] | float | None,
@@ -121,12 +197,15 @@ def _feedback(robot: Robot, interp: Interpolant, torque_limit: list[float] | flo
 def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.ndarray,
            errors_status: str, replayed: tuple[float | None, str], tolerance: float,
            torque_limit: list[float] | float | None,
-           compiled: bool = False) -> tuple[Verification, Feedback | None]:
+           compiled: bool = False, position_bounds: Bounds | None = None,
+           velocity_bounds: Bounds | None = None) -> tuple[Verification, Feedback | None]:
     """All checks of a plan of `robot` whose interpolant is `interp`, whose interval errors
     [rad] are `errors` and whose open-loop replay gave `replayed`; verified when every
-    interval error is at most `tolerance` [rad]. Also the plan's feedback (None where the
-    linearisation failed)."""
+    interval error is at most `tolerance` [rad] and the plan keeps the task's torque limit
+    and position and velocity bounds everywhere (`limits`). Also the plan's feedback (None
+    where the linearisation failed)."""
     error, status = replayed
+    kept = limits(robot, interp, t_dense, torque_limit, position_bounds, velocity_bounds)
     sigma, _ = coupling_along(robot, interp.q(t_dense))
     crossings, waveless = singular_crossings(robot, interp, t_dense)
     local = float(errors.max())
@@ -135,12 +214,15 @@ def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.nd
         local_error=local if np.isfinite(local) else None,
         interval_errors=[float(e) if np.isfinite(e) else None for e in errors],
         local_status=errors_status,
-        verified=errors_status == "completed" and local <= tolerance,
+        verified=errors_status == "completed" and local <= tolerance and not kept.violations,
         tolerance=tolerance,
         resimulation_error=error,
         resimulation_status=status,
         defect=defect(robot, interp),
-        torque_excess=torque_excess(interp.tau(t_dense), torque_limit),
+        torque_excess=kept.torque,
+        position_excess=kept.position,
+        velocity_excess=kept.velocity,
+        limit_violations=kept.violations,
         min_sigma=_minimum(sigma),
         waveless_min_sigma=_minimum(waveless),
         waveless_singular_crossings=crossings,
@@ -162,12 +244,20 @@ def _samples(values: np.ndarray) -> list[float | None]:
 
 
 def unverified_reason(v: Verification) -> str | None:
-    """Why a plan failed its accuracy check; None when it passed (or predates the check)."""
+    """Why a plan failed its checks (accuracy, the task's limits); None when it passed (or
+    predates the checks)."""
     if v.verified is not False:
         return None
+    reasons = []
     if v.local_error is None:
-        return f"the plan's intervals could not all be re-integrated ({v.local_status})"
-    return (f"re-integrated interval by interval, the delivered torque departs from the plan "
+        reasons.append(f"the plan's intervals could not all be re-integrated ({v.local_status})")
+    elif v.tolerance is None or v.local_error > v.tolerance or not v.limit_violations:
+        reasons.append(
+            f"re-integrated interval by interval, the delivered torque departs from the plan "
             f"by {v.local_error:.3g} rad (tolerance {v.tolerance:g} rad): the mesh refinement "
             f"ran out of budget; raise transcription.refinement's max_intervals or max_passes, "
             f"or solver.max_iter and max_wall_time")
+    if v.limit_violations:
+        reasons.append("the plan does not keep the task's limits everywhere: "
+                       + "; ".join(v.limit_violations))
+    return "; and ".join(reasons)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from planner.ocp.interpolant import PiecewisePolynomial, monomial
+from planner.ocp.interpolant import PiecewisePolynomial, hull, monomial
 from planner.ocp.layout import Part
 from planner.ocp.mesh import Mesh
 from planner.ocp.transcription import (
@@ -33,6 +33,14 @@ class Collocation:
         self.knot_positions = tuple(float(t) for t in ca.collocation_points(degree, scheme))
         C, D, B = ca.collocation_coeff(list(self.knot_positions))
         self.C, self.D, self.B = C, D, np.array(B).ravel()
+        # Bernstein coefficients beyond the variables: of the states through the node and the
+        # collocation points (the end value is the next node's by the gap rows), and of the
+        # torques through the collocation points (none for a constant, degree 1)
+        self.state_hull = hull((0.0, *self.knot_positions), end_known=True)
+        self.tau_hull = hull(self.knot_positions)
+        self.hulls = tuple(kind for kind, rows in (("q", self.state_hull),
+                                                   ("dq", self.state_hull),
+                                                   ("tau", self.tau_hull)) if rows.size)
 
     def node_count(self) -> int:
         return self.intervals * (self.degree + 1)
@@ -54,8 +62,11 @@ class Collocation:
         defects = ca.vertcat(ca.vec(ca.mtimes(Q, self.C) - h * dqc),
                              ca.vec(ca.mtimes(DQ, self.C) - h * ddqc))
         gaps = ca.vertcat(nxt["q"] - ca.mtimes(Q, self.D), nxt["dq"] - ca.mtimes(DQ, self.D))
+        values = {"q": Q, "dq": DQ, "tau": tau}
+        rows = {"q": self.state_hull, "dq": self.state_hull, "tau": self.tau_hull}
+        hulls = {kind: ca.mtimes(values[kind], ca.DM(rows[kind].T)) for kind in self.hulls}
         return StagePiece(defects, qc, dqc, ddqc, tau, ca.horzcat(w["q"], qc), tau,
-                          self.knot_positions, gaps)
+                          self.knot_positions, gaps, hulls)
 
     def terminal(self, w: dict[str, ca.SX], model: Model[ca.SX]) -> StagePiece[ca.SX]:
         empty, none = ca.SX(model.n, 0), ca.SX(model.na, 0)

@@ -29,10 +29,12 @@ class HermiteSimpson:
     terminal_knots = 1
     symbolic = ca.SX
     knot_blocks = ("q", "q_mid")
+    hulls: tuple[str, ...] = ("q", "dq", "tau")
 
     def __init__(self, intervals: int, implicit: bool = True):
         self.intervals, self.implicit = intervals, implicit
-        self.link = ("q", "dq", "ddq" if implicit else "tau")
+        # the next node's torque too: the torque quadratic ends there
+        self.link = ("q", "dq", "ddq", "tau") if implicit else ("q", "dq", "tau")
 
     def node_count(self) -> int:
         return 2 * self.intervals + 1
@@ -71,7 +73,10 @@ class HermiteSimpson:
         knots = ca.horzcat(q0, qm)
         taus = ca.horzcat(tau0, taum)
         return StagePiece(defects, knots, ca.horzcat(dq0, dqm), ca.horzcat(a0, am), taus,
-                          knots, taus, (0.0, 0.5))
+                          knots, taus, (0.0, 0.5),
+                          hull={"q": _cubic_hull(q0, dq0, dqm, dq1, h),
+                                "dq": _cubic_hull(dq0, a0, am, a1, h),
+                                "tau": 2 * taum - (tau0 + nxt["tau"]) / 2})
 
     def terminal(self, w: dict[str, ca.SX], model: Model[ca.SX]) -> StagePiece[ca.SX]:
         q, dq, a = self._knot(w, model)
@@ -96,3 +101,12 @@ class HermiteSimpson:
             PiecewisePolynomial(breaks, integrate(quadratic(dq, dqm), q[:-1], h)),
             PiecewisePolynomial(breaks, integrate(quadratic(ddq, ddqm), dq[:-1], h)),
             PiecewisePolynomial(breaks, quadratic(tau, taum)))
+
+
+def _cubic_hull(v0: ca.SX, r0: ca.SX, rm: ca.SX, r1: ca.SX, h: ca.SX) -> ca.SX:
+    """The two middle Bernstein coefficients of v0 + h int_0^s r, r the quadratic through r0,
+    rm, r1 at s = 0, 1/2, 1 (Bernstein coefficients r0, 2 rm - (r0 + r1) / 2, r1): each
+    coefficient of the integral is the one before plus h / 3 times one of r's. (The last is
+    the end value, which the Simpson defect makes the next node's.)"""
+    first = v0 + h / 3 * r0
+    return ca.horzcat(first, first + h / 3 * (2 * rm - (r0 + r1) / 2))

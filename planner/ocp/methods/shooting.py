@@ -44,6 +44,7 @@ class MultipleShooting(Generic[Sym]):
     terminal_knots = 0
     link = ("q", "dq")
     knot_blocks = ("q",)
+    hulls: tuple[str, ...] = ("q", "dq")  # the torque is constant per interval
 
     def __init__(self, intervals: int, integrator: str, steps: int, symbolic: type[Sym]):
         self.intervals, self.integrator, self.steps = intervals, integrator, steps
@@ -64,8 +65,15 @@ class MultipleShooting(Generic[Sym]):
         q, dq, tau = w["q"], w["dq"], w["tau"]
         end = self._end(ca.vertcat(q, dq), tau, h, model)
         ddq = model.fd(q, dq, tau, model.p)
+        # the cubic Hermite states' middle Bernstein coefficients, v0 + h v0' / 3 and
+        # v1 - h v1' / 3, the end from the interval's own integration (the next node by the
+        # gap rows), so that they read the stage's variables alone
+        q1, dq1 = end[:model.n], end[model.n:]
+        ddq1 = model.fd(q1, dq1, tau, model.p)
+        hull = {"q": ca.horzcat(q + h / 3 * dq, q1 - h / 3 * dq1),
+                "dq": ca.horzcat(dq + h / 3 * ddq, dq1 - h / 3 * ddq1)}
         return StagePiece(self.symbolic(0, 1), q, dq, ddq, tau, q, tau, (0.5,),
-                          ca.vertcat(nxt["q"], nxt["dq"]) - end)
+                          ca.vertcat(nxt["q"], nxt["dq"]) - end, hull)
 
     def _end(self, x: Sym, tau: Sym, h: Sym, model: Model[Sym]) -> Sym:
         """The state one interval of width h later under the constant torque."""

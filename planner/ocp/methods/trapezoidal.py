@@ -43,6 +43,7 @@ class Trapezoidal:
     terminal_knots = 1
     symbolic = ca.SX
     knot_blocks = ("q",)
+    hulls: tuple[str, ...] = ("q", "dq")  # the torque is linear between its node values
 
     def __init__(self, intervals: int, implicit: bool = True):
         self.intervals, self.implicit = intervals, implicit
@@ -73,7 +74,9 @@ class Trapezoidal:
         q1, dq1, a1 = self._knot(nxt, model)
         tau = w["tau"]
         defects = ca.vertcat(q1 - q0 - h / 2 * (dq0 + dq1), dq1 - dq0 - h / 2 * (a0 + a1))
-        return StagePiece(defects, q0, dq0, a0, tau, q0, tau, (0.0,))
+        # the quadratic states' middle Bernstein coefficients (their ends are the nodes)
+        hull = {"q": q0 + h / 2 * dq0, "dq": dq0 + h / 2 * a0}
+        return StagePiece(defects, q0, dq0, a0, tau, q0, tau, (0.0,), hull=hull)
 
     def terminal(self, w: dict[str, ca.SX], model: Model[ca.SX]) -> StagePiece[ca.SX]:
         q, dq, a = self._knot(w, model)

@@ -1,0 +1,109 @@
+"""A plan's companion: one start solved in a second process, beside the plan's own starts.
+
+A plan may use `solver_processes()` processes (`UNDERTOW_SOLVER_PROCESSES`; by default 2
+where the machine has two cores or more). With two, the process that plans forks a
+companion that solves the continuation start (`planner.ocp.continuation`) while it goes
+through its own starts; the first verified plan wins and the other process stops. The
+companion is forked, so it needs no start-up and shares the NLPs already built; it stops
+by itself when the process that forked it is gone, and is killed when the plan ends.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import pickle
+import select
+import signal
+import time
+from collections.abc import Callable
+
+from planner.ocp.monitor import Handler
+from planner.ocp.result import Plan, Progress
+
+ENVIRONMENT = "UNDERTOW_SOLVER_PROCESSES"
+
+
+def solver_processes() -> int:
+    """Processes one plan may use: `UNDERTOW_SOLVER_PROCESSES`, else min(2, cores)."""
+    value = os.environ.get(ENVIRONMENT, "").strip()
+    if value:
+        return max(1, int(value))
+    return min(2, os.cpu_count() or 1)
+
+
+def orphan_guard() -> Handler:
+    """A progress handler for the companion: it stops the solve once the process that
+    forked it is gone (and reports nowhere: the plan's own process reports)."""
+    parent = os.getppid()
+
+    def handler(_: Progress) -> bool:
+        return os.getppid() == parent
+
+    return handler
+
+
+class Companion:
+    """A forked process running `run` (which returns a Plan); its plan comes back through
+    a pipe."""
+
+    def __init__(self, run: Callable[[Handler], Plan]):
+        read, write = os.pipe()
+        pid = os.fork()
+        if pid == 0:  # the companion
+            os.close(read)
+            _serve(run, write)
+        os.close(write)
+        self.pid, self._fd = pid, read
+        self.plan: Plan | None = None
+        self.finished = False
+
+    def ready(self, timeout: float = 0.0) -> bool:
+        """Whether its plan has come (waiting up to `timeout` [s] for it); reads it."""
+        if not self.finished and select.select([self._fd], [], [], max(timeout, 0.0))[0]:
+            self._read()
+        return self.finished
+
+    def verified(self) -> bool:
+        """Whether its plan has come and is verified."""
+        return self.ready() and self.plan is not None and _verified(self.plan)
+
+    def wait(self, deadline: float) -> Plan | None:
+        """Its plan, waiting for it until `deadline` (time.perf_counter() seconds)."""
+        self.ready(deadline - time.perf_counter())
+        return self.plan
+
+    def stop(self) -> None:
+        """End the companion (if still running) and release its pipe."""
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(self.pid, signal.SIGKILL)
+        with contextlib.suppress(ChildProcessError):
+            os.waitpid(self.pid, 0)
+        with contextlib.suppress(OSError):
+            os.close(self._fd)
+
+    def _read(self) -> None:
+        chunks = []
+        while chunk := os.read(self._fd, 1 << 20):
+            chunks.append(chunk)
+        self.finished = True
+        with contextlib.suppress(pickle.UnpicklingError, EOFError, ValueError):
+            self.plan = pickle.loads(b"".join(chunks))
+
+
+def _verified(plan: Plan) -> bool:
+    return bool(plan.solver.success and plan.verification.verified)
+
+
+def _serve(run: Callable[[Handler], Plan], fd: int) -> None:
+    """The companion's life: plan, send the plan (nothing when planning raised), exit."""
+    code, data = 0, b""
+    try:
+        data = pickle.dumps(run(orphan_guard()))
+    except Exception:  # noqa: BLE001 - whatever failed, the plan's own process goes on
+        code = 1
+    try:
+        with os.fdopen(fd, "wb") as out:
+            out.write(data)
+    finally:
+        os._exit(code)

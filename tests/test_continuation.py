@@ -1,0 +1,147 @@
+"""The planner's rescue of hard underactuated tasks: the continuation from relaxed dynamics,
+a first start stopped when it stalls, a refinement that leaves a mesh artefact, and the
+companion process that solves the continuation beside the plan's own starts."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from app.settings import Settings
+from planner.dynamics import Dynamics
+from planner.examples import seed_arm
+from planner.ocp import continuation, plan, portfolio
+from planner.ocp.monitor import STALL_FLOOR, STALL_WINDOW, IterationMonitor
+from planner.ocp.planner import _artefact
+from planner.scene import Scene
+from planner.suite import singular_configuration
+
+
+@pytest.fixture(scope="module")
+def crossing() -> Scene:
+    """The seed's 4-link arm, g = 0, moving by up to 0.6 rad per joint either side of a
+    configuration where its waveless M_pa is singular: from the interpolation Ipopt's steps
+    stay at a thousandth of a Newton step, with a dozen line-search trials each."""
+    rng = np.random.default_rng(1)
+    robot = seed_arm(True)
+    centre = singular_configuration(robot, rng)
+    assert centre is not None
+    move = rng.uniform(-1.2, 1.2, 4)
+    rest = [0.0] * 4
+    return Scene.model_validate({"robot": robot.model_dump(mode="json"), "task": {
+        "duration": 2.0, "initial": {"q": (centre - move / 2).round(6).tolist(), "dq": rest},
+        "final": {"q": (centre + move / 2).round(6).tolist(), "dq": rest},
+        "torque_limit": 20.0, "objective": {"effort": 1.0}}})
+
+
+def _children() -> list[int]:
+    """Live child processes of this process (from /proc)."""
+    me, out = os.getpid(), []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == me and fields[0] != "Z":
+                out.append(int(entry.name))
+    return out
+
+
+def test_the_relaxed_guess_satisfies_every_row_of_the_dynamics(crossing: Scene):
+    robot = crossing.robot
+    x = np.linspace(0.0, 1.0, 7)
+    guess = continuation.relaxed_guess(crossing, robot, 2.0)(x)
+    dyn = Dynamics(robot)
+    order = [*robot.active, *robot.passive]
+    for q, dq, ddq, tau in zip(guess["q"], guess["dq"], guess["ddq"], guess["tau"], strict=True):
+        forces = dyn.mass_matrix(q) @ ddq + dyn.bias(q, dq)
+        np.testing.assert_allclose(tau, forces[order], atol=1e-9)
+    assert guess["tau"].shape == (7, robot.n)
+
+
+def test_the_continuation_verifies_a_crossing_the_direct_start_stalls_on(crossing: Scene):
+    result = plan(crossing)
+    strategies = [p.strategy for p in result.mesh_passes]
+    assert result.solver.success and result.verification.verified
+    assert result.mesh_passes[0].status == "Stalled"
+    assert result.mesh_passes[0].iterations == STALL_WINDOW
+    assert result.solver.strategy.startswith("continuation")
+    relaxed = [p for p in result.mesh_passes if "relaxed" in p.strategy]
+    assert [p.strategy for p in relaxed] == [
+        f"continuation: relaxed, virtual weight {w:g}"
+        for w in continuation.VIRTUAL_WEIGHTS[:len(relaxed)]]
+    # the last relaxed plan is next to an optimum of the task's own NLP: its first solve
+    # from there takes a handful of iterations and changes the objective by under 1 %
+    first_real = strategies.index("continuation")
+    assert result.mesh_passes[first_real].iterations <= 10
+    assert result.mesh_passes[first_real].objective == pytest.approx(
+        relaxed[-1].objective, rel=0.01)
+    assert result.solver.iterations <= 400
+
+
+def _monitor(violations: list[float]) -> IterationMonitor:
+    monitor = IterationMonitor.__new__(IterationMonitor)  # no solver needed for the rule
+    monitor.violations = violations
+    return monitor
+
+
+def test_a_solve_stalls_when_its_violation_stays_put_over_the_window():
+    flat = [0.3] * (STALL_WINDOW + 1)
+    assert _monitor(flat).stalled()
+    assert not _monitor(flat[:-1]).stalled()  # not before a whole window has passed
+    halving = [0.3] * STALL_WINDOW + [0.3, 0.14]
+    assert not _monitor(halving).stalled()
+    feasible = [10 * STALL_FLOOR] + [STALL_FLOOR / 2] * (STALL_WINDOW + 1)
+    assert not _monitor(feasible).stalled()
+
+
+def _outcome(objective: float, error: float, success: bool = True) -> SimpleNamespace:
+    return SimpleNamespace(solution=SimpleNamespace(objective=objective, success=success),
+                           errors=np.array([error / 2, error]))
+
+
+def test_a_refinement_whose_objective_grows_without_gaining_accuracy_left_an_artefact():
+    assert _artefact(_outcome(723.0, 0.075), _outcome(2848.0, 0.11))
+    assert not _artefact(_outcome(723.0, 0.075), _outcome(1200.0, 0.01))  # more accurate
+    assert not _artefact(_outcome(1.12, 0.02), _outcome(1.13, 0.02))  # the same optimum
+    assert not _artefact(_outcome(723.0, 0.075, success=False), _outcome(2848.0, 0.11))
+
+
+def test_a_companion_solves_the_continuation_and_is_gone_when_the_plan_returns(
+        crossing: Scene, monkeypatch: pytest.MonkeyPatch):
+    monkeypatch.setenv(portfolio.ENVIRONMENT, "2")
+    result = plan(crossing)
+    assert result.solver.success and result.verification.verified
+    strategies = {p.strategy.split(":")[0] for p in result.mesh_passes}
+    assert "continuation" in strategies and "direct" in strategies
+    assert result.solver.iterations == sum(p.iterations for p in result.mesh_passes)
+    assert _children() == []
+
+
+def test_a_cancelled_plan_ends_cancelled_whatever_its_companion_found(
+        crossing: Scene, monkeypatch: pytest.MonkeyPatch):
+    monkeypatch.setenv(portfolio.ENVIRONMENT, "2")
+    result = plan(crossing, progress=lambda p: p.iteration < 5)
+    assert result.solver.status == "User_Requested_Stop" and not result.solver.success
+    assert _children() == []
+
+
+def test_a_companion_stops_once_the_process_that_forked_it_is_gone(
+        monkeypatch: pytest.MonkeyPatch):
+    guard = portfolio.orphan_guard()
+    assert guard(None) is True  # type: ignore[arg-type]
+    monkeypatch.setattr(os, "getppid", lambda: 1)
+    assert guard(None) is False  # type: ignore[arg-type]
+
+
+def test_the_service_shares_the_cores_among_its_solver_workers(monkeypatch: pytest.MonkeyPatch):
+    monkeypatch.setattr(os, "cpu_count", lambda: 8)
+    monkeypatch.delenv(portfolio.ENVIRONMENT)
+    assert Settings(workers=2).plan_processes(2) == 4
+    assert Settings(workers=16).plan_processes(16) == 1
+    assert Settings(solver_processes=2).plan_processes(16) == 2
