@@ -30,7 +30,7 @@ from app.capacity import capacity_errors
 from app.errors import ApiError, FieldError, field_error, invalid
 from app.limits import check_scene
 from app.settings import Settings
-from planner.scene import Scene
+from planner.service import Scene
 
 _NAME = re.compile(r"^(duration|(initial|final)\.q\.(\d+)"
                    r"|wave\.(\d+)\.(amplitude|frequency|phase))$")
