@@ -3,11 +3,12 @@ reaches `planner.ocp`.
 
 The service needs the request (a `Scene`), the function that plans it, the result (`Plan`,
 its Ipopt iterate `NlpSolution` for a warm start, the `Progress` a solve reports), the
-reason a finished plan is not verified, the plan sampled at any times (`Plan.sample`,
-`PlanSample`), and what a transcription costs: its time nodes
-(the server's node limit) and its knots (the memory estimate). Everything else of the
-optimal-control package stays internal to the library and may change without the service
-noticing. `tests/test_service_interface.py` holds app/ to this module.
+reason a finished plan is not verified (`verdict_reason`, or `unverified_reason` of its
+verification), the plan sampled at any times (`Plan.sample`, `PlanSample`), and what a
+transcription costs: its time nodes (the server's node limit) and its knots (the memory
+estimate). Everything else of the optimal-control package stays internal to the library
+and may change without the service noticing. `tests/test_service_interface.py` holds
+app/ to this module.
 """
 
 from __future__ import annotations
@@ -50,6 +51,5 @@ def verdict_reason(result: Plan) -> str | None:
 
 
 __all__ = ["MAX_SAMPLE_TIMES", "METHODS", "DurationRange", "NlpSolution", "Plan", "PlanSample",
-           "Progress", "Scene",
-           "Transcription", "knot_count", "node_count", "plan", "transcription",
-           "unverified_reason", "verdict_reason"]
+           "Progress", "Scene", "Transcription", "knot_count", "node_count", "plan",
+           "transcription", "unverified_reason", "verdict_reason"]

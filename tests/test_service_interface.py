@@ -57,3 +57,15 @@ def test_counts_are_the_transcriptions_own(method, intervals):
     own = settings.model_copy(update={"intervals": intervals})
     expected = tr.node_count() if method == "multiple-shooting" else tr.knot_count()
     assert dynamics_knots(own) == expected
+
+
+def test_the_verdicts_reason_is_the_verifications():
+    from planner.ocp.result import Verification
+
+    failed = Verification(resimulation_error=None, resimulation_status="x", defect=None,
+                          min_sigma=None, waveless_min_sigma=None,
+                          waveless_singular_crossings=[], verified=False, local_error=0.2,
+                          tolerance=0.1)
+    plan_like = type("P", (), {"verification": failed})()
+    assert service.verdict_reason(plan_like) == service.unverified_reason(failed)
+    assert "departs from the plan by 0.2 rad" in service.verdict_reason(plan_like)
