@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from app.errors import FieldError, field_error
 from app.settings import Settings
-from planner.scene import Scene, Transcription
+from planner.service import Scene, Transcription, knot_count, node_count
 
 FIXED_MB = 260.0
 """Ipopt and MUMPS loaded and their first allocations, whatever the plan."""
@@ -34,17 +34,13 @@ SHOOTING_EXPONENT = 3.5
 
 
 def dynamics_knots(transcription: Transcription) -> int:
-    """Points where the NLP evaluates the dynamics: intervals x degree for collocation,
-    the grid points (and midpoints) for trapezoidal and Hermite-Simpson, intervals x steps
-    for multiple shooting."""
-    k = transcription.intervals
-    return {
-        "legendre": k * transcription.degree,
-        "radau": k * transcription.degree,
-        "hermite-simpson": 2 * k + 1,
-        "trapezoidal": k + 1,
-        "multiple-shooting": k * transcription.steps,
-    }[transcription.method]
+    """Points where the NLP evaluates the dynamics, as the transcription counts them: its
+    knots (intervals x degree for collocation, the grid points and midpoints for trapezoidal
+    and Hermite-Simpson); for multiple shooting every RK4 step of every interval (its time
+    nodes, intervals x steps)."""
+    if transcription.method == "multiple-shooting":
+        return node_count(transcription)
+    return knot_count(transcription)
 
 
 def estimate_mb(scene: Scene) -> float:

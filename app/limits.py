@@ -11,16 +11,13 @@ from pydantic import BaseModel
 
 from app.errors import FieldError, field_error, invalid
 from app.settings import Settings
-from planner.ocp import methods
-from planner.scene import DurationRange, Scene, Transcription
+from planner.service import DurationRange, Scene, Transcription, node_count
 
 
 def nodes(transcription: Transcription, intervals: int | None = None) -> int:
     """Time nodes of a transcription's NLP on `intervals` intervals (default: its own), as
-    the transcription method counts them (`Transcription.node_count`)."""
-    tr = transcription if intervals is None else transcription.model_copy(
-        update={"intervals": intervals, "breaks": None})
-    return methods.of(tr).node_count()
+    the transcription method counts them (`planner.service.node_count`)."""
+    return node_count(transcription, intervals)
 
 
 def most_intervals(transcription: Transcription, max_nodes: int) -> int:

@@ -8,7 +8,7 @@ from typing import Literal
 from pydantic import BaseModel, Field
 
 from app.store import FINAL, STATUSES, BatchRecord, JobRecord, JobStatus, MemberRecord
-from planner.ocp.result import Plan
+from planner.service import Plan
 
 
 def _time(seconds: float | None) -> datetime | None:

@@ -46,7 +46,7 @@ class Settings(BaseSettings):
     wall_time_grace: float = Field(default=30.0, gt=0.0, description=(
         "seconds a job may run past its wall-time budget (NLP build included) before its "
         "worker process is stopped"))
-    solve_function: str = Field(default="planner.ocp:plan",
+    solve_function: str = Field(default="planner.service:plan",
                                 description="module:function that plans a scene")
     api_key: str | None = Field(default=None, description="required X-API-Key when set")
     max_body_bytes: int = Field(default=1_000_000, ge=1024, description="request body limit")

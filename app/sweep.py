@@ -10,8 +10,10 @@ A parameter is named by a path into the scene:
 | `final.q.J` | `task.final.q[J]` [rad] |
 | `wave.I.amplitude`, `wave.I.frequency`, `wave.I.phase` | the wave of link I (it must have one) |
 
-Each member is validated as a scene of its own and held to the server's limits; an error
-names the member (`overrides.K` or `grid` with the member's values) and the field.
+Values are JSON numbers, as everywhere in a request (`planner.schema`): a string ("2") or
+a boolean (true) is refused at its field, not read as 2.0 or 1.0. Each member is
+validated as a scene of its own and held to the server's limits; an error names the
+member (`overrides.K` or `grid` with the member's values) and the field.
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ from app.capacity import capacity_errors
 from app.errors import ApiError, FieldError, field_error, invalid
 from app.limits import check_scene
 from app.settings import Settings
-from planner.scene import Scene
+from planner.service import Scene
 
 _NAME = re.compile(r"^(duration|(initial|final)\.q\.(\d+)"
                    r"|wave\.(\d+)\.(amplitude|frequency|phase))$")
@@ -45,7 +47,7 @@ class BatchRequest(BaseModel):
     """A sweep: the base scene and either `overrides` (one member each) or `grid` (one
     member per combination of the axes' values, the last axis varying fastest)."""
 
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
 
     base: Scene = Field(description="the scene every member starts from")
     overrides: list[Parameters] | None = Field(

@@ -41,9 +41,7 @@ from app.store import (
     JobStore,
     StoreUnavailable,
 )
-from planner.ocp.result import NlpSolution, Plan, Progress
-from planner.ocp.verify import unverified_reason
-from planner.scene import Scene
+from planner.service import NlpSolution, Plan, Progress, Scene, unverified_reason
 
 log = logging.getLogger("undertow.worker")
 

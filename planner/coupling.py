@@ -25,6 +25,7 @@ from planner.coupling_block import along, condition, refine
 from planner.errors import InputError
 from planner.model import Robot, Structure, parameters
 from planner.schema import REQUEST as _STRICT
+from planner.schema import Angle
 
 MAX_POINTS = 200_000
 """Largest number of configurations one request may evaluate."""
@@ -47,8 +48,8 @@ class Grid(BaseModel):
 
     model_config = _STRICT
 
-    lower: list[float] = Field(min_length=1, description="lower corner, one angle per joint [rad]")
-    upper: list[float] = Field(min_length=1, description="upper corner, one angle per joint [rad]")
+    lower: list[Angle] = Field(min_length=1, description="lower corner, one angle per joint [rad]")
+    upper: list[Angle] = Field(min_length=1, description="upper corner, one angle per joint [rad]")
     points: int | list[int] = Field(
         default=51, description="grid points per axis (>= 2 where lower < upper)")
 
@@ -92,7 +93,7 @@ class CouplingRequest(BaseModel):
     model_config = _STRICT
 
     robot: Robot
-    configurations: list[list[float]] | None = Field(
+    configurations: list[list[Angle]] | None = Field(
         default=None, description="joint angles [rad], one row per configuration; "
                                   "consecutive rows are joined by straight segments")
     grid: Grid | None = None

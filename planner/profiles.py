@@ -17,6 +17,7 @@ from scipy.special import beta as beta_fn
 from scipy.special import betainc
 
 from planner.schema import REQUEST as _STRICT
+from planner.schema import Angle
 
 Motion = tuple[np.ndarray, np.ndarray, np.ndarray]
 
@@ -35,8 +36,8 @@ def _blend(start: list[float], end: list[float], s, ds, dds, duration: float) ->
 class _Endpoints(BaseModel):
     model_config = _STRICT
 
-    start: list[float] = Field(min_length=1, description="passive angles at t = 0 [rad]")
-    end: list[float] = Field(min_length=1, description="passive angles at t = T [rad]")
+    start: list[Angle] = Field(min_length=1, description="passive angles at t = 0 [rad]")
+    end: list[Angle] = Field(min_length=1, description="passive angles at t = T [rad]")
 
     @model_validator(mode="after")
     def _same_size(self):
@@ -95,7 +96,7 @@ class SampledProfile(BaseModel):
 
     profile: Literal["samples"] = "samples"
     t: list[float] = Field(min_length=2, description="strictly increasing times [s], t[0] = 0")
-    q: list[list[float]] = Field(min_length=2, description="passive angles at each time [rad]")
+    q: list[list[Angle]] = Field(min_length=2, description="passive angles at each time [rad]")
 
     @model_validator(mode="after")
     def _consistent(self) -> SampledProfile:

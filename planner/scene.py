@@ -14,7 +14,7 @@ from pydantic import BaseModel, Field, model_validator
 from planner.model import Robot
 from planner.profiles import PassiveMotion
 from planner.schema import REQUEST as _STRICT
-from planner.schema import JointState
+from planner.schema import Angle, JointState, Rate
 
 
 class State(BaseModel):
@@ -22,8 +22,8 @@ class State(BaseModel):
 
     model_config = _STRICT
 
-    q: list[float | None]
-    dq: list[float | None]
+    q: list[Angle | None]
+    dq: list[Rate | None]
 
 
 class DurationRange(BaseModel):

@@ -1,17 +1,32 @@
 """What the request models of the library share: their configuration and the joint state.
 
 Requests are JSON documents: unknown fields are refused, values are frozen, and numbers
-must be finite JSON numbers. `strict` refuses what pydantic's lax mode would convert: a
-string ("0.1") or a boolean (true) where a number belongs, a fractional number (3.0 is
-fine, 3.5 is not) where an integer belongs. An integer is still a valid real number, and
-nested objects are read from JSON objects as usual.
+must be finite JSON numbers. Joint angles and rates are bounded further, by `STATE_MAX`
+(`Angle`, `Rate`): a finite double as large as 1e308 passes JSON but not the dynamics
+(sin and cos lose every digit, products overflow), so it is refused at its field.
+`strict` refuses what pydantic's lax mode would convert: a string ("0.1") or a boolean
+(true) where a number belongs, a fractional number (3.0 is fine, 3.5 is not) where an
+integer belongs. An integer is still a valid real number, and nested objects are read
+from JSON objects as usual.
 """
 
 from __future__ import annotations
 
-from pydantic import BaseModel, ConfigDict
+from typing import Annotated
+
+from pydantic import BaseModel, ConfigDict, Field
 
 REQUEST = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, strict=True)
+
+STATE_MAX = 1e6
+"""The largest magnitude of a requested joint angle [rad] or rate [rad/s]: far beyond any
+motion (1e6 rad is 159,155 turns), and small enough that sin and cos keep ten significant
+digits and every product in the dynamics stays finite."""
+
+Angle = Annotated[float, Field(ge=-STATE_MAX, le=STATE_MAX)]
+"""A joint angle [rad] of a request, |q| <= STATE_MAX."""
+Rate = Annotated[float, Field(ge=-STATE_MAX, le=STATE_MAX)]
+"""A joint rate [rad/s] of a request, |dq| <= STATE_MAX."""
 
 
 class JointState(BaseModel):
@@ -20,5 +35,5 @@ class JointState(BaseModel):
 
     model_config = REQUEST
 
-    q: list[float]
-    dq: list[float]
+    q: list[Angle]
+    dq: list[Rate]

@@ -9,9 +9,11 @@ from the test's node id, so a failure reproduces whatever the test order or work
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import zlib
 from collections.abc import Callable, Iterator
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -123,3 +125,72 @@ def store(request: pytest.FixtureRequest, tmp_path) -> Iterator[JobStore]:
     s = open_store(request.param, request, tmp_path)
     yield s
     s.close()
+
+
+# --------------------------------------------------------------------------- kinds of test
+#
+# Every test is marked with its kind from its file (no test file names its own kind):
+# select with -m, e.g. `pytest -m unit` for the library alone, `-m "not database"`.
+# The markers are registered in pyproject.toml (`--strict-markers`).
+
+SERVICE = frozenset({
+    "test_api_budget.py", "test_api_compute.py", "test_api_plans.py", "test_api_service.py",
+    "test_api_warm_start.py", "test_bad_input.py", "test_batches.py", "test_capacity.py",
+    "test_cli.py", "test_continuation.py", "test_delivered_torque.py", "test_distributed.py",
+    "test_dockerfile.py", "test_e2e_server.py", "test_errors.py", "test_job_faults.py",
+    "test_jobs.py", "test_limits.py", "test_openapi.py", "test_openapi_client.py", "test_plots.py",
+    "test_readme.py", "test_sampling.py", "test_scene_validation.py", "test_schemathesis.py",
+    "test_server.py", "test_service_interface.py", "test_store.py", "test_stress.py",
+    "test_viewer.py"})
+"""Files that exercise the service (app/): its app in-process, live servers and worker
+processes, the command line, the job store, the API documents. Any other file is `unit`:
+the library alone, in the test's own process."""
+DATABASE = frozenset({"test_distributed.py"})
+"""Files every test of which needs PostgreSQL; elsewhere a test that takes the `postgres`
+or `postgres_url` fixture, or the `store` fixture's PostgreSQL case, is marked too."""
+BROWSER = frozenset({"test_viewer.py"})
+"""Files that drive the viewer in a browser."""
+CHROMIUM = Path("/usr/bin/chromium")  # tests/test_viewer.py's browser
+
+
+def kinds(item: pytest.Item) -> set[str]:
+    """The kinds (markers) of a collected test, from its file and its fixtures."""
+    name = item.path.name
+    found = {"service"} if name in SERVICE else {"unit"}
+    if name in BROWSER:
+        found.add("browser")
+    callspec = getattr(item, "callspec", None)
+    fixtures = set(getattr(item, "fixturenames", ()))
+    if name in DATABASE or fixtures & {"postgres", "postgres_url"} or (
+            callspec is not None and callspec.params.get("store") == "postgres"):
+        found.add("database")
+    return found
+
+
+def browser_missing() -> str | None:
+    """Why the viewer tests cannot run here, or None."""
+    if not CHROMIUM.exists():
+        return (f"browser tests skipped: no browser at {CHROMIUM}; `make browser` installs "
+                "Debian's chromium (needs root and apt-get)")
+    if importlib.util.find_spec("playwright") is None:
+        return "browser tests skipped: the playwright package is not installed"
+    return None
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Mark every test with its kinds; skip the browser tests up front, saying why, when
+    there is no browser (before their module starts a live server for nothing)."""
+    no_browser = browser_missing()
+    for item in items:
+        for kind in sorted(kinds(item)):
+            item.add_marker(getattr(pytest.mark, kind))
+        if no_browser is not None and "browser" in kinds(item):
+            item.add_marker(pytest.mark.skip(reason=no_browser))
+
+
+def pytest_report_header(config: pytest.Config) -> list[str]:
+    """What this machine cannot run, said before the run rather than only in the summary."""
+    reasons = [why for why in (browser_missing(), pg.missing()) if why is not None]
+    if pg.missing() is not None:
+        reasons[-1] = f"database tests skipped: {reasons[-1]}"
+    return reasons or ["every kind of test can run here (unit, service, database, browser)"]

@@ -246,8 +246,13 @@ def test_list_is_newest_first_and_filters_by_status(store):
 
 def test_the_store_pickles_as_its_address(store):
     clone = pickle.loads(pickle.dumps(store))
-    store.create("a", SCENE, "host")
-    assert clone.get("a").scene == SCENE
+    try:
+        store.create("a", SCENE, "host")
+        assert clone.get("a").scene == SCENE
+    finally:
+        # The clone opened a pool of its own; left to the garbage collector, psycopg's pool
+        # is finalised on one of its own threads and warns (cannot join current thread).
+        clone.close()
 
 
 def _writer(store: JobStore, prefix: str, count: int, start) -> None:

@@ -17,7 +17,7 @@ from app.openapi import UNAVAILABLE, problems
 from app.schema_examples import body_examples
 from app.schemas import Job, JobList, JobSummary
 from app.store import FINAL, JobRecord, JobStatus, JobStore
-from planner.scene import Scene
+from planner.service import Scene
 
 router = APIRouter(prefix="/v1/plans", tags=["plans"])
 _LINKS = {name: {"operationId": op, "parameters": {"job_id": "$response.body#/id"}}

@@ -10,8 +10,7 @@ from app.errors import ApiError
 from app.openapi import problems
 from app.store import JobRecord
 from planner import plots
-from planner.ocp.result import Plan
-from planner.scene import Scene
+from planner.service import Plan, Scene
 
 router = APIRouter(prefix="/v1/plans", tags=["plans"])
 

@@ -111,29 +111,37 @@ def _rk4(y, a0, am, a1, b0, bm, b1, dt):
     return y + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
 
 
-def growth_factor(lin: Linearisation) -> float:
-    """max_k ||Phi(t_k, 0)||_2 along the plan."""
+def growth_factor(lin: Linearisation) -> float | None:
+    """max_k ||Phi(t_k, 0)||_2 along the plan; None where the product of the intervals'
+    transition matrices overflows (a plan far too fast for its duration)."""
     phi, worst = np.eye(lin.A.shape[1]), 1.0
-    for A in lin.A:
-        phi = A @ phi
-        worst = max(worst, float(np.linalg.norm(phi, 2)))
+    with np.errstate(over="ignore", invalid="ignore"):
+        for A in lin.A:
+            phi = A @ phi
+            if not np.all(np.isfinite(phi)):
+                return None
+            worst = max(worst, float(np.linalg.norm(phi, 2)))
     return worst
 
 
-def gains(lin: Linearisation, h: np.ndarray, tau_scale: float) -> Feedback:
-    """The discrete LQR gains K_k (N, na, 2n) for interval lengths h [s]."""
+def gains(lin: Linearisation, h: np.ndarray, tau_scale: float) -> Feedback | None:
+    """The discrete LQR gains K_k (N, na, 2n) for interval lengths h [s]; None where the
+    Riccati recursion overflows (a plan far too fast for its duration)."""
     N, n2, na = lin.B.shape
     n = n2 // 2
     q_weights = np.concatenate([np.full(n, Q_SCALE**-2), np.full(n, DQ_SCALE**-2)])
     r_weights = np.full(na, tau_scale**-2)
     S = np.diag(q_weights)
     K = np.zeros((N, na, n2))
-    for k in range(N - 1, -1, -1):
-        A, B = lin.A[k], lin.B[k]
-        R, Q = np.diag(r_weights * h[k]), np.diag(q_weights * h[k])
-        K[k] = np.linalg.solve(R + B.T @ S @ B, B.T @ S @ A)
-        S = Q + A.T @ S @ (A - B @ K[k])
-        S = (S + S.T) / 2
+    with np.errstate(over="ignore", invalid="ignore"):
+        for k in range(N - 1, -1, -1):
+            A, B = lin.A[k], lin.B[k]
+            R, Q = np.diag(r_weights * h[k]), np.diag(q_weights * h[k])
+            K[k] = np.linalg.solve(R + B.T @ S @ B, B.T @ S @ A)
+            S = Q + A.T @ S @ (A - B @ K[k])
+            S = (S + S.T) / 2
+            if not (np.all(np.isfinite(K[k])) and np.all(np.isfinite(S))):
+                return None
     return Feedback(gains=K.tolist(), state_weights=q_weights.tolist(),
                     torque_weights=r_weights.tolist())
 

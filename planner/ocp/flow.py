@@ -12,6 +12,9 @@ the interval check and the replays take a quarter to a half of BDF's time
 
 from __future__ import annotations
 
+import contextlib
+import io
+import sys
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -65,8 +68,7 @@ def _compiled_dae(s: Structure, degree: int) -> ca.Function | None:
 @dataclass(frozen=True)
 class Flow:
     """CVODES over B intervals, by Adams and by BDF: each a Function (x0 (2n x B), p, u) ->
-    xf (2n x outputs B) (see `flow`); for one interval the integrator itself, unmapped (a
-    mapped call that fails writes its inputs to stderr)."""
+    xf (2n x outputs B) (see `flow`); for one interval the integrator itself, unmapped."""
 
     adams: ca.Function
     bdf: ca.Function
@@ -76,9 +78,28 @@ class Flow:
         u[:, b outputs:(b + 1) outputs]: by Adams, by BDF where Adams fails. Raises
         RuntimeError when both fail."""
         try:
-            return np.array(self.adams(x0=x0, p=p, u=u)["xf"])
+            return _quiet(self.adams, x0=x0, p=p, u=u)
         except RuntimeError:
-            return np.array(self.bdf(x0=x0, p=p, u=u)["xf"])
+            return _quiet(self.bdf, x0=x0, p=p, u=u)
+
+
+def _quiet(integrate: ca.Function, **args: np.ndarray) -> np.ndarray:
+    """xf of one call. A CasADi Function whose call fails prints its name and every input
+    ("Function flow (0x...) Input 0 (x0): [...]") to Python's stdout or stderr before it
+    raises: a diverging replay would fill a worker's log or a command line's output with
+    them. What a call prints is captured; a failed call's becomes a note of its
+    RuntimeError, anything a successful call (or another thread meanwhile) printed is
+    passed on unchanged."""
+    out, err = io.StringIO(), io.StringIO()
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            xf = integrate(**args)["xf"]
+    except RuntimeError as exc:
+        exc.add_note(out.getvalue() + err.getvalue())
+        raise
+    sys.stdout.write(out.getvalue())
+    sys.stderr.write(err.getvalue())
+    return np.array(xf)
 
 
 def flow(s: Structure, degree: int, outputs: int, batch: int, tol: float = TOL,

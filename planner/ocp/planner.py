@@ -44,6 +44,7 @@ from planner.ocp.result import (
     Plan,
     Progress,
     SolverReport,
+    StatePolynomials,
     Verification,
     WaveOut,
 )
@@ -541,6 +542,8 @@ def _result(scene: Scene, attempts: list[Attempt], budget: Budget) -> Plan:
         dense=DenseTrajectory(t=t_dense.tolist(), q=_finite(interp.q(t_dense)),
                               tau=_finite(interp.tau(t_dense))),
         torque=TorquePolynomial(breaks=breaks.tolist(), coefficients=_finite(interp.tau.coeffs)),
+        states=StatePolynomials(breaks=breaks.tolist(), q=_finite(interp.q.coeffs),
+                                dq=_finite(interp.dq.coeffs)),
         duration=best.T,
         objective=sol.objective if math.isfinite(sol.objective) else None,
         waves=[WaveOut(joint=j, amplitude=link.wave.amplitude, frequency=link.wave.frequency,

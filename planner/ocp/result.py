@@ -3,12 +3,22 @@ independent verification (SI units)."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 from pydantic.json_schema import SkipJsonSchema
 
+from planner.coupling_block import along
+from planner.dynamics import Dynamics
+from planner.errors import InputError
+from planner.model import Robot, Wave
+from planner.ocp.interpolant import PiecewisePolynomial
 from planner.torque import TorquePolynomial
+
+MAX_SAMPLE_TIMES = 1000
+"""The most times one `Plan.sample` call evaluates."""
 
 
 @dataclass(frozen=True)
@@ -207,6 +217,37 @@ class NlpSolution(_Out):
     lam_g: list[float]
 
 
+class StatePolynomials(_Out):
+    """The plan's angles and rates between its breakpoints, as the transcription
+    interpolates them (what the verification re-integrates against): on interval k, with
+    s = (t - breaks[k]) / (breaks[k + 1] - breaks[k]) in [0, 1],
+    q(t) = sum_m q[k][m] s^m [rad] and dq(t) = sum_m dq[k][m] s^m [rad/s]; at a
+    breakpoint the interval starting there applies."""
+
+    breaks: list[float] = Field(description="the mesh's breakpoints [s]")
+    q: list[list[list[float]]] = Field(description="K x powers x n: angle coefficients [rad]")
+    dq: list[list[list[float]]] = Field(description="K x powers x n: rate coefficients [rad/s]")
+
+    def polynomials(self) -> tuple[PiecewisePolynomial, PiecewisePolynomial]:
+        """q and dq as piecewise polynomials."""
+        breaks = np.asarray(self.breaks, float)
+        return (PiecewisePolynomial(breaks, np.asarray(self.q, float)),
+                PiecewisePolynomial(breaks, np.asarray(self.dq, float)))
+
+
+class PlanSample(_Out):
+    """A plan evaluated at given times, time-major."""
+
+    t: list[float] = Field(description="the times asked for [s]")
+    q: list[list[float]] = Field(description="angles [rad]")
+    dq: list[list[float]] = Field(description="rates [rad/s]")
+    tau: list[list[float]] = Field(description="the delivered torque of the active joints [N m]")
+    tip: list[list[float]] = Field(description="the last link's tip [x, y] [m]")
+    sigma_min: list[float | None] = Field(
+        description="sigma_min(M_pa) [kg m^2], the smallest singular value (as in "
+                    "verification.sigma_min); null without a passive joint")
+
+
 class Plan(_Out):
     """A plan: nodes (time-major), dense samples, the delivered torque, objective, solver
     report, mesh history, feedback and verification."""
@@ -220,6 +261,9 @@ class Plan(_Out):
     torque: TorquePolynomial | None = Field(
         default=None, description="the delivered torque (None in plans stored before the "
                                   "field existed)")
+    states: StatePolynomials | None = Field(
+        default=None, description="the angles and rates between the breakpoints (None in "
+                                   "plans stored before the field existed)")
     duration: float
     objective: float | None = Field(
         description="the objective at the returned iterate (None where it is not finite)")
@@ -232,3 +276,40 @@ class Plan(_Out):
         default=None, exclude=True,
         description="the NLP solution to warm-start a later plan from; kept apart from the "
                     "plan's JSON")
+
+    def robot_of(self, robot: Robot) -> Robot:
+        """The scene's robot carrying the plan's waves (they differ after wave co-design)."""
+        waves = {w.joint: Wave(amplitude=w.amplitude, frequency=w.frequency, phase=w.phase)
+                 for w in self.waves}
+        return robot.with_waves(waves) if waves else robot
+
+    def sample(self, robot: Robot, times: Sequence[float]) -> PlanSample:
+        """The plan at `times` [s] (at most MAX_SAMPLE_TIMES, each within [0, duration]):
+        angles and rates from `states`, the delivered torque from `torque`, the last tip
+        and sigma_min(M_pa) of `robot` (the scene's; the plan's waves are applied).
+        InputError ("t.K: ...") for a time out of range or too many times; ValueError for
+        a plan stored before its states were."""
+        t = _sample_times(times, self.duration)
+        if self.states is None or self.torque is None:
+            raise ValueError("the plan was stored before its states were: it cannot be sampled")
+        q_of, dq_of = self.states.polynomials()
+        q, dq = q_of(t), dq_of(t)
+        arm = self.robot_of(robot)
+        dynamics = Dynamics(arm)
+        tips = [dynamics.tips(row)[-1] for row in q]
+        sigma = along(arm, q).least if len(t) else np.zeros(0)
+        return PlanSample(t=t.tolist(), q=q.tolist(), dq=dq.tolist(),
+                          tau=self.torque.evaluate(t).reshape(len(t), -1).tolist(),
+                          tip=np.reshape(tips, (len(t), 2)).tolist(),
+                          sigma_min=[None if np.isnan(v) else float(v) for v in sigma])
+
+
+def _sample_times(times: Sequence[float], duration: float) -> np.ndarray:
+    """The times as an array, or InputError naming the first that is out of range."""
+    if len(times) > MAX_SAMPLE_TIMES:
+        raise InputError(f"t: {len(times)} times exceed the limit of {MAX_SAMPLE_TIMES}")
+    t = np.asarray(times, dtype=float).reshape(-1)
+    for k, value in enumerate(t):
+        if not 0.0 <= value <= duration:
+            raise InputError(f"t.{k}: {value:g} s is outside the plan, [0, {duration:g}] s")
+    return t

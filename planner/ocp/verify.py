@@ -180,14 +180,17 @@ def _feedback(robot: Robot, interp: Interpolant, torque_limit: list[float] | flo
         return None, {}
     scale = max(float(np.max(torque_limit)) if torque_limit is not None
                 else float(np.abs(interp.tau.coeffs[:, 0]).max(initial=0.0)), 1.0)
+    growth = growth_factor(lin)
     fb = gains(lin, np.diff(interp.q.breaks), scale)
+    if fb is None:
+        return None, {"growth_factor": growth}
     K = np.asarray(fb.gains)
     breaks = interp.q.breaks
     start = np.concatenate([interp.q(breaks[:1])[0], interp.dq(breaks[:1])[0]])
     (closed, _), (perturbed, _) = replay(robot, interp,
                                          np.stack([start, start + PERTURBATION]), K,
                                          compiled=compiled)
-    return fb, {"growth_factor": growth_factor(lin), "closed_loop_error": closed,
+    return fb, {"growth_factor": growth, "closed_loop_error": closed,
                 "perturbed_closed_loop_error": perturbed, "perturbation": PERTURBATION}
 
 

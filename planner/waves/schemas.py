@@ -11,7 +11,7 @@ from planner.inverse import ACTIVE_INITIAL, check_motion, check_prescribable
 from planner.model import Robot
 from planner.profiles import PassiveMotion
 from planner.schema import REQUEST as _STRICT
-from planner.schema import JointState
+from planner.schema import Angle, JointState
 from planner.waves.screening import SCREEN_STEPS, coarse_points, phases_per_joint
 
 MAX_SCREENING = 5_000_000
@@ -24,8 +24,8 @@ class Region(BaseModel):
 
     model_config = _STRICT
 
-    lower: list[float] = Field(min_length=1)
-    upper: list[float] = Field(min_length=1)
+    lower: list[Angle] = Field(min_length=1)
+    upper: list[Angle] = Field(min_length=1)
 
 
 class Motion(BaseModel):

@@ -1,0 +1,55 @@
+"""The planner as the HTTP service (app/) sees it: the one module through which it
+reaches `planner.ocp`.
+
+The service needs the request (a `Scene`), the function that plans it, the result (`Plan`,
+its Ipopt iterate `NlpSolution` for a warm start, the `Progress` a solve reports), the
+reason a finished plan is not verified (`verdict_reason`, or `unverified_reason` of its
+verification), the plan sampled at any times (`Plan.sample`, `PlanSample`), and what a
+transcription costs: its time nodes (the server's node limit) and its knots (the memory
+estimate). Everything else of the optimal-control package stays internal to the library
+and may change without the service noticing. `tests/test_service_interface.py` holds
+app/ to this module.
+"""
+
+from __future__ import annotations
+
+from typing import get_args
+
+from planner.ocp import methods
+from planner.ocp.planner import plan
+from planner.ocp.result import MAX_SAMPLE_TIMES, NlpSolution, Plan, PlanSample, Progress
+from planner.ocp.transcription import AnyTranscription
+from planner.ocp.verify import unverified_reason
+from planner.scene import DurationRange, Method, Scene, Transcription
+
+METHODS: tuple[str, ...] = get_args(Method)
+"""The transcription methods a scene may name (`transcription.method`)."""
+
+
+def transcription(settings: Transcription, intervals: int | None = None) -> AnyTranscription:
+    """The transcription a scene's settings ask for, on `intervals` intervals (default: its
+    own; a mesh of its own breaks is replaced by a uniform one)."""
+    if intervals is not None:
+        settings = settings.model_copy(update={"intervals": intervals, "breaks": None})
+    return methods.of(settings)
+
+
+def node_count(settings: Transcription, intervals: int | None = None) -> int:
+    """Time points the NLP of these settings holds variables at (`intervals`: as in
+    `transcription`)."""
+    return transcription(settings, intervals).node_count()
+
+
+def knot_count(settings: Transcription, intervals: int | None = None) -> int:
+    """Points where the NLP of these settings makes the dynamics hold."""
+    return transcription(settings, intervals).knot_count()
+
+
+def verdict_reason(result: Plan) -> str | None:
+    """Why a finished plan is not verified (None when it is)."""
+    return unverified_reason(result.verification)
+
+
+__all__ = ["MAX_SAMPLE_TIMES", "METHODS", "DurationRange", "NlpSolution", "Plan", "PlanSample",
+           "Progress", "Scene", "Transcription", "knot_count", "node_count", "plan",
+           "transcription", "unverified_reason", "verdict_reason"]
