@@ -99,8 +99,9 @@ class Start:
     relaxed: bool = False
     """Start from the continuation of relaxed NLPs (`planner.ocp.continuation`) on `mesh`."""
     may_stall: bool = False
-    """Stop its first solves when they stall (`planner.ocp.monitor`): the scene's own start,
-    which the other starts are there to rescue."""
+    """Stop its first solve of the task's NLP when it stalls (`planner.ocp.monitor`): the
+    scene's own start, which the other starts are there to rescue, and the continuation's
+    (a few iterations from a relaxed plan that needs no virtual torque)."""
 
 
 @dataclass
@@ -261,10 +262,12 @@ def _first_solves(scene: Scene, start: Start, budget: Budget, progress: Handler 
 def _continuation(scene: Scene, start: Start, budget: Budget, progress: Handler | None,
                   first_pass: int) -> list[Outcome]:
     """The relaxed NLPs' solves, each weight of `continuation.VIRTUAL_WEIGHTS` in turn from
-    the solution before, until the virtual torques are negligible, a solve fails or the
-    budget is spent (at least one solve)."""
+    the solution before, until the virtual torques are negligible, a solve fails, the
+    budget is spent or the virtual torques stop shrinking (`continuation.persists`; at
+    least one solve)."""
     na = len(start.robot.active)
     outcomes: list[Outcome] = []
+    peaks: list[float] = []
     for weight in continuation.VIRTUAL_WEIGHTS:
         before = outcomes[-1].solution if outcomes else None
         point = None if before is None else (before.x, before.lam_x, before.lam_g)
@@ -272,8 +275,10 @@ def _continuation(scene: Scene, start: Start, budget: Budget, progress: Handler 
         outcome = _relaxed_solve(scene, inst, start.robot, start.T, start.name, start.guess,
                                  point, budget, progress, first_pass + len(outcomes), weight)
         outcomes.append(outcome)
-        if not (outcome.finite and outcome.solution.success) or budget.spent \
-                or continuation.virtual_peak(outcome.interp, na) < continuation.NEGLIGIBLE:
+        if not (outcome.finite and outcome.solution.success) or budget.spent:
+            break
+        peaks.append(continuation.virtual_peak(outcome.interp, na))
+        if peaks[-1] < continuation.NEGLIGIBLE or continuation.persists(peaks):
             break
     return outcomes
 
@@ -327,7 +332,7 @@ def _continuation_start(scene: Scene, robot: Robot, T: float) -> Start:
     tr = scene.transcription
     mesh = Mesh(np.asarray(tr.breaks)) if tr.breaks else Mesh.uniform(tr.intervals)
     return Start("continuation", mesh, continuation.relaxed_guess(scene, robot, T),
-                 "relaxed dynamics", T, robot, relaxed=True)
+                 "relaxed dynamics", T, robot, relaxed=True, may_stall=True)
 
 
 def _inverse_dynamics_applies(robot: Robot) -> bool:
