@@ -16,6 +16,7 @@ import math
 import os
 import platform
 import re
+import resource
 import shlex
 import statistics
 import subprocess
@@ -120,6 +121,13 @@ def timed(fn: Callable[[], object]) -> tuple[object, float, float]:
     wall, cpu = time.perf_counter(), time.process_time()
     out = fn()
     return out, time.perf_counter() - wall, time.process_time() - cpu
+
+
+def cpu_time() -> float:
+    """CPU time [s] of this process and its waited-for children (solver companions, peers
+    run in processes of their own)."""
+    child = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return time.process_time() + child.ru_utime + child.ru_stime
 
 
 def median(values: Iterable[float]) -> float:

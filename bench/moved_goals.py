@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import copy
 import math
-import resource
 import statistics
 import time
 
@@ -35,11 +34,6 @@ SECTION = "Built-in plan examples with their goals moved"
 MOVE = 0.05  # [rad] largest offset of a final angle
 INTERVALS = (50, 100)  # besides each example's own
 
-
-def _cpu() -> float:
-    """CPU time [s] of this process and its waited-for children (companion processes)."""
-    child = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return time.process_time() + child.ru_utime + child.ru_stime
 
 
 def variants(count: int) -> list[tuple[str, int, int, dict]]:
@@ -78,9 +72,9 @@ def run(count: int) -> list[dict]:
             rows.append({**row, "feasible": False})
             print(rows[-1], flush=True)
             continue
-        cpu, started = _cpu(), time.perf_counter()
+        cpu, started = harness.cpu_time(), time.perf_counter()
         result = plan(scene)
-        elapsed, cpu = time.perf_counter() - started, _cpu() - cpu
+        elapsed, cpu = time.perf_counter() - started, harness.cpu_time() - cpu
         ok = bool(result.solver.success and result.verification.verified)
         rows.append({**row, "feasible": True, "verified": ok, "time": elapsed, "cpu": cpu,
                      "iterations": result.solver.iterations, "objective": result.objective,

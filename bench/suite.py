@@ -50,7 +50,6 @@ import json
 import math
 import os
 import re
-import resource
 import subprocess
 import sys
 import tempfile
@@ -161,11 +160,6 @@ def log_counts(text: str, iterations: int) -> dict:
             + len(_ESTIMATES.findall(text))}
 
 
-def _cpu() -> float:
-    """CPU time [s] of this process and its waited-for children."""
-    child = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return time.process_time() + child.ru_utime + child.ru_stime
-
 
 def _settings(config: str) -> dict:
     """Scene changes of a planner configuration."""
@@ -200,12 +194,12 @@ def run_planner(config: str, count: int, seed: int, suite: str = "default",
                 scene = Scene.model_validate(_merged(scene.model_dump(mode="json"), changes))
             except ValidationError:  # a task this configuration cannot state (fatrop: free
                 continue  # time, co-design), left out as the peers leave theirs
-            cpu = _cpu()
+            cpu = harness.cpu_time()
             with solver_log() as log:
                 started = time.perf_counter()
                 result = plan(scene)
                 elapsed = time.perf_counter() - started
-            cpu = _cpu() - cpu
+            cpu = harness.cpu_time() - cpu
             v, s = result.verification, result.solver
             ok = bool(s.success and v.verified)
             row = {"task": name, "config": config, "verified": ok, "status": s.status,
@@ -260,12 +254,12 @@ def peer_task(config: str, scene: dict, cap: float = WALL_TIME) -> dict:
 
     set_cap(cap)
     task = Scene.model_validate(scene)
-    started, cpu = time.perf_counter(), _cpu()
+    started, cpu = time.perf_counter(), harness.cpu_time()
     if config == "Opti script":
         out = opti.solve(task, wall_time=WALL_TIME)
     else:
         out = rockit.solve(task, *ROCKIT[config], wall_time=WALL_TIME)
-    return {**out, "time": time.perf_counter() - started, "cpu": _cpu() - cpu}
+    return {**out, "time": time.perf_counter() - started, "cpu": harness.cpu_time() - cpu}
 
 
 def run_peer(config: str, count: int, seed: int, suite: str = "default",
