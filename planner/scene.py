@@ -95,6 +95,22 @@ class WaveCoDesign(BaseModel):
     frequency: list[float] = Field(description="fixed frequency of each active joint's wave")
 
 
+class Uncertainty(BaseModel):
+    """Relative errors of the robot's numbers that a plan should cope with: every link's
+    mass, inertia and length and every wave's amplitude may be off by up to this share
+    (docs/planner.md, "Robustness to model error")."""
+
+    model_config = _STRICT
+
+    mass: float = Field(default=0.0, ge=0.0, le=0.5, description="relative error of the masses")
+    inertia: float = Field(default=0.0, ge=0.0, le=0.5,
+                           description="relative error of the inertias")
+    length: float = Field(default=0.0, ge=0.0, le=0.2,
+                          description="relative error of the lengths")
+    amplitude: float = Field(default=0.0, ge=0.0, le=0.5,
+                             description="relative error of the wave amplitudes")
+
+
 class Task(BaseModel):
     """What the motion must do and what it costs."""
 
@@ -119,6 +135,9 @@ class Task(BaseModel):
     coupling_margin: float | None = Field(
         default=None, gt=0.0, description="sigma_min(M_pa) >= margin along the path")
     co_design: WaveCoDesign | None = None
+    uncertainty: Uncertainty | None = Field(
+        default=None, description="model errors the plan's verification replays its "
+                                  "feedback under (verification.robustness)")
 
     @model_validator(mode="after")
     def _positive(self) -> Task:
@@ -227,6 +246,11 @@ class SolverSettings(BaseModel):
                                      "a restart from its last iterate, the inverse dynamics "
                                      "as initial guess, a first mesh of twice and of half "
                                      "the intervals (docs/planner.md, \"Retries\")")
+    robustness: float | None = Field(
+        default=None, gt=0.0,
+        description="[rad] with task.uncertainty: the largest closed-loop tracking error "
+                    "a verified plan may have on the uncertainty's corner models (none: "
+                    "reported, not required)")
     resimulation_tolerance: float = Field(
         default=1e-3, gt=0.0,
         description="[rad] largest error of a verified plan when each interval is "

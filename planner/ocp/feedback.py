@@ -161,12 +161,12 @@ class _Reference:
 
 
 def replay(robot: Robot, interp: Interpolant, starts: np.ndarray, K: np.ndarray | None,
-           tol: float = REPLAY_TOL, compiled: bool = False) -> list[tuple[float | None, str]]:
+           tol: float = REPLAY_TOL, compiled: bool = False, ends: bool = False) -> list[tuple]:
     """Replays from each of `starts` (R, 2n) under the plan's torque and, with gains
     K (N, na, 2n), the feedback: per start, max |q_sim - q_plan| [rad] over REPLAY_SAMPLES
     points per interval and "completed", or None and where CVODES failed (compiled: the
-    dynamics compiled to C). Each start is replayed on its own: one that diverges leaves
-    the others' replays whole."""
+    dynamics compiled to C); ends: and the final state (2n,) (None where it failed). Each
+    start is replayed on its own: one that diverges leaves the others' replays whole."""
     s = Structure.of(robot)
     N, degree = interp.tau.coeffs.shape[0], interp.tau.coeffs.shape[1] - 1
     integrate = flow(s, degree, REPLAY_SAMPLES, 1, tol, compiled)
@@ -176,12 +176,13 @@ def replay(robot: Robot, interp: Interpolant, starts: np.ndarray, K: np.ndarray 
     ref = _Reference(breaks, np.hstack([interp.q(breaks), interp.dq(breaks)]),
                      interp.q(t).reshape(N, REPLAY_SAMPLES, -1), inputs(robot, interp)[1], K,
                      len(s.active_idx))
-    return [_replay_from(integrate, np.asarray(start, float), ref, s.n) for start in starts]
+    done = [_replay_from(integrate, np.asarray(start, float), ref, s.n) for start in starts]
+    return done if ends else [(error, status) for error, status, _ in done]
 
 
 def _replay_from(integrate: Flow, x: np.ndarray, ref: _Reference,
-                 n: int) -> tuple[float | None, str]:
-    """One replay from the state x (2n,) along `ref`."""
+                 n: int) -> tuple[float | None, str, np.ndarray | None]:
+    """One replay from the state x (2n,) along `ref`, and its final state."""
     worst = 0.0
     for k in range(len(ref.breaks) - 1):
         u = np.zeros(ref.na) if ref.K is None else -ref.K[k] @ (x - ref.planned[k])
@@ -190,9 +191,9 @@ def _replay_from(integrate: Flow, x: np.ndarray, ref: _Reference,
             states = integrate(x[:, None], ref.params[:, k:k + 1],
                                np.repeat(u[:, None], REPLAY_SAMPLES, axis=1))
         except RuntimeError:
-            return None, f"CVODES failed {where}"
+            return None, f"CVODES failed {where}", None
         if not np.all(np.isfinite(states)):
-            return None, f"the state became non-finite {where}"
+            return None, f"the state became non-finite {where}", None
         worst = max(worst, float(np.abs(states[:n].T - ref.q_plan[k]).max()))
         x = states[:, -1]
-    return worst, "completed"
+    return worst, "completed", x

@@ -537,7 +537,8 @@ def _result(scene: Scene, attempts: list[Attempt], budget: Budget) -> Plan:
     verification, feedback = (verify(robot, interp, t_dense, best.errors, best.errors_status,
                                      best.replayed, tolerance, scene.task.torque_limit,
                                      scene.solver.jit, scene.task.position_bounds,
-                                     scene.task.velocity_bounds)
+                                     scene.task.velocity_bounds, scene.task.uncertainty,
+                                     scene.solver.robustness)
                               if best.finite else (_unverified(tolerance), None))
     built = [o.inst for o in outcomes if not o.inst.cache_hit]
     refined_by = " + mesh refinement" if best is not attempt.outcomes[0] else ""

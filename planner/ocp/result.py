@@ -15,6 +15,7 @@ from planner.dynamics import Dynamics
 from planner.errors import InputError
 from planner.model import Robot, Wave
 from planner.ocp.interpolant import PiecewisePolynomial
+from planner.scene import Uncertainty
 from planner.torque import TorquePolynomial
 
 MAX_SAMPLE_TIMES = 1000
@@ -114,6 +115,25 @@ class Feedback(_Out):
     torque_weights: list[float] = Field(description="diagonal of R, per active joint")
 
 
+class Robustness(_Out):
+    """The plan with its feedback replayed on perturbed models of the robot (the corners of
+    task.uncertainty; docs/planner.md, "Robustness to model error")."""
+
+    uncertainty: Uncertainty
+    models: int = Field(description="perturbed models replayed")
+    worst_tracking_error: float | None = Field(
+        description="[rad] the largest |q_sim - q_plan| along the horizon over the models, "
+                    "closed loop from the planned initial state (None: a replay diverged)")
+    worst_final_error: float | None = Field(
+        description="[rad, rad/s] the largest |q - q_goal|, |dq - dq_goal| at the end over "
+                    "the models (None: a replay diverged)")
+    worst_model: str = Field(description="the model of the worst tracking error, e.g. "
+                                         "\"mass+ length-\"")
+    bound: float | None = Field(description="[rad] solver.robustness, if set")
+    within: bool | None = Field(description="worst_tracking_error within bound (None "
+                                            "without a bound)")
+
+
 class Verification(_Out):
     """Checks computed independently of the NLP."""
 
@@ -161,6 +181,10 @@ class Verification(_Out):
     perturbation: float | None = Field(
         default=None, description="[rad, rad/s] the perturbation of every initial angle "
                                   "and rate")
+    robustness: Robustness | None = Field(
+        default=None, description="the closed loop on perturbed models, where the task "
+                                  "states an uncertainty (None: it states none, or the "
+                                  "plan has no feedback)")
     defect: float | None = Field(
         description="integral of |M ddq + h - B tau| [N m s] along the plan's interpolant")
     torque_excess: float | None = Field(

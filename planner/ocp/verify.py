@@ -30,8 +30,9 @@ from planner.model import Robot, Structure, parameters
 from planner.ocp.feedback import PERTURBATION, gains, growth_factor, linearise, replay
 from planner.ocp.interpolant import PiecewisePolynomial
 from planner.ocp.result import Crossing, Feedback, Verification
+from planner.ocp.robustness import robustness
 from planner.ocp.transcription import Interpolant
-from planner.scene import Bounds
+from planner.scene import Bounds, Uncertainty
 
 RESIM_TOL = 1e-10
 LIMIT_RTOL = 1e-6
@@ -198,23 +199,33 @@ def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.nd
            errors_status: str, replayed: tuple[float | None, str], tolerance: float,
            torque_limit: list[float] | float | None,
            compiled: bool = False, position_bounds: Bounds | None = None,
-           velocity_bounds: Bounds | None = None) -> tuple[Verification, Feedback | None]:
+           velocity_bounds: Bounds | None = None, uncertainty: Uncertainty | None = None,
+           robust_within: float | None = None) -> tuple[Verification, Feedback | None]:
     """All checks of a plan of `robot` whose interpolant is `interp`, whose interval errors
     [rad] are `errors` and whose open-loop replay gave `replayed`; verified when every
     interval error is at most `tolerance` [rad] and the plan keeps the task's torque limit
-    and position and velocity bounds everywhere (`limits`). Also the plan's feedback (None
-    where the linearisation failed)."""
+    and position and velocity bounds everywhere (`limits`) and, with `robust_within` [rad],
+    when its feedback keeps the arm that close to the plan on every model of `uncertainty`
+    (`planner.ocp.robustness`). Also the plan's feedback (None where the linearisation
+    failed)."""
     error, status = replayed
     kept = limits(robot, interp, t_dense, torque_limit, position_bounds, velocity_bounds)
     sigma, _ = coupling_along(robot, interp.q(t_dense))
     crossings, waveless = singular_crossings(robot, interp, t_dense)
     local = float(errors.max())
     fb, measured = _feedback(robot, interp, torque_limit, compiled)
+    robust = None
+    if uncertainty is not None and fb is not None:
+        robust = robustness(robot, interp, np.asarray(fb.gains), uncertainty, robust_within,
+                            compiled)
+    robust_ok = uncertainty is None or robust_within is None \
+        or robust is not None and bool(robust.within)
     return Verification(
         local_error=local if np.isfinite(local) else None,
         interval_errors=[float(e) if np.isfinite(e) else None for e in errors],
         local_status=errors_status,
-        verified=errors_status == "completed" and local <= tolerance and not kept.violations,
+        verified=errors_status == "completed" and local <= tolerance and not kept.violations
+        and robust_ok,
         tolerance=tolerance,
         resimulation_error=error,
         resimulation_status=status,
@@ -228,6 +239,7 @@ def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.nd
         waveless_singular_crossings=crossings,
         sigma_min=_samples(sigma),
         waveless_sigma_min=_samples(waveless),
+        robustness=robust,
         **measured,
     ), fb
 
@@ -251,7 +263,8 @@ def unverified_reason(v: Verification) -> str | None:
     reasons = []
     if v.local_error is None:
         reasons.append(f"the plan's intervals could not all be re-integrated ({v.local_status})")
-    elif v.tolerance is None or v.local_error > v.tolerance or not v.limit_violations:
+    elif v.tolerance is None or v.local_error > v.tolerance \
+            or not (v.limit_violations or _fragile(v)):
         reasons.append(
             f"re-integrated interval by interval, the delivered torque departs from the plan "
             f"by {v.local_error:.3g} rad (tolerance {v.tolerance:g} rad): the mesh refinement "
@@ -260,4 +273,16 @@ def unverified_reason(v: Verification) -> str | None:
     if v.limit_violations:
         reasons.append("the plan does not keep the task's limits everywhere: "
                        + "; ".join(v.limit_violations))
+    if _fragile(v):
+        r = v.robustness
+        assert r is not None  # _fragile says so
+        worst = "diverges" if r.worst_tracking_error is None else \
+            f"departs from the plan by up to {r.worst_tracking_error:.3g} rad"
+        reasons.append(f"with its feedback on the perturbed model {r.worst_model!r} the arm "
+                       f"{worst} (solver.robustness {r.bound:g} rad)")
     return "; and ".join(reasons)
+
+
+def _fragile(v: Verification) -> bool:
+    """Whether the plan failed its robustness bound."""
+    return v.robustness is not None and v.robustness.within is False

@@ -1,0 +1,82 @@
+"""How a plan with its feedback copes with an arm that is not the one it was planned for.
+
+A scene may state an uncertainty (`task.uncertainty`): relative errors of the links'
+masses, inertias and lengths and of the waves' amplitudes. The perturbed models are the
+corners of that box with every link changed alike: each stated kind scaled by 1 - e or
+1 + e, all 2^k combinations of the k stated kinds (at most 16 models; a scaled length or
+amplitude keeps every wave inside its link, a < l). Each model replays the plan's torque
+with its LQR feedback (`planner.ocp.feedback`) from the planned initial state, and the
+report keeps the worst tracking error (largest |q_sim - q_plan| along the horizon) and
+the worst final-state error (|q - q_goal| and |dq - dq_goal| at the end, rad and rad/s).
+With `solver.robustness` set, a plan is verified only when the worst tracking error is
+within it.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+
+from planner.model import Robot
+from planner.ocp.feedback import replay
+from planner.ocp.result import Robustness
+from planner.ocp.transcription import Interpolant
+from planner.scene import Uncertainty
+
+KINDS = ("mass", "inertia", "length", "amplitude")
+"""The stated kinds, in the order their signs are named in a model's label."""
+MAX_AMPLITUDE_SHARE = 0.95
+"""A scaled wave amplitude is kept below this share of its (scaled) link's length."""
+
+
+def models(robot: Robot, uncertainty: Uncertainty) -> list[tuple[str, Robot]]:
+    """The corner models of the uncertainty box, each with a label such as "mass+ length-"."""
+    kinds = [k for k in KINDS if getattr(uncertainty, k) > 0]
+    out = []
+    for signs in itertools.product((-1.0, 1.0), repeat=len(kinds)):
+        scale = {k: 1.0 + s * getattr(uncertainty, k) for k, s in zip(kinds, signs, strict=True)}
+        label = " ".join(f"{k}{'+' if s > 0 else '-'}" for k, s in zip(kinds, signs, strict=True))
+        out.append((label, _scaled(robot, scale)))
+    return out
+
+
+def _scaled(robot: Robot, scale: dict[str, float]) -> Robot:
+    links = []
+    for link in robot.links:
+        length = link.length * scale.get("length", 1.0)
+        update: dict[str, object] = {"mass": link.mass * scale.get("mass", 1.0),
+                                     "inertia": link.inertia * scale.get("inertia", 1.0),
+                                     "length": length}
+        if link.wave is not None:
+            amplitude = min(link.wave.amplitude * scale.get("amplitude", 1.0),
+                            MAX_AMPLITUDE_SHARE * length)
+            update["wave"] = link.wave.model_copy(update={"amplitude": amplitude})
+        links.append(link.model_copy(update=update))
+    return robot.model_copy(update={"links": links})
+
+
+def robustness(robot: Robot, interp: Interpolant, K: np.ndarray, uncertainty: Uncertainty,
+               bound: float | None, compiled: bool = False) -> Robustness:
+    """The plan `interp` of `robot` with gains K (N, na, 2n) replayed on every corner model
+    of `uncertainty`; `bound` [rad]: the largest worst tracking error it may have."""
+    breaks = interp.q.breaks
+    start = np.concatenate([interp.q(breaks[:1])[0], interp.dq(breaks[:1])[0]])
+    goal = np.concatenate([interp.q(breaks[-1:])[0], interp.dq(breaks[-1:])[0]])
+    tracking: list[float] = []
+    final: list[float] = []
+    labels = []
+    for label, model in models(robot, uncertainty):
+        (error, _, end), = replay(model, interp, start[None, :], K, compiled=compiled,
+                                  ends=True)
+        labels.append(label)
+        tracking.append(np.inf if error is None else error)
+        final.append(np.inf if end is None else float(np.abs(end - goal).max()))
+    worst = int(np.argmax(tracking))
+    worst_tracking = tracking[worst]
+    return Robustness(
+        uncertainty=uncertainty, models=len(labels),
+        worst_tracking_error=worst_tracking if np.isfinite(worst_tracking) else None,
+        worst_final_error=max(final) if np.isfinite(max(final)) else None,
+        worst_model=labels[worst], bound=bound,
+        within=None if bound is None else bool(worst_tracking <= bound))

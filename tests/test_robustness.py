@@ -1,0 +1,93 @@
+"""A plan's feedback on perturbed models of its robot (task.uncertainty, solver.robustness)."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+
+from planner.examples import example
+from planner.model import Robot
+from planner.ocp import plan
+from planner.ocp.feedback import replay
+from planner.ocp.interpolant import PiecewisePolynomial
+from planner.ocp.result import Plan
+from planner.ocp.robustness import models, robustness
+from planner.ocp.transcription import Interpolant
+from planner.ocp.verify import unverified_reason
+from planner.scene import Scene, Uncertainty
+
+
+def _scene(**changes) -> Scene:
+    request = copy.deepcopy(example("two-link-plan").request)
+    request["task"]["uncertainty"] = {"mass": 0.1}
+    request["solver"].update(changes)
+    return Scene.model_validate(request)
+
+
+@pytest.fixture(scope="module")
+def planned() -> tuple[Scene, Plan]:
+    scene = _scene()
+    return scene, plan(scene)
+
+
+def _interp(result: Plan) -> Interpolant:
+    """The plan's own polynomials (states, delivered torque) as one interpolant."""
+    assert result.states is not None and result.torque is not None
+    q, dq = result.states.polynomials()
+    tau = PiecewisePolynomial(np.asarray(result.torque.breaks),
+                              np.asarray(result.torque.coefficients))
+    return Interpolant(q, dq, tau)
+
+
+def test_the_models_are_the_corners_of_the_stated_kinds():
+    robot = Robot.model_validate(example("seed-arm-plan").request["robot"])
+    corners = models(robot, Uncertainty(mass=0.1, length=0.05))
+    assert [label for label, _ in corners] == ["mass- length-", "mass- length+",
+                                               "mass+ length-", "mass+ length+"]
+    heavy_long = dict(corners)["mass+ length+"]
+    for before, after in zip(robot.links, heavy_long.links, strict=True):
+        assert after.mass == pytest.approx(1.1 * before.mass)
+        assert after.length == pytest.approx(1.05 * before.length)
+        assert after.inertia == before.inertia
+        if before.wave is not None:
+            assert after.wave is not None and after.wave.amplitude == before.wave.amplitude
+    assert [label for label, _ in models(robot, Uncertainty())] == [""]
+
+
+def test_the_feedback_holds_a_heavier_arm_near_the_plan_where_the_torque_alone_does_not(
+        planned: tuple[Scene, Plan]):
+    scene, result = planned
+    report = result.verification.robustness
+    assert report is not None and report.models == 2
+    assert report.worst_tracking_error is not None and report.worst_final_error is not None
+    # the perturbation is applied: on the planned arm the closed loop is exact
+    assert result.verification.closed_loop_error < 1e-2 * report.worst_tracking_error
+    interp = _interp(result)
+    start = np.concatenate([interp.q(interp.q.breaks[:1])[0],
+                            interp.dq(interp.q.breaks[:1])[0]])
+    open_loop = [replay(model, interp, start[None, :], None)[0][0]
+                 for _, model in models(scene.robot, Uncertainty(mass=0.1))]
+    assert report.worst_tracking_error < 0.2 * max(e for e in open_loop if e is not None)
+    # gains of the wrong sign push the arm away: the report sees it
+    K = np.asarray(result.feedback.gains)
+    wrong = robustness(scene.robot, interp, -K, Uncertainty(mass=0.1), None)
+    assert wrong.worst_tracking_error is None or \
+        wrong.worst_tracking_error > 5 * report.worst_tracking_error
+
+
+def test_a_bound_the_closed_loop_misses_leaves_the_plan_unverified_and_says_why(
+        planned: tuple[Scene, Plan]):
+    _, result = planned
+    worst = result.verification.robustness.worst_tracking_error
+    tight = plan(_scene(robustness=worst / 2))
+    assert tight.verification.robustness.within is False
+    assert tight.verification.verified is False
+    assert unverified_reason(tight.verification) == (
+        f"with its feedback on the perturbed model "
+        f"{tight.verification.robustness.worst_model!r} the arm departs from the plan by up "
+        f"to {tight.verification.robustness.worst_tracking_error:.3g} rad "
+        f"(solver.robustness {worst / 2:g} rad)")
+    loose = plan(_scene(robustness=2 * worst))
+    assert loose.verification.robustness.within is True and loose.verification.verified
