@@ -117,10 +117,12 @@ def _reason(error: RuntimeError) -> str:
 
 def simulate(robot: Robot, breakpoints, coeffs, x0, samples_per_interval: int = 1,
              rtol: float = 1e-10, atol: float = 1e-10, *, method: Method = "adams",
-             deadline: float | None = None) -> Trajectory:
+             deadline: float | None = None, feedback: ClosedLoop | None = None) -> Trajectory:
     """Integrate M ddq + h = B tau from x0 = (q, dq) under piecewise-polynomial torques.
 
     breakpoints (K + 1,) [s]; coeffs (K, degree + 1, n_active) as in `torque_coefficients`.
+    feedback: on interval k the torque is tau(t) - K_k (x(t_k) - x_ref(t_k)), the
+    correction held over the interval (a plan's LQR feedback, `ClosedLoop`).
     Returns the state at every breakpoint and `samples_per_interval - 1` points between.
     A failed integration does not raise: it returns what was reached with status
     "failed" and a message saying in which interval and why.
@@ -141,13 +143,16 @@ def simulate(robot: Robot, breakpoints, coeffs, x0, samples_per_interval: int = 
     x = np.asarray(x0, float)
     times, states = [tk[0]], [x]
     for k in range(K):
-        h = tk[k + 1] - tk[k]
+        h, start = tk[k + 1] - tk[k], x
         where = f"between t = {tk[k]:.6g} s and t = {tk[k + 1]:.6g} s"
         outputs = tk[k] + h * np.linspace(0, 1, samples_per_interval + 1)[1:]
         for j in range(pieces):
             what = f"the simulation (at t = {tk[k] + h * j / pieces:.6g} s of {tk[-1]:.6g} s)"
             budget.check(deadline, what)
             c = _restricted(coeffs[k], j / pieces, 1 / pieces)
+            if feedback is not None:
+                c = c.copy()
+                c[0] -= feedback.correction(k, start)
             try:
                 out, _ = sim(deadline, what, x0=x, p=np.concatenate([p, c.ravel(), [h / pieces]]))
             except RuntimeError as exc:
@@ -181,6 +186,40 @@ def _trajectory(times, states, n, status, message) -> Trajectory:
                       status=status, message=message)
 
 
+class ClosedLoop(BaseModel):
+    """A tracking feedback, applied at the torque's breakpoints t_k: on interval k the torque
+    is tau(t) - K_k (x(t_k) - x_ref(t_k)), x = (q, dq) the simulated state at t_k, the
+    correction held until t_{k+1}. A plan's `feedback.gains` with its `q` and `dq` (at its
+    `t`, the breakpoints of its `torque`) are one."""
+
+    model_config = _STRICT
+
+    gains: list[list[list[float]]] = Field(
+        description="K_k for every interval: n_active x 2n [N m/rad, N m s/rad]")
+    q: list[list[float]] = Field(description="reference angles at every breakpoint [rad]")
+    dq: list[list[float]] = Field(description="reference rates at every breakpoint [rad/s]")
+
+    def correction(self, k: int, x: np.ndarray) -> np.ndarray:
+        """K_k (x - x_ref(t_k)) [N m] for the state x (2n,) at breakpoint k."""
+        reference = np.concatenate([self.q[k], self.dq[k]])
+        return np.asarray(self.gains[k]) @ (np.asarray(x) - reference)
+
+    def check(self, intervals: int, n: int, na: int) -> None:
+        """ValueError naming the first field whose shape disagrees with the torque's
+        intervals and the robot's n joints, na of them active."""
+        if len(self.gains) != intervals:
+            raise ValueError(f"gains: needs {intervals} matrices, one per interval "
+                             f"(got {len(self.gains)})")
+        for k, K in enumerate(self.gains):
+            if len(K) != na or any(len(row) != 2 * n for row in K):
+                raise ValueError(f"gains.{k}: needs {na} rows of {2 * n} entries")
+        for name in ("q", "dq"):
+            rows = getattr(self, name)
+            if len(rows) != intervals + 1 or any(len(r) != n for r in rows):
+                raise ValueError(f"{name}: needs {intervals + 1} rows of {n} entries, one "
+                                 f"per breakpoint")
+
+
 class SimulationRequest(BaseModel):
     """The torques of the active joints, as samples with their interpolation or as a
     piecewise polynomial, and the initial state."""
@@ -202,6 +241,9 @@ class SimulationRequest(BaseModel):
     initial: JointState = Field(description="the state at the first time, one entry per "
                                             "joint")
     samples_per_interval: int = Field(default=1, ge=1, le=100)
+    feedback: ClosedLoop | None = Field(
+        default=None, description="a tracking feedback on top of the torques (closed loop; "
+                                  "docs/api.md, \"The feedback law\")")
     rtol: float = Field(default=1e-10, ge=1e-14, le=1e-2)
     atol: float = Field(default=1e-10, ge=1e-14, le=1e-2)
 
@@ -257,6 +299,11 @@ class SimulationRequest(BaseModel):
         given = [name for name in ("t", "tau", "torque") if getattr(self, name) is not None]
         if given not in (["t", "tau"], ["torque"]):
             raise ValueError(f"give either t and tau, or torque (got {', '.join(given) or 'none'})")
+        if self.feedback is not None:
+            try:
+                self.feedback.check(len(self.breaks) - 1, self.robot.n, len(self.robot.active))
+            except ValueError as exc:
+                raise ValueError(f"feedback.{exc}") from None
         return self
 
     @field_validator("initial")
@@ -282,4 +329,4 @@ def run(request: SimulationRequest, *, deadline: float | None = None) -> Traject
                                      request.interpolation)
     x0 = np.concatenate([request.initial.q, request.initial.dq])
     return simulate(request.robot, request.breaks, coeffs, x0, request.samples_per_interval,
-                    request.rtol, request.atol, deadline=deadline)
+                    request.rtol, request.atol, deadline=deadline, feedback=request.feedback)

@@ -357,3 +357,11 @@ def test_inverse_dynamics_field_errors(api):
     request["duration"] = 0
     assert errors_of(api.post("/v1/inverse-dynamics", json=request)) == [
         (["body", "duration"], "Input should be greater than 0")]
+
+
+def test_a_closed_loop_simulation_names_a_misshapen_feedback_at_its_field(api):
+    request = {"robot": TWO_LINK, "t": [0.0, 1.0], "tau": [[0.0], [0.0]],
+               "initial": {"q": [0, 0], "dq": [0, 0]},
+               "feedback": {"gains": [[[0.0] * 4]], "q": [[0, 0]], "dq": [[0, 0], [0, 0]]}}
+    assert errors_of(api.post("/v1/simulate", json=request)) == [
+        (["body", "feedback", "q"], "needs 2 rows of 2 entries, one per breakpoint")]

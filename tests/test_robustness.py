@@ -6,6 +6,7 @@ import copy
 
 import numpy as np
 import pytest
+from pydantic import ValidationError
 
 from planner.examples import example
 from planner.model import Robot
@@ -17,6 +18,7 @@ from planner.ocp.robustness import models, robustness
 from planner.ocp.transcription import Interpolant
 from planner.ocp.verify import unverified_reason
 from planner.scene import Scene, Uncertainty
+from planner.simulate import SimulationRequest, run
 
 
 def _scene(**changes) -> Scene:
@@ -91,3 +93,34 @@ def test_a_bound_the_closed_loop_misses_leaves_the_plan_unverified_and_says_why(
         f"(solver.robustness {worst / 2:g} rad)")
     loose = plan(_scene(robustness=2 * worst))
     assert loose.verification.robustness.within is True and loose.verification.verified
+
+
+def test_the_simulation_applies_the_plans_feedback_as_the_verification_does(
+        planned: tuple[Scene, Plan]):
+    # an independent integration of the closed loop (planner.simulate's own CVODES set-up)
+    # on the worst model reproduces the verification's worst tracking error
+    scene, result = planned
+    report = result.verification.robustness
+    model = dict(models(scene.robot, Uncertainty(mass=0.1)))[report.worst_model]
+    request = SimulationRequest.model_validate({
+        "robot": model.model_dump(mode="json"), "torque": result.torque.model_dump(),
+        "initial": {"q": result.q[0], "dq": result.dq[0]}, "samples_per_interval": 4,
+        "feedback": {"gains": result.feedback.gains, "q": result.q, "dq": result.dq}})
+    closed = run(request)
+    interp = _interp(result)
+    error = float(np.abs(np.asarray(closed.q) - interp.q(np.asarray(closed.t))).max())
+    assert closed.status == "completed"
+    assert error == pytest.approx(report.worst_tracking_error, rel=1e-4)
+    open_loop = run(request.model_copy(update={"feedback": None}))
+    assert float(np.abs(np.asarray(open_loop.q) - interp.q(np.asarray(open_loop.t))).max()) \
+        > 5 * error
+
+
+def test_a_feedback_of_the_wrong_shape_is_refused_at_its_field(planned: tuple[Scene, Plan]):
+    scene, result = planned
+    with pytest.raises(ValidationError, match=r"feedback\.gains: needs 40 matrices, one per "
+                                              r"interval \(got 39\)"):
+        SimulationRequest.model_validate({
+            "robot": scene.robot.model_dump(mode="json"), "torque": result.torque.model_dump(),
+            "initial": {"q": result.q[0], "dq": result.dq[0]},
+            "feedback": {"gains": result.feedback.gains[1:], "q": result.q, "dq": result.dq}})
