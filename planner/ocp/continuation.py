@@ -22,15 +22,6 @@ VIRTUAL_WEIGHTS = (1e1, 1e2, 1e3, 1e4, 1e5)
 """Effort weights of the virtual torques, one relaxed solve each, in order."""
 NEGLIGIBLE = 1e-6
 """[N m] virtual torques below this everywhere end the continuation early."""
-PERSISTENT = 0.5
-"""A tenfold weight that leaves more than this share of the virtual torque's peak ends the
-continuation: where the task is feasible near the relaxed plan the virtual torque falls
-about as 1 / weight, and one that persists is what the task cannot do without."""
-PERSISTS_FROM = 1e3
-"""The weight from which a persisting virtual torque ends the continuation (below it, the
-relaxed plans still move towards the passive joints' own dynamics)."""
-
-
 def applies(scene: Scene) -> bool:
     """Whether the task has passive joints and an implicit transcription (the relaxed NLP
     adds its virtual torques to the implicit dynamics rows)."""
@@ -61,14 +52,6 @@ def active_guess(interp: Interpolant, T: float, active: int) -> Guess:
         return {**out, "tau": out["tau"][:, :active]}
 
     return guess
-
-
-def persists(peaks: list[float]) -> bool:
-    """Whether the virtual torque peaks [N m] of the solves so far (one per weight of
-    VIRTUAL_WEIGHTS) show a virtual torque that the growing weight does not remove."""
-    k = len(peaks) - 1
-    return k >= 1 and VIRTUAL_WEIGHTS[k] >= PERSISTS_FROM \
-        and peaks[k] > PERSISTENT * peaks[k - 1]
 
 
 def virtual_peak(interp: Interpolant, active: int) -> float:

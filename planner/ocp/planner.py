@@ -99,9 +99,8 @@ class Start:
     relaxed: bool = False
     """Start from the continuation of relaxed NLPs (`planner.ocp.continuation`) on `mesh`."""
     may_stall: bool = False
-    """Stop its first solve of the task's NLP when it stalls (`planner.ocp.monitor`): the
-    scene's own start, which the other starts are there to rescue, and the continuation's
-    (a few iterations from a relaxed plan that needs no virtual torque)."""
+    """Stop its first solves when they stall (`planner.ocp.monitor`): the scene's own start,
+    which the other starts are there to rescue."""
 
 
 @dataclass
@@ -138,10 +137,11 @@ def plan(scene: Scene, progress: Handler | None = None, warm_start: Plan | None 
     budget = Budget.of(scene.solver.max_iter, scene.solver.max_wall_time)
     robot, T = _design_robot(scene), _duration_guess(scene)
     attempts: list[Attempt] = []
-    starts = itertools.islice(_starts(scene, robot, T, warm_start, attempts),
+    alone = warm_start is not None or not continuation.applies(scene) \
+        or scene.solver.retries == 0 or portfolio.solver_processes() < 2
+    starts = itertools.islice(_starts(scene, robot, T, warm_start, attempts, stall=alone),
                               1 + scene.solver.retries)
-    if warm_start is not None or not continuation.applies(scene) \
-            or scene.solver.retries == 0 or portfolio.solver_processes() < 2:
+    if alone:
         _attempt(scene, starts, attempts, budget, progress)
         return _result(scene, attempts, budget)
     relaxed = _continuation_start(scene, robot, T)
@@ -262,12 +262,10 @@ def _first_solves(scene: Scene, start: Start, budget: Budget, progress: Handler 
 def _continuation(scene: Scene, start: Start, budget: Budget, progress: Handler | None,
                   first_pass: int) -> list[Outcome]:
     """The relaxed NLPs' solves, each weight of `continuation.VIRTUAL_WEIGHTS` in turn from
-    the solution before, until the virtual torques are negligible, a solve fails, the
-    budget is spent or the virtual torques stop shrinking (`continuation.persists`; at
-    least one solve)."""
+    the solution before, until the virtual torques are negligible, a solve fails or the
+    budget is spent (at least one solve)."""
     na = len(start.robot.active)
     outcomes: list[Outcome] = []
-    peaks: list[float] = []
     for weight in continuation.VIRTUAL_WEIGHTS:
         before = outcomes[-1].solution if outcomes else None
         point = None if before is None else (before.x, before.lam_x, before.lam_g)
@@ -277,14 +275,13 @@ def _continuation(scene: Scene, start: Start, budget: Budget, progress: Handler 
         outcomes.append(outcome)
         if not (outcome.finite and outcome.solution.success) or budget.spent:
             break
-        peaks.append(continuation.virtual_peak(outcome.interp, na))
-        if peaks[-1] < continuation.NEGLIGIBLE or continuation.persists(peaks):
+        if continuation.virtual_peak(outcome.interp, na) < continuation.NEGLIGIBLE:
             break
     return outcomes
 
 
 def _starts(scene: Scene, robot: Robot, T: float, warm_start: Plan | None,
-            attempts: list[Attempt]) -> Iterator[Start]:
+            attempts: list[Attempt], stall: bool = True) -> Iterator[Start]:
     """The attempts of a plan, in order, each tried while the ones before it have not
     given a converged plan (with mesh refinement on: an accurate one; docs/planner.md,
     "Retries"): an earlier plan's own NLP solution where it solved the same problem on a
@@ -294,7 +291,8 @@ def _starts(scene: Scene, robot: Robot, T: float, warm_start: Plan | None,
     dynamics (`planner.ocp.continuation`), where it applies; a restart from the last
     iterate of the scene's start where that neither converged nor stalled;
     the classical inverse dynamics as the initial guess; a first mesh of twice, then of
-    half the intervals."""
+    half the intervals. stall: the scene's own start is stopped when it stalls (where no
+    companion process solves the continuation meanwhile)."""
     tr = scene.transcription
     mesh = Mesh(np.asarray(tr.breaks)) if tr.breaks else Mesh.uniform(tr.intervals)
     guess, used = _guess(scene, robot, T, warm_start)
@@ -307,9 +305,9 @@ def _starts(scene: Scene, robot: Robot, T: float, warm_start: Plan | None,
     if tr.refinement.enabled and warm_start is None and tr.breaks is None \
             and tr.intervals > COARSE_INTERVALS:
         yield Start("coarse to fine", mesh, guess, used, T, robot,
-                    coarse=Mesh.uniform(COARSE_INTERVALS), may_stall=True)
+                    coarse=Mesh.uniform(COARSE_INTERVALS), may_stall=stall)
     else:
-        yield Start("direct", mesh, guess, used, T, robot, may_stall=True)
+        yield Start("direct", mesh, guess, used, T, robot, may_stall=stall)
     if continuation.applies(scene):
         yield _continuation_start(scene, robot, T)
     last = [a for a in attempts if not a.start.relaxed][-1].outcomes[-1]
@@ -332,7 +330,7 @@ def _continuation_start(scene: Scene, robot: Robot, T: float) -> Start:
     tr = scene.transcription
     mesh = Mesh(np.asarray(tr.breaks)) if tr.breaks else Mesh.uniform(tr.intervals)
     return Start("continuation", mesh, continuation.relaxed_guess(scene, robot, T),
-                 "relaxed dynamics", T, robot, relaxed=True, may_stall=True)
+                 "relaxed dynamics", T, robot, relaxed=True)
 
 
 def _inverse_dynamics_applies(robot: Robot) -> bool:
