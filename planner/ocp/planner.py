@@ -19,10 +19,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from planner import feasibility
 from planner.dynamics import Dynamics
 from planner.errors import InputError
 from planner.model import Robot, Wave
-from planner.ocp import continuation, portfolio
+from planner.ocp import continuation, infeasibility, portfolio
 from planner.ocp.accuracy import interval_errors
 from planner.ocp.feedback import REPLAY_SAMPLES
 from planner.ocp.guess import (
@@ -135,6 +136,9 @@ def plan(scene: Scene, progress: Handler | None = None, warm_start: Plan | None 
     """
     budget = Budget.of(scene.solver.max_iter, scene.solver.max_wall_time)
     robot, T = _design_robot(scene), _duration_guess(scene)
+    issues = feasibility.check(scene)
+    if issues:  # known infeasible before any solve
+        return infeasibility.refused(scene, issues, budget.started, T)
     attempts: list[Attempt] = []
     starts = itertools.islice(_starts(scene, robot, T, warm_start, attempts),
                               1 + scene.solver.retries)
@@ -151,7 +155,8 @@ def plan(scene: Scene, progress: Handler | None = None, warm_start: Plan | None 
         if not handler.cancelled and companion.verified() and companion.plan is not None:
             return _joined(companion.plan, _passes_of(attempts), budget)
         own = _result(scene, attempts, budget)
-        if handler.cancelled or own.solver.success and own.verification.verified:
+        if handler.cancelled or own.infeasibility is not None \
+                or own.solver.success and own.verification.verified:
             return _joined(own, [], budget)
         other = companion.wait(budget.deadline + COMPANION_GRACE)
         return _joined(own if other is None or _better(own, other) else other,
@@ -177,7 +182,7 @@ def _attempt(scene: Scene, starts: Iterator[Start], attempts: list[Attempt], bud
         last = attempt.outcomes[-1]
         settled = last.accurate(tolerance) or not scene.transcription.refinement.enabled
         if last.solution.success and settled or budget.spent \
-                or last.solution.status == "User_Requested_Stop":
+                or last.solution.status == "User_Requested_Stop" or infeasibility.agreed(attempts):
             break
 
 
@@ -518,6 +523,8 @@ def _interpolant(inst: Instance, robot: Robot, T: float, x: np.ndarray) -> Inter
 def _result(scene: Scene, attempts: list[Attempt], budget: Budget) -> Plan:
     ranked = [(o, a) for a in attempts for o in a.outcomes]
     best, attempt = min(ranked, key=lambda pair: _rank(pair[0]))
+    if infeasibility.agreed(attempts):  # the plan is the most informative one's iterate
+        best, attempt = infeasibility.most_informative(attempts) or (best, attempt)
     outcomes = [o for a in attempts for o in a.solves()]
     sol, interp, robot = best.solution, best.interp, best.robot
     breaks = best.inst.mesh.breaks * best.T
@@ -535,7 +542,7 @@ def _result(scene: Scene, attempts: list[Attempt], budget: Budget) -> Plan:
                               if best.finite else (_unverified(tolerance), None))
     built = [o.inst for o in outcomes if not o.inst.cache_hit]
     refined_by = " + mesh refinement" if best is not attempt.outcomes[0] else ""
-    return Plan(
+    return infeasibility.annotate(Plan(
         t=breaks.tolist(), q=_finite(interp.q(breaks)), dq=_finite(interp.dq(breaks)),
         ddq=_finite(interp.dq(breaks, derivative=1)), tau=_finite(interp.tau(breaks)),
         dense=DenseTrajectory(t=t_dense.tolist(), q=_finite(interp.q(t_dense)),
@@ -559,7 +566,7 @@ def _result(scene: Scene, attempts: list[Attempt], budget: Budget) -> Plan:
         feedback=feedback,
         verification=verification,
         solution=_nlp_solution(best),
-    )
+    ), scene, attempts, best, attempt)
 
 
 def _nlp_solution(outcome: Outcome) -> NlpSolution | None:

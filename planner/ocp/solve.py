@@ -29,8 +29,17 @@ _MESSAGES = {"User_Requested_Stop": "the solve was cancelled",
              "Maximum_Iterations_Exceeded": "the iteration limit was reached",
              "Maximum_WallTime_Exceeded": "the wall-time limit was reached",
              "Infeasible_Problem_Detected": "the task is infeasible (constraints cannot all hold)",
+             "Local_Infeasibility": "the solve converged to a point of locally least "
+                                    "constraint violation (constraints cannot all hold)",
+             "Restoration_Failed": "the restoration phase failed to reduce the constraint "
+                                   "violation",
              "Stalled": f"the solve stalled: no progress towards feasibility over "
                         f"{STALL_WINDOW} iterations"}
+
+
+INFEASIBLE = frozenset({"Infeasible_Problem_Detected", "Local_Infeasibility",
+                        "Restoration_Failed"})
+"""Statuses by which a solve says that its constraints cannot all hold (from where it went)."""
 
 
 @dataclass
@@ -67,6 +76,8 @@ class Solution:
     message: str
     iterations: int
     time: float
+    g: np.ndarray | None = None
+    """The constraint rows at x (None where the solver gave none)."""
 
 
 def message(status: str, success: bool) -> str:
@@ -112,4 +123,5 @@ def solve(inst: Instance, x0: np.ndarray, budget: Budget, handler: Handler | Non
     return Solution(np.array(out["x"]).ravel(), np.array(out["lam_x"]).ravel(),
                     np.array(out["lam_g"]).ravel(),
                     objective if math.isfinite(objective) else math.nan, status, success,
-                    message(status, success), iterations, elapsed)
+                    message(status, success), iterations, elapsed,
+                    np.array(out["g"]).ravel())
