@@ -247,6 +247,8 @@ def _first_solves(scene: Scene, start: Start, budget: Budget, progress: Handler 
         preliminary = [_solve_on(scene, instance(scene, robot, start.coarse, T), robot, T,
                                  guess, budget, progress, first_pass, start.name,
                                  stall=start.may_stall)]
+        if budget.spent:  # no time left for its own mesh: the coarse plan is the attempt's
+            return [], preliminary[0]
         if preliminary[0].solution.success:
             guess, robot, T = (interpolant_guess(preliminary[0].interp, preliminary[0].T),
                                preliminary[0].robot, preliminary[0].T)
@@ -401,8 +403,10 @@ def _solve_on(scene: Scene, inst: Instance, robot: Robot, T: float, guess: Guess
     outcome = _outcome(scene, inst, robot, T, solution, strategy, started)
     if not outcome.finite:
         return outcome
+    checked = time.perf_counter()
     errors, status = interval_errors(outcome.robot, outcome.interp, scene.solver.jit)
     replayed = open_loop(outcome.robot, outcome.interp, scene.solver.jit)
+    budget.measured = time.perf_counter() - checked  # what the final checks will scale with
     record = outcome.record.model_copy(update={
         "max_local_error": _finite_or_none(float(errors.max())),
         "resimulation_error": replayed[0], "time": time.perf_counter() - started})
@@ -538,7 +542,7 @@ def _result(scene: Scene, attempts: list[Attempt], budget: Budget) -> Plan:
     verification, feedback = (verify(robot, interp, t_dense, best.errors, best.errors_status,
                                      best.replayed, tolerance, scene.task.torque_limit,
                                      scene.solver.jit, scene.task.position_bounds,
-                                     scene.task.velocity_bounds)
+                                     scene.task.velocity_bounds, budget.deadline)
                               if best.finite else (_unverified(tolerance), None))
     built = [o.inst for o in outcomes if not o.inst.cache_hit]
     refined_by = " + mesh refinement" if best is not attempt.outcomes[0] else ""

@@ -152,6 +152,11 @@ class Verification(_Out):
     perturbation: float | None = Field(
         default=None, description="[rad, rad/s] the perturbation of every initial angle "
                                   "and rate")
+    skipped: list[str] = Field(
+        default_factory=list,
+        description="checks that were not run, and why: the closed-loop replays (optional, "
+                    "not needed for `verified`) when the plan's wall-time budget had run out "
+                    "before them")
     defect: float | None = Field(
         description="integral of |M ddq + h - B tau| [N m s] along the plan's interpolant")
     torque_excess: float | None = Field(

@@ -20,6 +20,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from time import perf_counter
 
 import numpy as np
 from scipy.optimize import minimize_scalar
@@ -172,15 +173,22 @@ def limits(robot: Robot, interp: Interpolant, t: np.ndarray,
     return Limits(torque, found["position"], found["velocity"], violations)
 
 
+SKIPPED_REPLAYS = ("closed-loop replays: not run, the plan's wall-time budget "
+                   "(solver.max_wall_time) had run out")
+
+
 def _feedback(robot: Robot, interp: Interpolant, torque_limit: list[float] | float | None,
-              compiled: bool) -> tuple[Feedback | None, dict]:
-    """The plan's LQR feedback and what it and the open-loop sensitivity measure."""
+              compiled: bool, deadline: float | None = None) -> tuple[Feedback | None, dict]:
+    """The plan's LQR feedback and what it and the open-loop sensitivity measure; past the
+    deadline (time.perf_counter() seconds), without the closed-loop replays."""
     lin = linearise(robot, interp, compiled)
     if lin is None:
         return None, {}
     scale = max(float(np.max(torque_limit)) if torque_limit is not None
                 else float(np.abs(interp.tau.coeffs[:, 0]).max(initial=0.0)), 1.0)
     fb = gains(lin, np.diff(interp.q.breaks), scale)
+    if deadline is not None and perf_counter() > deadline:
+        return fb, {"growth_factor": growth_factor(lin), "skipped": [SKIPPED_REPLAYS]}
     K = np.asarray(fb.gains)
     breaks = interp.q.breaks
     start = np.concatenate([interp.q(breaks[:1])[0], interp.dq(breaks[:1])[0]])
@@ -195,18 +203,20 @@ def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.nd
            errors_status: str, replayed: tuple[float | None, str], tolerance: float,
            torque_limit: list[float] | float | None,
            compiled: bool = False, position_bounds: Bounds | None = None,
-           velocity_bounds: Bounds | None = None) -> tuple[Verification, Feedback | None]:
+           velocity_bounds: Bounds | None = None,
+           deadline: float | None = None) -> tuple[Verification, Feedback | None]:
     """All checks of a plan of `robot` whose interpolant is `interp`, whose interval errors
     [rad] are `errors` and whose open-loop replay gave `replayed`; verified when every
     interval error is at most `tolerance` [rad] and the plan keeps the task's torque limit
     and position and velocity bounds everywhere (`limits`). Also the plan's feedback (None
-    where the linearisation failed)."""
+    where the linearisation failed). Past `deadline` (time.perf_counter() seconds), the
+    optional checks, the closed-loop replays, are skipped (`Verification.skipped`)."""
     error, status = replayed
     kept = limits(robot, interp, t_dense, torque_limit, position_bounds, velocity_bounds)
     sigma, _ = coupling_along(robot, interp.q(t_dense))
     crossings, waveless = singular_crossings(robot, interp, t_dense)
     local = float(errors.max())
-    fb, measured = _feedback(robot, interp, torque_limit, compiled)
+    fb, measured = _feedback(robot, interp, torque_limit, compiled, deadline)
     return Verification(
         local_error=local if np.isfinite(local) else None,
         interval_errors=[float(e) if np.isfinite(e) else None for e in errors],
