@@ -158,3 +158,11 @@ def test_the_service_answers_422_at_the_infeasible_fields(api):
     assert "above its upper bound 0.5" in errors[0]["msg"]
     assert "beyond the arm's reach" in errors[1]["msg"]
     assert api.post("/v1/plans", json=two_link_scene()).status_code == 202
+
+
+def test_a_duration_range_found_infeasible_says_so_for_the_whole_range():
+    scene = with_task(chain_scene(2, intervals=10), duration={"min": 0.1, "max": 0.15},
+                      torque_limit=1.0)
+    p = plan(scene)
+    assert p.infeasibility is not None and p.infeasibility.durations == [0.1, 0.15]
+    assert "cannot be done with a free duration in [0.1, 0.15] s" in p.infeasibility.summary
