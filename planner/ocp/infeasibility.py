@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
@@ -36,8 +37,8 @@ from planner.ocp.result import (
     ViolatedRows,
     WaveOut,
 )
-from planner.ocp.solve import INFEASIBLE
-from planner.scene import DurationRange, Scene
+from planner.ocp.solve import INFEASIBLE, Budget
+from planner.scene import DurationRange, Objective, Scene
 
 if TYPE_CHECKING:
     from planner.ocp.planner import Attempt, Outcome
@@ -46,6 +47,12 @@ AGREEING = 2
 """Attempts from different starts that must report infeasibility to stop the retries."""
 VIOLATION_TOL = 1e-6
 """A row violated by less is not listed."""
+FREE_SPAN = 4.0
+"""The free-time solve after a fixed duration T held infeasible looks in [T, FREE_SPAN T]."""
+FREE_SHARE = 0.25
+"""The most of the plan's wall time the free-time solve may take (what is left at most)."""
+FREE_TIME_WEIGHT = 100.0
+"""Its objective's weight of the duration, beside the task's own effort weight."""
 CHECKS_STATUS = "Infeasible_Task"
 """`solver.status` of a plan refused by the checks before any solve."""
 
@@ -61,12 +68,19 @@ def _reporting(attempts: list[Attempt]) -> list[tuple[Outcome, Attempt]]:
     return [(o, a) for a in attempts for o in a.outcomes if reported(o)]
 
 
+RESTART = "restart from the last iterate"
+"""The start (`planner.ocp.planner._starts`) that goes on from where an earlier one
+stopped: it is no independent witness of that one's verdict."""
+
+
 def agreed(attempts: list[Attempt]) -> bool:
-    """Whether attempts from at least AGREEING different starts reported infeasibility,
-    and none converged (a converged solve, accurate or not, shows the NLP feasible)."""
+    """Whether attempts from at least AGREEING different starts (a restart from an
+    earlier attempt's last iterate not counted) reported infeasibility, and none converged
+    (a converged solve, accurate or not, shows the NLP feasible)."""
     if any(o.solution.success for a in attempts for o in a.outcomes):
         return False
-    return len({a.start.name for _, a in _reporting(attempts)}) >= AGREEING
+    starts = {a.start.name for _, a in _reporting(attempts) if a.start.name != RESTART}
+    return len(starts) >= AGREEING
 
 
 def _largest(outcome: Outcome) -> float:
@@ -140,8 +154,9 @@ def evidence(scene: Scene, attempts: list[Attempt], best: Outcome,
     names = list(dict.fromkeys(f"{a.start.name}: {o.solution.status}" for o, a in found))
     rows = violated(best)
     largest = ", ".join(f"{v.kind} by {v.largest:.3g} (t = {v.time:.3g} s)" for v in rows[:3])
-    summary = (f"the task cannot be done {_within(scene)}: {len(names)} attempts from "
-               f"different starts ended saying the constraints cannot all hold "
+    starts = len({a.start.name for _, a in found if a.start.name != RESTART})
+    summary = (f"the task cannot be done {_within(scene)}: attempts from {starts} different "
+               f"starts ended saying the constraints cannot all hold "
                f"({'; '.join(names)}); the closest, '{attempt.start.name}', still violates "
                + (largest if largest else "rows it did not report"))
     return Infeasibility(source="solver", summary=summary, attempts=names,
@@ -197,3 +212,49 @@ def refused(scene: Scene, issues: list[Issue], started: float, T: float) -> Plan
             fields=[InfeasibleField(field=i.field, kind=i.kind, message=i.message)
                     for i in issues],
             durations=durations(scene)))
+
+
+def free_time_scene(scene: Scene) -> Scene | None:
+    """The scene with its fixed duration T freed to [T, FREE_SPAN T] and the duration
+    weighted in the objective (None where a duration cannot be freed: a range already,
+    or a tracked motion, which needs a fixed one)."""
+    task = scene.task
+    if isinstance(task.duration, DurationRange) or task.tracking is not None:
+        return None
+    T = float(task.duration)
+    objective = Objective(effort=max(task.objective.effort, 1e-3), time=FREE_TIME_WEIGHT,
+                          smoothness=task.objective.smoothness)
+    freed = task.model_copy(update={"duration": DurationRange(min=T, max=FREE_SPAN * T),
+                                    "objective": objective})
+    return scene.model_copy(update={"task": freed})
+
+
+def with_shortest(plan: Plan, scene: Scene, budget: Budget,
+                  solve: Callable[[Scene, Budget], Plan]) -> Plan:
+    """For a fixed duration the solver held infeasible, the plan with the duration of a
+    verified plan that a free-time solve (`free_time_scene`, by `solve` within what is
+    left of the budget, at most FREE_SHARE of it) found, if any."""
+    found = plan.infeasibility
+    freed = free_time_scene(scene)
+    if found is None or found.source != "solver" or freed is None or budget.spent:
+        return plan
+    started = time.perf_counter()
+    share = FREE_SHARE * (budget.deadline - budget.started)
+    left = budget.solves_until - time.perf_counter()
+    sub = Budget.of(budget.max_iter, min(left, share))
+    other = solve(freed, sub)
+    if other.solver.success and other.verification.verified:
+        note = (f"; a free-time solve found a verified plan of {other.duration:.4g} s "
+                f"(infeasibility.shortest_duration)")
+        shortest: float | None = other.duration
+    else:
+        note = (f"; a free-time solve in [{found.durations[0]:g}, "
+                f"{FREE_SPAN * found.durations[0]:g}] s found no verified plan either")
+        shortest = None
+    updated = found.model_copy(update={"shortest_duration": shortest,
+                                       "summary": found.summary + note})
+    report = plan.solver.model_copy(update={
+        "message": updated.summary,
+        "iterations": plan.solver.iterations + other.solver.iterations,
+        "total_time": (plan.solver.total_time or 0.0) + time.perf_counter() - started})
+    return plan.model_copy(update={"infeasibility": updated, "solver": report})

@@ -133,12 +133,21 @@ def plan(scene: Scene, progress: Handler | None = None, warm_start: Plan | None 
     A failed solve is returned (success False, Ipopt's last iterate), never raised.
     With two solver processes (`planner.ocp.portfolio`), the continuation start runs in a
     forked companion beside the other starts, and the first verified plan wins.
+    A task known infeasible before a solve returns at once, and one the solver holds
+    infeasible says so (`Plan.infeasibility`, `planner.ocp.infeasibility`).
     """
     budget = Budget.of(scene.solver.max_iter, scene.solver.max_wall_time)
-    robot, T = _design_robot(scene), _duration_guess(scene)
     issues = feasibility.check(scene)
     if issues:  # known infeasible before any solve
-        return infeasibility.refused(scene, issues, budget.started, T)
+        return infeasibility.refused(scene, issues, budget.started, _duration_guess(scene))
+    return infeasibility.with_shortest(_plan(scene, progress, warm_start, budget), scene,
+                                       budget, lambda free, sub: _free_time(free, sub, progress))
+
+
+def _plan(scene: Scene, progress: Handler | None, warm_start: Plan | None,
+          budget: Budget) -> Plan:
+    """`plan` of a scene that passed the checks before a solve, within `budget`."""
+    robot, T = _design_robot(scene), _duration_guess(scene)
     attempts: list[Attempt] = []
     starts = itertools.islice(_starts(scene, robot, T, warm_start, attempts),
                               1 + scene.solver.retries)
@@ -190,6 +199,16 @@ def _planned(scene: Scene, start: Start, budget: Budget, progress: Handler) -> P
     """The plan of one start alone (what a companion process runs)."""
     attempts: list[Attempt] = []
     _attempt(scene, iter([start]), attempts, budget, progress)
+    return _result(scene, attempts, budget)
+
+
+def _free_time(scene: Scene, budget: Budget, progress: Handler | None) -> Plan:
+    """The plan of a free-time scene from its first two starts (what
+    `infeasibility.with_shortest` runs after a fixed duration held infeasible)."""
+    attempts: list[Attempt] = []
+    robot, T = _design_robot(scene), _duration_guess(scene)
+    starts = itertools.islice(_starts(scene, robot, T, None, attempts), 2)
+    _attempt(scene, starts, attempts, budget, progress)
     return _result(scene, attempts, budget)
 
 

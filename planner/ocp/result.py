@@ -245,6 +245,11 @@ class Infeasibility(_Out):
     durations: list[float] = Field(
         default_factory=list, description="[s] the durations it covers: [T] for a fixed "
                                           "duration, [min, max] for a duration range")
+    shortest_duration: float | None = Field(
+        default=None, description="[s] for a fixed duration T held infeasible by the solver: "
+                                  "the duration of a verified plan that a free-time solve "
+                                  "(T to FREE_SPAN x T, time-weighted) found within what "
+                                  "was left of the budget; null when none was found or tried")
 
 
 class NlpSolution(_Out):
