@@ -24,6 +24,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
+from time import perf_counter
 
 import casadi as ca
 import numpy as np
@@ -112,10 +113,13 @@ def _rk4(y, a0, am, a1, b0, bm, b1, dt):
 
 
 def growth_factor(lin: Linearisation) -> float:
-    """max_k ||Phi(t_k, 0)||_2 along the plan."""
+    """max_k ||Phi(t_k, 0)||_2 along the plan; inf once Phi overflows (the linearisation
+    of a far-from-converged iterate can: the SVD of a non-finite Phi would raise)."""
     phi, worst = np.eye(lin.A.shape[1]), 1.0
     for A in lin.A:
         phi = A @ phi
+        if not np.all(np.isfinite(phi)):
+            return float("inf")
         worst = max(worst, float(np.linalg.norm(phi, 2)))
     return worst
 
@@ -153,12 +157,15 @@ class _Reference:
 
 
 def replay(robot: Robot, interp: Interpolant, starts: np.ndarray, K: np.ndarray | None,
-           tol: float = REPLAY_TOL, compiled: bool = False) -> list[tuple[float | None, str]]:
+           tol: float = REPLAY_TOL, compiled: bool = False,
+           deadline: float | None = None) -> list[tuple[float | None, str]]:
     """Replays from each of `starts` (R, 2n) under the plan's torque and, with gains
     K (N, na, 2n), the feedback: per start, max |q_sim - q_plan| [rad] over REPLAY_SAMPLES
     points per interval and "completed", or None and where CVODES failed (compiled: the
     dynamics compiled to C). Each start is replayed on its own: one that diverges leaves
-    the others' replays whole."""
+    the others' replays whole. Past `deadline` (time.perf_counter() seconds) a replay
+    stops at its next interval (None, and where it stopped): CVODES can take seconds per
+    interval on a diverging motion."""
     s = Structure.of(robot)
     N, degree = interp.tau.coeffs.shape[0], interp.tau.coeffs.shape[1] - 1
     integrate = flow(s, degree, REPLAY_SAMPLES, 1, tol, compiled)
@@ -168,14 +175,18 @@ def replay(robot: Robot, interp: Interpolant, starts: np.ndarray, K: np.ndarray 
     ref = _Reference(breaks, np.hstack([interp.q(breaks), interp.dq(breaks)]),
                      interp.q(t).reshape(N, REPLAY_SAMPLES, -1), inputs(robot, interp)[1], K,
                      len(s.active_idx))
-    return [_replay_from(integrate, np.asarray(start, float), ref, s.n) for start in starts]
+    return [_replay_from(integrate, np.asarray(start, float), ref, s.n, deadline)
+            for start in starts]
 
 
 def _replay_from(integrate: Flow, x: np.ndarray, ref: _Reference,
-                 n: int) -> tuple[float | None, str]:
-    """One replay from the state x (2n,) along `ref`."""
+                 n: int, deadline: float | None = None) -> tuple[float | None, str]:
+    """One replay from the state x (2n,) along `ref`, stopped past `deadline`."""
     worst = 0.0
     for k in range(len(ref.breaks) - 1):
+        if deadline is not None and perf_counter() > deadline:
+            return None, (f"stopped at t = {ref.breaks[k]:.6g} s: the plan's wall-time "
+                          "budget (solver.max_wall_time) ran out")
         u = np.zeros(ref.na) if ref.K is None else -ref.K[k] @ (x - ref.planned[k])
         where = f"between t = {ref.breaks[k]:.6g} s and t = {ref.breaks[k + 1]:.6g} s"
         try:

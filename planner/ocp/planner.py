@@ -174,8 +174,9 @@ def _plan(scene: Scene, progress: Handler | None, warm_start: Plan | None,
         companion.stop()
 
 
-COMPANION_GRACE = 5.0
-"""[s] past the budget the plan waits for its companion's plan (its checks)."""
+COMPANION_GRACE = 3.0
+"""[s] past the budget the plan waits for its companion's plan (its checks): less than
+the plan's MARGIN (`planner.ocp.solve`), which also covers what follows the wait."""
 
 
 def _attempt(scene: Scene, starts: Iterator[Start], attempts: list[Attempt], budget: Budget,
@@ -423,8 +424,9 @@ def _solve_on(scene: Scene, inst: Instance, robot: Robot, T: float, guess: Guess
     if not outcome.finite:
         return outcome
     checked = time.perf_counter()
-    errors, status = interval_errors(outcome.robot, outcome.interp, scene.solver.jit)
-    replayed = open_loop(outcome.robot, outcome.interp, scene.solver.jit)
+    errors, status = interval_errors(outcome.robot, outcome.interp, scene.solver.jit,
+                                     budget.deadline)
+    replayed = open_loop(outcome.robot, outcome.interp, scene.solver.jit, budget.deadline)
     budget.measured = time.perf_counter() - checked  # what the final checks will scale with
     record = outcome.record.model_copy(update={
         "max_local_error": _finite_or_none(float(errors.max())),

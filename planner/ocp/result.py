@@ -140,7 +140,7 @@ class Verification(_Out):
         description="open-loop sensitivity: the largest ||Phi(t, s)||_2 over breakpoints "
                     "s <= t, Phi the state transition matrix of the dynamics linearised "
                     "along the plan; an error of e at time s grows up to about this factor "
-                    "times e")
+                    "times e (None where Phi overflows)")
     closed_loop_error: float | None = Field(
         default=None,
         description="[rad] replay error with the plan's feedback from the planned initial "

@@ -52,13 +52,14 @@ def coupling_along(robot: Robot, q: np.ndarray) -> tuple[np.ndarray, np.ndarray 
     return m.least, m.det
 
 
-def open_loop(robot: Robot, interp: Interpolant,
-              compiled: bool = False) -> tuple[float | None, str]:
+def open_loop(robot: Robot, interp: Interpolant, compiled: bool = False,
+              deadline: float | None = None) -> tuple[float | None, str]:
     """The whole-horizon replay of the delivered torque from the planned initial state:
-    max |q_sim - q_plan| [rad] and "completed", or None and where CVODES failed."""
+    max |q_sim - q_plan| [rad] and "completed", or None and where CVODES failed or, past
+    `deadline`, where it stopped."""
     breaks = interp.q.breaks
     start = np.concatenate([interp.q(breaks[:1])[0], interp.dq(breaks[:1])[0]])
-    return replay(robot, interp, start[None, :], None, RESIM_TOL, compiled)[0]
+    return replay(robot, interp, start[None, :], None, RESIM_TOL, compiled, deadline)[0]
 
 
 def defect(robot: Robot, interp: Interpolant) -> float:
@@ -187,15 +188,17 @@ def _feedback(robot: Robot, interp: Interpolant, torque_limit: list[float] | flo
     scale = max(float(np.max(torque_limit)) if torque_limit is not None
                 else float(np.abs(interp.tau.coeffs[:, 0]).max(initial=0.0)), 1.0)
     fb = gains(lin, np.diff(interp.q.breaks), scale)
+    growth: float | None = growth_factor(lin)
+    growth = growth if growth is not None and np.isfinite(growth) else None  # overflowed
     if deadline is not None and perf_counter() > deadline:
-        return fb, {"growth_factor": growth_factor(lin), "skipped": [SKIPPED_REPLAYS]}
+        return fb, {"growth_factor": growth, "skipped": [SKIPPED_REPLAYS]}
     K = np.asarray(fb.gains)
     breaks = interp.q.breaks
     start = np.concatenate([interp.q(breaks[:1])[0], interp.dq(breaks[:1])[0]])
     (closed, _), (perturbed, _) = replay(robot, interp,
                                          np.stack([start, start + PERTURBATION]), K,
-                                         compiled=compiled)
-    return fb, {"growth_factor": growth_factor(lin), "closed_loop_error": closed,
+                                         compiled=compiled, deadline=deadline)
+    return fb, {"growth_factor": growth, "closed_loop_error": closed,
                 "perturbed_closed_loop_error": perturbed, "perturbation": PERTURBATION}
 
 
