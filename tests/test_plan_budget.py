@@ -5,14 +5,19 @@ solver.max_wall_time plus the stated margin."""
 from __future__ import annotations
 
 import time
+from types import SimpleNamespace
 
+import numpy as np
 import pytest
 
 from app.settings import Settings
+from planner.ocp import planner as planner_module
+from planner.ocp.accuracy import CHUNK, interval_errors
+from planner.ocp.feedback import growth_factor
 from planner.ocp.planner import plan
 from planner.ocp.result import Progress
 from planner.ocp.solve import MARGIN, RESERVE_SHARE, Budget, checks_time
-from planner.ocp.verify import SKIPPED_REPLAYS
+from planner.ocp.verify import SKIPPED_REPLAYS, open_loop
 from testbed.robots import chain_scene
 
 
@@ -72,3 +77,42 @@ def test_the_service_grace_exceeds_the_plans_margin():
     """A job that keeps its budget returns within max_wall_time + MARGIN: the default grace
     before its worker is stopped is longer."""
     assert Settings.model_fields["wall_time_grace"].default > MARGIN
+
+
+def test_the_interval_errors_and_the_replay_stop_at_the_deadline():
+    """On 60 intervals (over CHUNK), a deadline already past leaves every interval
+    unchecked and says where; a deadline ahead changes nothing."""
+    seen = {}
+    original = planner_module._interpolant
+
+    def keep(*args):
+        seen["interp"] = original(*args)
+        return seen["interp"]
+
+    scene = chain_scene(2, intervals=60, refinement={"enabled": False})
+    planner_module._interpolant = keep
+    try:
+        planner_module.plan(scene)
+    finally:
+        planner_module._interpolant = original
+    interp, robot = seen["interp"], scene.robot
+    assert interp.tau.coeffs.shape[0] == 60 > CHUNK
+    free, status = interval_errors(robot, interp)
+    assert status == "completed"
+    ahead, status = interval_errors(robot, interp, deadline=time.perf_counter() + 60)
+    assert status == "completed" and np.array_equal(ahead, free)
+    past, status = interval_errors(robot, interp, deadline=time.perf_counter() - 1)
+    assert np.all(np.isinf(past))
+    assert status == ("stopped at interval 0 of 60: the plan's wall-time budget "
+                      "(solver.max_wall_time) ran out")
+    error, status = open_loop(robot, interp, deadline=time.perf_counter() - 1)
+    assert error is None and status.startswith("stopped at t = 0 s: ")
+    assert open_loop(robot, interp, deadline=time.perf_counter() + 60) == open_loop(robot,
+                                                                                   interp)
+
+
+def test_an_overflowing_transition_matrix_has_an_infinite_growth_factor():
+    huge = np.full((3, 2, 2), 1e200)
+    assert growth_factor(SimpleNamespace(A=huge)) == float("inf")
+    assert growth_factor(SimpleNamespace(A=np.stack([np.eye(2) * 2] * 3))) \
+        == pytest.approx(8.0)

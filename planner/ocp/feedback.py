@@ -117,7 +117,8 @@ def growth_factor(lin: Linearisation) -> float:
     of a far-from-converged iterate can: the SVD of a non-finite Phi would raise)."""
     phi, worst = np.eye(lin.A.shape[1]), 1.0
     for A in lin.A:
-        phi = A @ phi
+        with np.errstate(over="ignore", invalid="ignore"):
+            phi = A @ phi
         if not np.all(np.isfinite(phi)):
             return float("inf")
         worst = max(worst, float(np.linalg.norm(phi, 2)))
