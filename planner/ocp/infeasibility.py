@@ -47,9 +47,9 @@ AGREEING = 2
 """Attempts from different starts that must report infeasibility to stop the retries."""
 VIOLATION_TOL = 1e-6
 """A row violated by less is not listed."""
-FREE_SPAN = 4.0
+FREE_SPAN = 8.0
 """The free-time solve after a fixed duration T held infeasible looks in [T, FREE_SPAN T]."""
-FREE_SHARE = 0.25
+FREE_SHARE = 0.1
 """The most of the plan's wall time the free-time solve may take (what is left at most)."""
 FREE_TIME_WEIGHT = 100.0
 """Its objective's weight of the duration, beside the task's own effort weight."""
