@@ -181,3 +181,34 @@ def test_a_fixed_duration_held_infeasible_reports_a_duration_a_free_time_solve_f
     assert 0.5 < found.shortest_duration <= FREE_SPAN * 0.5
     assert f"a verified plan of {found.shortest_duration:.4g} s" in p.solver.message
     assert p.duration == 0.5  # the plan is still the infeasible task's own iterate
+
+
+def _attempt(name: str, status: str):
+    from types import SimpleNamespace
+
+    solution = SimpleNamespace(status=status, success=False, g=None)
+    outcome = SimpleNamespace(solution=solution, finite=True)
+    return SimpleNamespace(start=SimpleNamespace(name=name), outcomes=[outcome]), outcome
+
+
+def test_attempts_that_do_not_agree_leave_the_verdict_but_name_the_one_that_found_infeasibility():
+    from planner.ocp import infeasibility
+
+    p = plan(with_task(BASE, tip_target={"x": 3.0, "y": 0.0}))  # any plan to annotate
+    failed = p.model_copy(update={
+        "infeasibility": None,
+        "solver": p.solver.model_copy(update={"status": "Maximum_Iterations_Exceeded",
+                                              "message": "the iteration limit was reached"})})
+    first, best = _attempt("direct", "Maximum_Iterations_Exceeded")
+    other, _ = _attempt("inverse-dynamics start", "Infeasible_Problem_Detected")
+    last, _ = _attempt("first mesh of 100 intervals", "Maximum_Iterations_Exceeded")
+    attempts = [first, other, last]
+    assert not infeasibility.agreed(attempts)  # one start alone does not make a verdict
+    out = infeasibility.annotate(failed, BASE, attempts, best, first)
+    assert out.infeasibility is None
+    assert out.solver.message == ("the iteration limit was reached; the attempt "
+                                  "'inverse-dynamics start' ended Infeasible_Problem_Detected")
+    restart, _ = _attempt(infeasibility.RESTART, "Infeasible_Problem_Detected")
+    assert not infeasibility.agreed([first, other, restart])
+    third, _ = _attempt("first mesh of 25 intervals", "Restoration_Failed")
+    assert infeasibility.agreed([first, other, third])

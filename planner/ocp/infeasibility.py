@@ -99,8 +99,10 @@ def violated(outcome: Outcome) -> list[ViolatedRows]:
     """The constraint rows the outcome's iterate violates beyond VIOLATION_TOL, by kind,
     the largest violation first (empty when the solver gave no rows)."""
     g = outcome.solution.g
+    if g is None:
+        return []
     problem = outcome.inst.problem
-    if g is None or g.size != problem.lbg.size:
+    if g.size != problem.lbg.size:
         return []
     violation = np.maximum(problem.lbg - g, 0.0) + np.maximum(g - problem.ubg, 0.0)
     violation = np.nan_to_num(violation, nan=np.inf)
