@@ -141,12 +141,15 @@ class _Reporter:
 def _verdict(plan: Plan, cancel_requested: bool, expired: bool,
              budget: float) -> tuple[JobStatus, str | None]:
     """Final status and error of a returned plan: an optimal plan that fails its
-    re-simulation check has failed too."""
+    re-simulation check has failed too; a plan that holds the task infeasible fails with
+    an error "infeasible: ..." (its evidence in `plan.infeasibility`)."""
     if plan.solver.success:
         reason = unverified_reason(plan.verification)
         return ("succeeded", None) if reason is None else ("failed", f"unverified: {reason}")
     if cancel_requested:
         return "cancelled", CANCELLED_ON_REQUEST
+    if plan.infeasibility is not None:
+        return "failed", f"infeasible: {plan.infeasibility.summary}"
     if expired:
         return "failed", (f"Maximum_WallTime_Exceeded: the job's wall-time budget of "
                           f"{budget:g} s (solver.max_wall_time, NLP build included) ran out")

@@ -219,7 +219,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
         result = plan(scene, progress=bar)
     bar.close()
     write(args.output, dump(result))
-    if args.plot:
+    if args.plot and result.t:  # an infeasible task refused before a solve has no plan
         from planner.plots import format_of, plan_plot
         write(args.plot, plan_plot(result, scene.robot, format_of(args.plot)))
     s, v = result.solver, result.verification
@@ -227,11 +227,13 @@ def cmd_plan(args: argparse.Namespace) -> int:
     resim = "n/a" if v.resimulation_error is None else f"{v.resimulation_error:.2g} rad"
     say(args, f"{s.status}: {s.message}; {s.iterations} iterations in "
               f"{len(result.mesh_passes)} solve(s) ({s.strategy}), solve {s.solve_time:.2f} s, "
-              f"build {s.build_time:.2f} s; {len(result.t) - 1} intervals, error {local} per "
-              f"interval, open-loop replay {resim}; "
+              f"build {s.build_time:.2f} s; {max(len(result.t) - 1, 0)} intervals, error {local} "
+              f"per interval, open-loop replay {resim}; "
               f"{len(v.waveless_singular_crossings)} waveless singular crossing(s)")
     if bar.stop:
         return INTERRUPTED
+    if result.infeasibility is not None:
+        say(args, f"infeasible: {result.infeasibility.summary}")
     reason = unverified_reason(v)
     if s.success and reason:
         say(args, f"not verified: {reason}")

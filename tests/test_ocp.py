@@ -214,10 +214,14 @@ def test_coupling_margin_holds_at_every_knot():
 def test_a_margin_the_start_violates_is_reported_infeasible():
     sc = scene(UNDERACTUATED, **{**MARGIN_TASK, "coupling_margin": 0.05})
     assert coupling_along(sc.robot, np.array([sc.task.final.q]))[0][0] < 0.05
-    result = plan(sc)
-    assert not result.solver.success
-    assert result.solver.status == "Infeasible_Problem_Detected"
-    assert result.solver.message == "the task is infeasible (constraints cannot all hold)"
+    result = plan(sc)  # known before a solve: none runs
+    assert not result.solver.success and result.mesh_passes == []
+    assert result.solver.status == "Infeasible_Task"
+    assert result.infeasibility is not None
+    assert [(f.field, f.kind) for f in result.infeasibility.fields] == [
+        ("task.final.q", "coupling margin")]
+    assert result.solver.message.startswith("the task is infeasible before any solve: "
+                                            "task.final.q: sigma_min(M_pa) = ")
 
 
 def test_wave_co_design_returns_bounded_waves_that_keep_the_margin():

@@ -35,7 +35,8 @@ from testbed.edges import (
 )
 from testbed.probes import malformed_bodies
 
-STRUCTURED = {"Infeasible_Problem_Detected", "Restoration_Failed", "Local_Infeasibility",
+STRUCTURED = {"Infeasible_Task", "Infeasible_Problem_Detected", "Restoration_Failed",
+              "Local_Infeasibility",
               "Maximum_Iterations_Exceeded", "Maximum_WallTime_Exceeded",
               "Search_Direction_Becomes_Too_Small", "Error_In_Step_Computation",
               "Invalid_Number_Detected", "Solved_To_Acceptable_Level"}

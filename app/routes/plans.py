@@ -10,13 +10,14 @@ from starlette.concurrency import run_in_threadpool
 
 from app.capacity import capacity_errors
 from app.deps import RunnerDep, SettingsDep, StoreDep
-from app.errors import ApiError, field_error, invalid
+from app.errors import ApiError, FieldError, field_error, invalid
 from app.jobs import QueueFull
 from app.limits import check_scene
 from app.openapi import UNAVAILABLE, problems
 from app.schema_examples import body_examples
 from app.schemas import Job, JobList, JobSummary
 from app.store import FINAL, JobRecord, JobStatus, JobStore
+from planner import feasibility
 from planner.service import Scene
 
 router = APIRouter(prefix="/v1/plans", tags=["plans"])
@@ -32,6 +33,12 @@ def check_warm_start(store: JobStore, job_id: str,
         what = "there is no plan job" if record is None else "no plan yet in the job"
         raise invalid([field_error([*loc, "solver", "warm_start"], f"{what} {job_id!r}",
                                    "value_error")])
+
+
+def infeasible_errors(scene: Scene) -> list[FieldError]:
+    """A field error of type "infeasible" for every reason the task is infeasible that is
+    known before a solve (`planner.feasibility`)."""
+    return [field_error(["body"], str(issue), "infeasible") for issue in feasibility.check(scene)]
 
 
 def _found(record: JobRecord | None, job_id: str) -> JobRecord:
@@ -57,6 +64,9 @@ async def create_plan(scene: Annotated[Scene, Body(openapi_examples=body_example
     too_big = capacity_errors(scene, settings)
     if too_big:
         raise invalid(too_big)
+    impossible = await run_in_threadpool(infeasible_errors, scene)
+    if impossible:
+        raise invalid(impossible)
     if scene.solver.warm_start is not None:
         await run_in_threadpool(check_warm_start, store, scene.solver.warm_start)
     job_id = uuid.uuid4().hex

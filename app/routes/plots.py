@@ -27,7 +27,7 @@ def _image(fmt: plots.Format) -> dict:
 def _draw(record: JobRecord | None, job_id: str, fmt: plots.Format) -> bytes:
     if record is None:
         raise ApiError(404, "not-found", "No such plan job", f"there is no plan job {job_id!r}")
-    if record.plan is None:
+    if record.plan is None or not record.plan.get("t"):  # none, or refused before a solve
         why = f" ({record.error})" if record.error else ""
         raise ApiError(409, "no-plan", "The job has no plan yet",
                        f"plan job {job_id!r} is {record.status}{why}; a plot needs its plan")

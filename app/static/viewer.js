@@ -280,7 +280,8 @@
     if (job.status !== "succeeded" && job.error) {
       showError(new Problem(0, { title: `The job ${job.status}`, detail: job.error }));
     }
-    if (job.plan) showPlan(job).catch((err) => showError(err, "Showing the plan"));
+    // a task refused as infeasible before a solve has a plan without trajectory
+    if (job.plan && job.plan.t.length) showPlan(job).catch((err) => showError(err, "Showing the plan"));
   }
 
   async function cancelPlan() {

@@ -24,6 +24,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
+from time import perf_counter
 
 import casadi as ca
 import numpy as np
@@ -161,12 +162,15 @@ class _Reference:
 
 
 def replay(robot: Robot, interp: Interpolant, starts: np.ndarray, K: np.ndarray | None,
-           tol: float = REPLAY_TOL, compiled: bool = False, ends: bool = False) -> list[tuple]:
+           tol: float = REPLAY_TOL, compiled: bool = False, ends: bool = False,
+           deadline: float | None = None) -> list[tuple]:
     """Replays from each of `starts` (R, 2n) under the plan's torque and, with gains
     K (N, na, 2n), the feedback: per start, max |q_sim - q_plan| [rad] over REPLAY_SAMPLES
     points per interval and "completed", or None and where CVODES failed (compiled: the
     dynamics compiled to C); ends: and the final state (2n,) (None where it failed). Each
-    start is replayed on its own: one that diverges leaves the others' replays whole."""
+    start is replayed on its own: one that diverges leaves the others' replays whole. Past
+    `deadline` (time.perf_counter() seconds) a replay stops at its next interval (None, and
+    where it stopped): CVODES can take seconds per interval on a diverging motion."""
     s = Structure.of(robot)
     N, degree = interp.tau.coeffs.shape[0], interp.tau.coeffs.shape[1] - 1
     integrate = flow(s, degree, REPLAY_SAMPLES, 1, tol, compiled)
@@ -176,15 +180,20 @@ def replay(robot: Robot, interp: Interpolant, starts: np.ndarray, K: np.ndarray 
     ref = _Reference(breaks, np.hstack([interp.q(breaks), interp.dq(breaks)]),
                      interp.q(t).reshape(N, REPLAY_SAMPLES, -1), inputs(robot, interp)[1], K,
                      len(s.active_idx))
-    done = [_replay_from(integrate, np.asarray(start, float), ref, s.n) for start in starts]
+    done = [_replay_from(integrate, np.asarray(start, float), ref, s.n, deadline)
+            for start in starts]
     return done if ends else [(error, status) for error, status, _ in done]
 
 
-def _replay_from(integrate: Flow, x: np.ndarray, ref: _Reference,
-                 n: int) -> tuple[float | None, str, np.ndarray | None]:
-    """One replay from the state x (2n,) along `ref`, and its final state."""
+def _replay_from(integrate: Flow, x: np.ndarray, ref: _Reference, n: int,
+                 deadline: float | None = None) -> tuple[float | None, str, np.ndarray | None]:
+    """One replay from the state x (2n,) along `ref`, stopped past `deadline`, and its
+    final state."""
     worst = 0.0
     for k in range(len(ref.breaks) - 1):
+        if deadline is not None and perf_counter() > deadline:
+            return None, (f"stopped at t = {ref.breaks[k]:.6g} s: the plan's wall-time "
+                          "budget (solver.max_wall_time) ran out"), None
         u = np.zeros(ref.na) if ref.K is None else -ref.K[k] @ (x - ref.planned[k])
         where = f"between t = {ref.breaks[k]:.6g} s and t = {ref.breaks[k + 1]:.6g} s"
         try:

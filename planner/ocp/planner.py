@@ -19,10 +19,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from planner import feasibility
 from planner.dynamics import Dynamics
 from planner.errors import InputError
 from planner.model import Robot, Wave
-from planner.ocp import continuation, portfolio
+from planner.ocp import continuation, infeasibility, portfolio
 from planner.ocp.accuracy import interval_errors
 from planner.ocp.feedback import REPLAY_SAMPLES
 from planner.ocp.guess import (
@@ -133,8 +134,20 @@ def plan(scene: Scene, progress: Handler | None = None, warm_start: Plan | None 
     A failed solve is returned (success False, Ipopt's last iterate), never raised.
     With two solver processes (`planner.ocp.portfolio`), the continuation start runs in a
     forked companion beside the other starts, and the first verified plan wins.
+    A task known infeasible before a solve returns at once, and one the solver holds
+    infeasible says so (`Plan.infeasibility`, `planner.ocp.infeasibility`).
     """
     budget = Budget.of(scene.solver.max_iter, scene.solver.max_wall_time)
+    issues = feasibility.check(scene)
+    if issues:  # known infeasible before any solve
+        return infeasibility.refused(scene, issues, budget.started, _duration_guess(scene))
+    return infeasibility.with_shortest(_plan(scene, progress, warm_start, budget), scene,
+                                       budget, lambda free, sub: _free_time(free, sub, progress))
+
+
+def _plan(scene: Scene, progress: Handler | None, warm_start: Plan | None,
+          budget: Budget) -> Plan:
+    """`plan` of a scene that passed the checks before a solve, within `budget`."""
     robot, T = _design_robot(scene), _duration_guess(scene)
     attempts: list[Attempt] = []
     alone = warm_start is not None or not continuation.applies(scene) \
@@ -153,7 +166,8 @@ def plan(scene: Scene, progress: Handler | None = None, warm_start: Plan | None 
         if not handler.cancelled and companion.verified() and companion.plan is not None:
             return _joined(companion.plan, _passes_of(attempts), budget)
         own = _result(scene, attempts, budget)
-        if handler.cancelled or own.solver.success and own.verification.verified:
+        if handler.cancelled or own.infeasibility is not None \
+                or own.solver.success and own.verification.verified:
             return _joined(own, [], budget)
         other = companion.wait(budget.deadline + COMPANION_GRACE)
         return _joined(own if other is None or _better(own, other) else other,
@@ -162,8 +176,9 @@ def plan(scene: Scene, progress: Handler | None = None, warm_start: Plan | None 
         companion.stop()
 
 
-COMPANION_GRACE = 5.0
-"""[s] past the budget the plan waits for its companion's plan (its checks)."""
+COMPANION_GRACE = 3.0
+"""[s] past the budget the plan waits for its companion's plan (its checks): less than
+the plan's MARGIN (`planner.ocp.solve`), which also covers what follows the wait."""
 
 
 def _attempt(scene: Scene, starts: Iterator[Start], attempts: list[Attempt], budget: Budget,
@@ -179,7 +194,7 @@ def _attempt(scene: Scene, starts: Iterator[Start], attempts: list[Attempt], bud
         last = attempt.outcomes[-1]
         settled = last.accurate(tolerance) or not scene.transcription.refinement.enabled
         if last.solution.success and settled or budget.spent \
-                or last.solution.status == "User_Requested_Stop":
+                or last.solution.status == "User_Requested_Stop" or infeasibility.agreed(attempts):
             break
 
 
@@ -187,6 +202,16 @@ def _planned(scene: Scene, start: Start, budget: Budget, progress: Handler) -> P
     """The plan of one start alone (what a companion process runs)."""
     attempts: list[Attempt] = []
     _attempt(scene, iter([start]), attempts, budget, progress)
+    return _result(scene, attempts, budget)
+
+
+def _free_time(scene: Scene, budget: Budget, progress: Handler | None) -> Plan:
+    """The plan of a free-time scene from its first two starts (what
+    `infeasibility.with_shortest` runs after a fixed duration held infeasible)."""
+    attempts: list[Attempt] = []
+    robot, T = _design_robot(scene), _duration_guess(scene)
+    starts = itertools.islice(_starts(scene, robot, T, None, attempts), 2)
+    _attempt(scene, starts, attempts, budget, progress)
     return _result(scene, attempts, budget)
 
 
@@ -244,6 +269,8 @@ def _first_solves(scene: Scene, start: Start, budget: Budget, progress: Handler 
         preliminary = [_solve_on(scene, instance(scene, robot, start.coarse, T), robot, T,
                                  guess, budget, progress, first_pass, start.name,
                                  stall=start.may_stall)]
+        if budget.spent:  # no time left for its own mesh: the coarse plan is the attempt's
+            return [], preliminary[0]
         if preliminary[0].solution.success:
             guess, robot, T = (interpolant_guess(preliminary[0].interp, preliminary[0].T),
                                preliminary[0].robot, preliminary[0].T)
@@ -400,8 +427,11 @@ def _solve_on(scene: Scene, inst: Instance, robot: Robot, T: float, guess: Guess
     outcome = _outcome(scene, inst, robot, T, solution, strategy, started)
     if not outcome.finite:
         return outcome
-    errors, status = interval_errors(outcome.robot, outcome.interp, scene.solver.jit)
-    replayed = open_loop(outcome.robot, outcome.interp, scene.solver.jit)
+    checked = time.perf_counter()
+    errors, status = interval_errors(outcome.robot, outcome.interp, scene.solver.jit,
+                                     budget.deadline)
+    replayed = open_loop(outcome.robot, outcome.interp, scene.solver.jit, budget.deadline)
+    budget.measured = time.perf_counter() - checked  # what the final checks will scale with
     record = outcome.record.model_copy(update={
         "max_local_error": _finite_or_none(float(errors.max())),
         "resimulation_error": replayed[0], "time": time.perf_counter() - started})
@@ -522,6 +552,8 @@ def _interpolant(inst: Instance, robot: Robot, T: float, x: np.ndarray) -> Inter
 def _result(scene: Scene, attempts: list[Attempt], budget: Budget) -> Plan:
     ranked = [(o, a) for a in attempts for o in a.outcomes]
     best, attempt = min(ranked, key=lambda pair: _rank(pair[0]))
+    if infeasibility.agreed(attempts):  # the plan is the most informative one's iterate
+        best, attempt = infeasibility.most_informative(attempts) or (best, attempt)
     outcomes = [o for a in attempts for o in a.solves()]
     sol, interp, robot = best.solution, best.interp, best.robot
     breaks = best.inst.mesh.breaks * best.T
@@ -536,11 +568,11 @@ def _result(scene: Scene, attempts: list[Attempt], budget: Budget) -> Plan:
                                      best.replayed, tolerance, scene.task.torque_limit,
                                      scene.solver.jit, scene.task.position_bounds,
                                      scene.task.velocity_bounds, scene.task.uncertainty,
-                                     scene.solver.robustness)
+                                     scene.solver.robustness, budget.deadline)
                               if best.finite else (_unverified(tolerance), None))
     built = [o.inst for o in outcomes if not o.inst.cache_hit]
     refined_by = " + mesh refinement" if best is not attempt.outcomes[0] else ""
-    return Plan(
+    return infeasibility.annotate(Plan(
         t=breaks.tolist(), q=_finite(interp.q(breaks)), dq=_finite(interp.dq(breaks)),
         ddq=_finite(interp.dq(breaks, derivative=1)), tau=_finite(interp.tau(breaks)),
         dense=DenseTrajectory(t=t_dense.tolist(), q=_finite(interp.q(t_dense)),
@@ -566,7 +598,7 @@ def _result(scene: Scene, attempts: list[Attempt], budget: Budget) -> Plan:
         feedback=feedback,
         verification=verification,
         solution=_nlp_solution(best),
-    )
+    ), scene, attempts, best, attempt)
 
 
 def _nlp_solution(outcome: Outcome) -> NlpSolution | None:

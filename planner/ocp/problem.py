@@ -309,20 +309,22 @@ RowGroups = list[tuple[float, float, int]]
 @overload
 def _stage_function(key: ProblemKey, tr: Transcription[ca.SX], layout: Layout,
                     params: Parameters, terms: list[Term],
-                    terminal: bool) -> tuple[ca.Function, RowGroups]: ...
+                    terminal: bool) -> tuple[ca.Function, RowGroups, tuple[str, ...]]: ...
 
 
 @overload
 def _stage_function(key: ProblemKey, tr: Transcription[ca.MX], layout: Layout,
                     params: Parameters, terms: list[Term],
-                    terminal: bool) -> tuple[ca.Function, RowGroups]: ...
+                    terminal: bool) -> tuple[ca.Function, RowGroups, tuple[str, ...]]: ...
 
 
 def _stage_function(key: ProblemKey, tr: Transcription[Sym], layout: Layout, params: Parameters,
-                    terms: list[Term], terminal: bool) -> tuple[ca.Function, RowGroups]:
-    """A stage's (or the terminal's) rows and cost, and the bounds of its row groups,
-    written in the transcription's symbolic type (one overload each, so that a transcription
-    of either type can be passed)."""
+                    terms: list[Term], terminal: bool
+                    ) -> tuple[ca.Function, RowGroups, tuple[str, ...]]:
+    """A stage's (or the terminal's) rows and cost, the bounds of its row groups and what
+    each group is (`ROW_KINDS`, for the evidence of an infeasible task), written in the
+    transcription's symbolic type (one overload each, so that a transcription of either
+    type can be passed)."""
     s = key.structure
     parts = layout.terminal if terminal else layout.stage
     sym = _Symbols(key, tr, layout, params, sum(p.size for p in parts), terminal)
@@ -339,8 +341,10 @@ def _stage_function(key: ProblemKey, tr: Transcription[Sym], layout: Layout, par
     m = piece.knot_q.size2()
     weights = sym.T * sym.local_of("weights")[:m].T if m else tr.symbolic(1, 0)
     rows: list[tuple] = [(piece.defects, 0.0, 0.0)] if piece.defects.numel() else []
+    kinds = ["dynamics"] * len(rows)
     if model.implicit and m:
         rows.append((ca.vec(_residual(key, f["residual"].map(m), piece, sym.p)), 0.0, 0.0))
+        kinds.append("dynamics")
     context = Stage(key, s, piece, weights, h, sym.T, sym.p, sym.common_of, sym.local_of, terminal)
     cost = tr.symbolic(0)
     for term in terms:
@@ -349,12 +353,21 @@ def _stage_function(key: ProblemKey, tr: Transcription[Sym], layout: Layout, par
             cost += piece_cost
         if term_rows is not None:
             rows.append(term_rows)
+            kinds.append(ROW_KINDS.get(term.name, term.name))
     if piece.gaps is not None and piece.gaps.numel():
         rows.insert(0, (piece.gaps, 0.0, 0.0))
+        kinds.insert(0, "continuity")
     g = ca.vertcat(*(r for r, _, _ in rows)) if rows else tr.symbolic(0, 1)
     bounds = [(lo, hi, r.numel()) for r, lo, hi in rows]
     name = "terminal" if terminal else "stage"
-    return ca.Function(name, sym.inputs(terminal), [g, cost]), bounds
+    return ca.Function(name, sym.inputs(terminal), [g, cost]), bounds, tuple(kinds)
+
+
+ROW_KINDS = {"tip": "tip target", "margin": "coupling margin", "torque_limit": "torque limit",
+             "position_bounds": "position bound", "velocity_bounds": "velocity bound"}
+"""What a term's constraint rows are, by its name; the transcription's own rows are
+"dynamics" (collocation defects and M ddq + h - B tau) and "continuity" (the gaps between
+stages). The task's initial and final states are bounds of variables, not rows."""
 
 
 def _residual(key: ProblemKey, residual: ca.Function, piece: StagePiece[Sym], p: Sym) -> Sym:
@@ -429,6 +442,8 @@ class Stages:
     parts: tuple[tuple[Part, ...], tuple[Part, ...]]
     params: Parameters
     bounds: tuple[list[tuple[float, float, int]], list[tuple[float, float, int]]]
+    kinds: tuple[tuple[str, ...], tuple[str, ...]] = ((), ())
+    """What each row group of a stage and of the terminal is (`ROW_KINDS`)."""
 
 
 @lru_cache(maxsize=32)
@@ -444,11 +459,12 @@ def stages(key: ProblemKey, compiled: bool = False) -> Stages:
     parts = tr.parts(s.n, key.torque_count())
     layout = Layout(*parts, _globals(key), 1)
     params = _parameters(key, tr, terms)
-    stage, stage_bounds = _stage_function(key, tr, layout, params, terms, False)
-    terminal, terminal_bounds = _stage_function(key, tr, layout, params, terms, True)
+    stage, stage_bounds, stage_kinds = _stage_function(key, tr, layout, params, terms, False)
+    terminal, terminal_bounds, terminal_kinds = _stage_function(key, tr, layout, params, terms,
+                                                                True)
     kernels = Kernels(stage, terminal, sum(p.size for p in layout.stage if p.name in tr.link))
     return Stages(tr, kernels, derivatives(kernels), parts, params,
-                  (stage_bounds, terminal_bounds))
+                  (stage_bounds, terminal_bounds), (stage_kinds, terminal_kinds))
 
 
 def compiled_kernels(key: ProblemKey, derivatives: Derivatives,

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -169,7 +170,7 @@ class Verification(_Out):
         description="open-loop sensitivity: the largest ||Phi(t, s)||_2 over breakpoints "
                     "s <= t, Phi the state transition matrix of the dynamics linearised "
                     "along the plan; an error of e at time s grows up to about this factor "
-                    "times e")
+                    "times e (None where Phi overflows)")
     closed_loop_error: float | None = Field(
         default=None,
         description="[rad] replay error with the plan's feedback from the planned initial "
@@ -185,6 +186,11 @@ class Verification(_Out):
         default=None, description="the closed loop on perturbed models, where the task "
                                   "states an uncertainty (None: it states none, or the "
                                   "plan has no feedback)")
+    skipped: list[str] = Field(
+        default_factory=list,
+        description="checks that were not run, and why: the closed-loop replays (optional, "
+                    "not needed for `verified`) when the plan's wall-time budget had run out "
+                    "before them")
     defect: float | None = Field(
         description="integral of |M ddq + h - B tau| [N m s] along the plan's interpolant")
     torque_excess: float | None = Field(
@@ -227,6 +233,57 @@ class WaveOut(_Out):
     amplitude: float
     frequency: float
     phase: float
+
+
+class ViolatedRows(_Out):
+    """The NLP's constraint rows of one kind that the reported iterate violates."""
+
+    kind: str = Field(description="dynamics (collocation and M ddq + h - B tau), continuity "
+                                  "(between intervals), torque limit, position bound, "
+                                  "velocity bound, coupling margin or tip target")
+    rows: int = Field(description="rows of this kind violated beyond 1e-6")
+    largest: float = Field(description="the largest violation, in the rows' own units "
+                                       "(N m for dynamics and limits, rad, rad/s, kg m^2, m)")
+    time: float = Field(description="[s] where the largest violation is: the start of its "
+                                    "interval, or the final time for a row of the final node")
+
+
+class InfeasibleField(_Out):
+    """A field of the task that makes it infeasible, found before any solve."""
+
+    field: str = Field(description='the field, a dotted path in the scene ("task.final.q.1")')
+    kind: str = Field(description="the check: bounds, velocity reach, coupling margin, reach, "
+                                  "zero torque")
+    message: str
+
+
+class Infeasibility(_Out):
+    """Why the planner holds the task infeasible, with its evidence (docs/planner.md,
+    "Limits and failures")."""
+
+    source: Literal["checks", "solver"] = Field(
+        description="checks: a check before any solve failed (`fields`; no solve ran); "
+                    "solver: two different starts ended with a status saying that the "
+                    "constraints cannot all hold")
+    summary: str = Field(description="one sentence: what cannot hold, and the evidence")
+    fields: list[InfeasibleField] = Field(default_factory=list)
+    attempts: list[str] = Field(
+        default_factory=list, description="the starts that reported infeasibility, with "
+                                          "their status")
+    attempt: str | None = Field(
+        default=None, description="the most informative of them (the least largest "
+                                  "violation), whose iterate the plan is")
+    violations: list[ViolatedRows] = Field(
+        default_factory=list, description="the violated rows of that iterate by kind, the "
+                                          "largest violation first")
+    durations: list[float] = Field(
+        default_factory=list, description="[s] the durations it covers: [T] for a fixed "
+                                          "duration, [min, max] for a duration range")
+    shortest_duration: float | None = Field(
+        default=None, description="[s] for a fixed duration T held infeasible by the solver: "
+                                  "the duration of a verified plan that a free-time solve "
+                                  "(T to FREE_SPAN x T, time-weighted) found within what "
+                                  "was left of the budget; null when none was found or tried")
 
 
 class NlpSolution(_Out):
@@ -296,6 +353,10 @@ class Plan(_Out):
     mesh_passes: list[MeshPass] = Field(default_factory=list)
     feedback: Feedback | None = None
     verification: Verification
+    infeasibility: Infeasibility | None = Field(
+        default=None, description="set when the task is infeasible (then the plan is not "
+                                  "succeeded): found by the checks before a solve, or by two "
+                                  "starts of the solver; null otherwise")
     solution: SkipJsonSchema[NlpSolution | None] = Field(
         default=None, exclude=True,
         description="the NLP solution to warm-start a later plan from; kept apart from the "

@@ -57,9 +57,11 @@ def _scaled(robot: Robot, scale: dict[str, float]) -> Robot:
 
 
 def robustness(robot: Robot, interp: Interpolant, K: np.ndarray, uncertainty: Uncertainty,
-               bound: float | None, compiled: bool = False) -> Robustness:
+               bound: float | None, compiled: bool = False,
+               deadline: float | None = None) -> Robustness:
     """The plan `interp` of `robot` with gains K (N, na, 2n) replayed on every corner model
-    of `uncertainty`; `bound` [rad]: the largest worst tracking error it may have."""
+    of `uncertainty`; `bound` [rad]: the largest worst tracking error it may have; a replay
+    still running past `deadline` (time.perf_counter() seconds) stops (as one diverged)."""
     breaks = interp.q.breaks
     start = np.concatenate([interp.q(breaks[:1])[0], interp.dq(breaks[:1])[0]])
     goal = np.concatenate([interp.q(breaks[-1:])[0], interp.dq(breaks[-1:])[0]])
@@ -68,7 +70,7 @@ def robustness(robot: Robot, interp: Interpolant, K: np.ndarray, uncertainty: Un
     labels = []
     for label, model in models(robot, uncertainty):
         (error, _, end), = replay(model, interp, start[None, :], K, compiled=compiled,
-                                  ends=True)
+                                  ends=True, deadline=deadline)
         labels.append(label)
         tracking.append(np.inf if error is None else error)
         final.append(np.inf if end is None else float(np.abs(end - goal).max()))

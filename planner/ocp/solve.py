@@ -29,19 +29,55 @@ _MESSAGES = {"User_Requested_Stop": "the solve was cancelled",
              "Maximum_Iterations_Exceeded": "the iteration limit was reached",
              "Maximum_WallTime_Exceeded": "the wall-time limit was reached",
              "Infeasible_Problem_Detected": "the task is infeasible (constraints cannot all hold)",
+             "Local_Infeasibility": "the solve converged to a point of locally least "
+                                    "constraint violation (constraints cannot all hold)",
+             "Restoration_Failed": "the restoration phase failed to reduce the constraint "
+                                   "violation",
              "Stalled": f"the solve stalled: no progress towards feasibility over "
                         f"{STALL_WINDOW} iterations"}
+
+
+INFEASIBLE = frozenset({"Infeasible_Problem_Detected", "Local_Infeasibility",
+                        "Restoration_Failed"})
+"""Statuses by which a solve says that its constraints cannot all hold (from where it went)."""
+
+
+CHECKS_TIME = 0.2
+"""[s] The fixed part of what a plan's checks after its last solve cost (`checks_time`)."""
+CHECKS_PER_NODE = 1e-3
+"""[s] Their cost per interval and joint: the interval errors, the open-loop replay and
+`verify` with its feedback took 0.36 to 1.2 ms per interval and joint on 2 to 6 links with
+50 to 400 intervals; this bounds them with room for a far-from-converged iterate."""
+CHECKS_FACTOR = 2.5
+"""The final checks cost up to this times the interval errors and open-loop replay of the
+latest solve's plan (measured: `verify` with its feedback costs 1 to 2 times them)."""
+RESERVE_SHARE = 0.25
+"""The most of a plan's wall time kept for its checks: a short budget still solves."""
+MARGIN = 5.0
+"""[s] A plan returns within solver.max_wall_time plus this (docs/planner.md, "Limits and
+failures"): the checks' cost beyond their reserve, one Ipopt iteration, an NLP build."""
+
+
+def checks_time(intervals: int, joints: int) -> float:
+    """[s] What the checks after the last solve of a plan on `intervals` intervals of an
+    arm of `joints` joints are expected to cost at most (CHECKS_TIME, CHECKS_PER_NODE)."""
+    return CHECKS_TIME + CHECKS_PER_NODE * intervals * joints
 
 
 @dataclass
 class Budget:
     """What a plan may spend: `max_iter` Ipopt iterations per solve, wall time up to
-    `deadline` (time.perf_counter() seconds) in all; `used` counts its iterations so far."""
+    `deadline` (time.perf_counter() seconds) in all; `used` counts its iterations so far.
+    The solves stop `reserve` seconds before the deadline, so that the checks of the last
+    one (interval errors, replays, `verify`) end by it (`keep_for_checks`)."""
 
     started: float
     deadline: float
     max_iter: int
     used: int = 0
+    reserve: float = 0.0
+    measured: float = 0.0
+    """[s] What the interval errors and open-loop replay of the latest solve's plan took."""
 
     @classmethod
     def of(cls, max_iter: int, max_wall_time: float) -> Budget:
@@ -49,8 +85,21 @@ class Budget:
         return cls(now, now + max_wall_time, max_iter)
 
     @property
+    def solves_until(self) -> float:
+        """When the solves stop (time.perf_counter() seconds)."""
+        return self.deadline - self.reserve
+
+    @property
     def spent(self) -> bool:
-        return time.perf_counter() >= self.deadline
+        """No further solve may start: the time left is kept for the checks."""
+        return time.perf_counter() >= self.solves_until
+
+    def keep_for_checks(self, intervals: int, joints: int) -> None:
+        """Keep the checks' expected cost before the deadline: on a mesh of `intervals`
+        (`checks_time`), or CHECKS_FACTOR times what the latest solve's checks took if
+        more; at most RESERVE_SHARE of the plan's wall time."""
+        expected = max(checks_time(intervals, joints), CHECKS_FACTOR * self.measured)
+        self.reserve = min(expected, RESERVE_SHARE * (self.deadline - self.started))
 
 
 @dataclass(frozen=True)
@@ -67,6 +116,8 @@ class Solution:
     message: str
     iterations: int
     time: float
+    g: np.ndarray | None = None
+    """The constraint rows at x (None where the solver gave none)."""
 
 
 def message(status: str, success: bool) -> str:
@@ -85,7 +136,8 @@ def solve(inst: Instance, x0: np.ndarray, budget: Budget, handler: Handler | Non
     prob = inst.problem
     solver = prob.solver if multipliers is None else prob.warm_solver()
     monitor = prob.monitor
-    monitor.reset(handler, budget.used, budget.max_iter, budget.deadline, prob.lbg, prob.ubg,
+    budget.keep_for_checks(inst.mesh.intervals, prob.key.structure.n)
+    monitor.reset(handler, budget.used, budget.max_iter, budget.solves_until, prob.lbg, prob.ubg,
                   solver if handler is not None else None, mesh_pass, budget.started, stall)
     args = {"x0": x0, "lbx": inst.lbx, "ubx": inst.ubx, "lbg": prob.lbg, "ubg": prob.ubg,
             "p": inst.P}
@@ -112,4 +164,5 @@ def solve(inst: Instance, x0: np.ndarray, budget: Budget, handler: Handler | Non
     return Solution(np.array(out["x"]).ravel(), np.array(out["lam_x"]).ravel(),
                     np.array(out["lam_g"]).ravel(),
                     objective if math.isfinite(objective) else math.nan, status, success,
-                    message(status, success), iterations, elapsed)
+                    message(status, success), iterations, elapsed,
+                    np.array(out["g"]).ravel())

@@ -20,6 +20,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from time import perf_counter
 
 import numpy as np
 from scipy.optimize import minimize_scalar
@@ -52,13 +53,15 @@ def coupling_along(robot: Robot, q: np.ndarray) -> tuple[np.ndarray, np.ndarray 
     return m.least, m.det
 
 
-def open_loop(robot: Robot, interp: Interpolant,
-              compiled: bool = False) -> tuple[float | None, str]:
+def open_loop(robot: Robot, interp: Interpolant, compiled: bool = False,
+              deadline: float | None = None) -> tuple[float | None, str]:
     """The whole-horizon replay of the delivered torque from the planned initial state:
-    max |q_sim - q_plan| [rad] and "completed", or None and where CVODES failed."""
+    max |q_sim - q_plan| [rad] and "completed", or None and where CVODES failed or, past
+    `deadline`, where it stopped."""
     breaks = interp.q.breaks
     start = np.concatenate([interp.q(breaks[:1])[0], interp.dq(breaks[:1])[0]])
-    return replay(robot, interp, start[None, :], None, RESIM_TOL, compiled)[0]
+    return replay(robot, interp, start[None, :], None, RESIM_TOL, compiled,
+                  deadline=deadline)[0]
 
 
 def defect(robot: Robot, interp: Interpolant) -> float:
@@ -173,9 +176,14 @@ def limits(robot: Robot, interp: Interpolant, t: np.ndarray,
     return Limits(torque, found["position"], found["velocity"], violations)
 
 
+SKIPPED_REPLAYS = ("closed-loop replays: not run, the plan's wall-time budget "
+                   "(solver.max_wall_time) had run out")
+
+
 def _feedback(robot: Robot, interp: Interpolant, torque_limit: list[float] | float | None,
-              compiled: bool) -> tuple[Feedback | None, dict]:
-    """The plan's LQR feedback and what it and the open-loop sensitivity measure."""
+              compiled: bool, deadline: float | None = None) -> tuple[Feedback | None, dict]:
+    """The plan's LQR feedback and what it and the open-loop sensitivity measure; past the
+    deadline (time.perf_counter() seconds), without the closed-loop replays."""
     lin = linearise(robot, interp, compiled)
     if lin is None:
         return None, {}
@@ -185,12 +193,14 @@ def _feedback(robot: Robot, interp: Interpolant, torque_limit: list[float] | flo
     fb = gains(lin, np.diff(interp.q.breaks), scale)
     if fb is None:
         return None, {"growth_factor": growth}
+    if deadline is not None and perf_counter() > deadline:
+        return fb, {"growth_factor": growth, "skipped": [SKIPPED_REPLAYS]}
     K = np.asarray(fb.gains)
     breaks = interp.q.breaks
     start = np.concatenate([interp.q(breaks[:1])[0], interp.dq(breaks[:1])[0]])
     (closed, _), (perturbed, _) = replay(robot, interp,
                                          np.stack([start, start + PERTURBATION]), K,
-                                         compiled=compiled)
+                                         compiled=compiled, deadline=deadline)
     return fb, {"growth_factor": growth, "closed_loop_error": closed,
                 "perturbed_closed_loop_error": perturbed, "perturbation": PERTURBATION}
 
@@ -200,24 +210,27 @@ def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.nd
            torque_limit: list[float] | float | None,
            compiled: bool = False, position_bounds: Bounds | None = None,
            velocity_bounds: Bounds | None = None, uncertainty: Uncertainty | None = None,
-           robust_within: float | None = None) -> tuple[Verification, Feedback | None]:
+           robust_within: float | None = None,
+           deadline: float | None = None) -> tuple[Verification, Feedback | None]:
     """All checks of a plan of `robot` whose interpolant is `interp`, whose interval errors
     [rad] are `errors` and whose open-loop replay gave `replayed`; verified when every
     interval error is at most `tolerance` [rad] and the plan keeps the task's torque limit
     and position and velocity bounds everywhere (`limits`) and, with `robust_within` [rad],
     when its feedback keeps the arm that close to the plan on every model of `uncertainty`
     (`planner.ocp.robustness`). Also the plan's feedback (None where the linearisation
-    failed)."""
+    failed). Past `deadline` (time.perf_counter() seconds), the optional checks, the
+    closed-loop replays, are skipped (`Verification.skipped`); a replay on a perturbed
+    model stopped there counts as one that did not stay within `robust_within`."""
     error, status = replayed
     kept = limits(robot, interp, t_dense, torque_limit, position_bounds, velocity_bounds)
     sigma, _ = coupling_along(robot, interp.q(t_dense))
     crossings, waveless = singular_crossings(robot, interp, t_dense)
     local = float(errors.max())
-    fb, measured = _feedback(robot, interp, torque_limit, compiled)
+    fb, measured = _feedback(robot, interp, torque_limit, compiled, deadline)
     robust = None
     if uncertainty is not None and fb is not None:
         robust = robustness(robot, interp, np.asarray(fb.gains), uncertainty, robust_within,
-                            compiled)
+                            compiled, deadline)
     robust_ok = uncertainty is None or robust_within is None \
         or robust is not None and bool(robust.within)
     return Verification(

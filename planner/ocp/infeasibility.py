@@ -1,0 +1,262 @@
+"""When the planner holds a task infeasible, and the evidence it gives.
+
+Two ways (docs/planner.md, "Limits and failures"):
+
+- before any solve, a check of `planner.feasibility` fails: `plan()` returns at once a
+  plan without a trajectory whose `infeasibility` (source "checks") names the fields;
+- during the retries, `AGREEING` attempts from different starts end with a status of
+  `INFEASIBLE` (Ipopt's Infeasible_Problem_Detected, Local_Infeasibility,
+  Restoration_Failed): the retries stop, and the plan is the iterate of the most
+  informative of them, the one whose largest row violation is least (the closest the
+  solver came to feasibility), with its violated NLP rows grouped by kind (`violated`).
+
+A plan whose attempts do not agree keeps the verdict it had (its best outcome's status),
+and its message names an attempt that reported infeasibility, if any, rather than only
+the last one.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from planner.feasibility import Issue
+from planner.ocp.problem import stages
+from planner.ocp.result import (
+    DenseTrajectory,
+    Infeasibility,
+    InfeasibleField,
+    Plan,
+    SolverReport,
+    Verification,
+    ViolatedRows,
+    WaveOut,
+)
+from planner.ocp.solve import INFEASIBLE, Budget
+from planner.scene import DurationRange, Objective, Scene
+
+if TYPE_CHECKING:
+    from planner.ocp.planner import Attempt, Outcome
+
+AGREEING = 2
+"""Attempts from different starts that must report infeasibility to stop the retries."""
+VIOLATION_TOL = 1e-6
+"""A row violated by less is not listed."""
+FREE_SPAN = 8.0
+"""The free-time solve after a fixed duration T held infeasible looks in [T, FREE_SPAN T]."""
+FREE_SHARE = 0.1
+"""The most of the plan's wall time the free-time solve may take (what is left at most)."""
+FREE_TIME_WEIGHT = 100.0
+"""Its objective's weight of the duration, beside the task's own effort weight."""
+CHECKS_STATUS = "Infeasible_Task"
+"""`solver.status` of a plan refused by the checks before any solve."""
+
+
+def reported(outcome: Outcome) -> bool:
+    """Whether a solve ended saying that its constraints cannot all hold."""
+    return outcome.finite and outcome.solution.status in INFEASIBLE
+
+
+def _reporting(attempts: list[Attempt]) -> list[tuple[Outcome, Attempt]]:
+    """The solves on an attempt's own mesh (not its preliminary ones: a coarse mesh or a
+    relaxed NLP) that reported infeasibility, with their attempt."""
+    return [(o, a) for a in attempts for o in a.outcomes if reported(o)]
+
+
+RESTART = "restart from the last iterate"
+"""The start (`planner.ocp.planner._starts`) that goes on from where an earlier one
+stopped: it is no independent witness of that one's verdict."""
+
+
+def agreed(attempts: list[Attempt]) -> bool:
+    """Whether attempts from at least AGREEING different starts (a restart from an
+    earlier attempt's last iterate not counted) reported infeasibility, and none converged
+    (a converged solve, accurate or not, shows the NLP feasible)."""
+    if any(o.solution.success for a in attempts for o in a.outcomes):
+        return False
+    starts = {a.start.name for _, a in _reporting(attempts) if a.start.name != RESTART}
+    return len(starts) >= AGREEING
+
+
+def _largest(outcome: Outcome) -> float:
+    found = violated(outcome)
+    return found[0].largest if found else math.inf
+
+
+def most_informative(attempts: list[Attempt]) -> tuple[Outcome, Attempt] | None:
+    """The reporting solve with the least largest violation, and its attempt (None when
+    no solve reported infeasibility)."""
+    found = _reporting(attempts)
+    return min(found, key=lambda pair: _largest(pair[0])) if found else None
+
+
+def violated(outcome: Outcome) -> list[ViolatedRows]:
+    """The constraint rows the outcome's iterate violates beyond VIOLATION_TOL, by kind,
+    the largest violation first (empty when the solver gave no rows)."""
+    g = outcome.solution.g
+    if g is None:
+        return []
+    problem = outcome.inst.problem
+    if g.size != problem.lbg.size:
+        return []
+    violation = np.maximum(problem.lbg - g, 0.0) + np.maximum(g - problem.ubg, 0.0)
+    violation = np.nan_to_num(violation, nan=np.inf)
+    kinds, stage_rows = _row_kinds(outcome)
+    N = outcome.inst.mesh.intervals
+    out = []
+    for kind in dict.fromkeys(kinds):
+        rows = np.flatnonzero((kinds == kind) & (violation > VIOLATION_TOL))
+        if rows.size == 0:
+            continue
+        worst = int(rows[np.argmax(violation[rows])])
+        k = worst // stage_rows if stage_rows else N
+        at = float(outcome.inst.mesh.breaks[min(k, N)] * outcome.T)
+        out.append(ViolatedRows(kind=str(kind), rows=int(rows.size),
+                                largest=float(violation[worst]), time=at))
+    return sorted(out, key=lambda v: -v.largest)
+
+
+def _row_kinds(outcome: Outcome) -> tuple[np.ndarray, int]:
+    """What every row of the outcome's NLP is, and the rows of one stage."""
+    problem = outcome.inst.problem
+    parts = stages(replace(problem.key, intervals=0))
+    (stage, terminal), (stage_kinds, terminal_kinds) = parts.bounds, parts.kinds
+    counts = [c for _, _, c in stage], [c for _, _, c in terminal]
+    per_stage = np.repeat(np.array(stage_kinds or ["constraint"] * len(stage), object),
+                          counts[0])
+    final = np.repeat(np.array(terminal_kinds or ["constraint"] * len(terminal), object),
+                      counts[1])
+    kinds = np.concatenate([np.tile(per_stage, problem.key.intervals), final])
+    if kinds.size != problem.lbg.size:
+        return np.full(problem.lbg.size, "constraint", object), 0
+    return kinds, int(per_stage.size)
+
+
+def durations(scene: Scene) -> list[float]:
+    d = scene.task.duration
+    return [d.min, d.max] if isinstance(d, DurationRange) else [float(d)]
+
+
+def _within(scene: Scene) -> str:
+    d = scene.task.duration
+    if isinstance(d, DurationRange):
+        return f"with a free duration in [{d.min:g}, {d.max:g}] s"
+    return f"in {float(d):g} s"
+
+
+def evidence(scene: Scene, attempts: list[Attempt], best: Outcome,
+             attempt: Attempt) -> Infeasibility:
+    """The infeasibility the agreeing attempts establish, at `best` (the most informative)."""
+    found = _reporting(attempts)
+    names = list(dict.fromkeys(f"{a.start.name}: {o.solution.status}" for o, a in found))
+    rows = violated(best)
+    largest = ", ".join(f"{v.kind} by {v.largest:.3g} (t = {v.time:.3g} s)" for v in rows[:3])
+    starts = len({a.start.name for _, a in found if a.start.name != RESTART})
+    summary = (f"the task cannot be done {_within(scene)}: attempts from {starts} different "
+               f"starts ended saying the constraints cannot all hold "
+               f"({'; '.join(names)}); the closest, '{attempt.start.name}', still violates "
+               + (largest if largest else "rows it did not report"))
+    return Infeasibility(source="solver", summary=summary, attempts=names,
+                         attempt=attempt.start.name, violations=rows,
+                         durations=durations(scene))
+
+
+def annotate(plan: Plan, scene: Scene, attempts: list[Attempt], best: Outcome,
+             attempt: Attempt) -> Plan:
+    """The plan with its infeasibility when the attempts agree (its message says so);
+    otherwise, for a plan that did not converge, a message that also names the attempt
+    that reported infeasibility, if any."""
+    if plan.solver.success:
+        return plan
+    if agreed(attempts):
+        found = evidence(scene, attempts, best, attempt)
+        report = plan.solver.model_copy(update={"message": found.summary})
+        return plan.model_copy(update={"infeasibility": found, "solver": report})
+    informative = most_informative(attempts)
+    if informative is None or informative[0] is best:
+        return plan
+    outcome, other = informative
+    rows = violated(outcome)
+    worst = f" (largest violation: {rows[0].kind} by {rows[0].largest:.3g})" if rows else ""
+    note = (f"{plan.solver.message}; the attempt '{other.start.name}' ended "
+            f"{outcome.solution.status}{worst}")
+    return plan.model_copy(update={"solver": plan.solver.model_copy(update={"message": note})})
+
+
+def refused(scene: Scene, issues: list[Issue], started: float, T: float) -> Plan:
+    """The plan of a task that the checks before a solve hold infeasible: no trajectory
+    (empty lists), no solve, the issues as `infeasibility.fields`."""
+    listed = "; ".join(str(issue) for issue in issues)
+    summary = f"the task is infeasible before any solve: {listed}"
+    robot = scene.robot
+    return Plan(
+        t=[], q=[], dq=[], ddq=[], tau=[], dense=DenseTrajectory(t=[], q=[], tau=[]),
+        torque=None, duration=T, objective=None,
+        waves=[WaveOut(joint=j, amplitude=link.wave.amplitude, frequency=link.wave.frequency,
+                       phase=link.wave.phase)
+               for j, link in enumerate(robot.links) if link.wave is not None],
+        solver=SolverReport(status=CHECKS_STATUS, success=False, message=summary,
+                            iterations=0, build_time=0.0, solve_time=0.0,
+                            total_time=time.perf_counter() - started, cache_hit=False,
+                            initial_guess="none: no solve ran", strategy="checks before a solve"),
+        mesh_passes=[], feedback=None,
+        verification=Verification(
+            resimulation_error=None, resimulation_status="not run: the task is infeasible",
+            verified=False, tolerance=scene.solver.resimulation_tolerance, defect=None,
+            min_sigma=None, waveless_min_sigma=None, waveless_singular_crossings=[]),
+        infeasibility=Infeasibility(
+            source="checks", summary=summary,
+            fields=[InfeasibleField(field=i.field, kind=i.kind, message=i.message)
+                    for i in issues],
+            durations=durations(scene)))
+
+
+def free_time_scene(scene: Scene) -> Scene | None:
+    """The scene with its fixed duration T freed to [T, FREE_SPAN T] and the duration
+    weighted in the objective (None where a duration cannot be freed: a range already,
+    or a tracked motion, which needs a fixed one)."""
+    task = scene.task
+    if isinstance(task.duration, DurationRange) or task.tracking is not None:
+        return None
+    T = float(task.duration)
+    objective = Objective(effort=max(task.objective.effort, 1e-3), time=FREE_TIME_WEIGHT,
+                          smoothness=task.objective.smoothness)
+    freed = task.model_copy(update={"duration": DurationRange(min=T, max=FREE_SPAN * T),
+                                    "objective": objective})
+    return scene.model_copy(update={"task": freed})
+
+
+def with_shortest(plan: Plan, scene: Scene, budget: Budget,
+                  solve: Callable[[Scene, Budget], Plan]) -> Plan:
+    """For a fixed duration the solver held infeasible, the plan with the duration of a
+    verified plan that a free-time solve (`free_time_scene`, by `solve` within what is
+    left of the budget, at most FREE_SHARE of it) found, if any."""
+    found = plan.infeasibility
+    freed = free_time_scene(scene)
+    if found is None or found.source != "solver" or freed is None or budget.spent:
+        return plan
+    started = time.perf_counter()
+    share = FREE_SHARE * (budget.deadline - budget.started)
+    left = budget.solves_until - time.perf_counter()
+    sub = Budget.of(budget.max_iter, min(left, share))
+    other = solve(freed, sub)
+    if other.solver.success and other.verification.verified:
+        note = (f"; a free-time solve found a verified plan of {other.duration:.4g} s "
+                f"(infeasibility.shortest_duration)")
+        shortest: float | None = other.duration
+    else:
+        note = (f"; a free-time solve in [{found.durations[0]:g}, "
+                f"{FREE_SPAN * found.durations[0]:g}] s found no verified plan either")
+        shortest = None
+    updated = found.model_copy(update={"shortest_duration": shortest,
+                                       "summary": found.summary + note})
+    report = plan.solver.model_copy(update={
+        "message": updated.summary,
+        "iterations": plan.solver.iterations + other.solver.iterations,
+        "total_time": (plan.solver.total_time or 0.0) + time.perf_counter() - started})
+    return plan.model_copy(update={"infeasibility": updated, "solver": report})

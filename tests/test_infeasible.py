@@ -1,0 +1,214 @@
+"""Infeasible tasks said plainly and early: the checks before a solve (a 422 through the
+service, an `infeasible` plan at once in the library), the retries that stop once two
+starts agree, with the violated rows as evidence, and the job's error."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+from service_fixtures import client, two_link_scene
+
+from app.worker import _verdict
+from planner import feasibility
+from planner.ocp.infeasibility import AGREEING, CHECKS_STATUS, FREE_SPAN, RESTART
+from planner.ocp.planner import plan
+from planner.scene import Scene
+from planner.simulate import simulate
+from testbed.fake_solvers import fake_plan
+from testbed.robots import chain_scene
+
+
+def with_task(scene: Scene, **task) -> Scene:
+    data = scene.model_dump(exclude_unset=True)
+    data["task"].update(task)
+    return Scene.model_validate(data)
+
+
+def fields(scene: Scene) -> list[tuple[str, str]]:
+    return [(issue.field, issue.kind) for issue in feasibility.check(scene)]
+
+
+BASE = chain_scene(2)  # joints 0.0 -> 0.5 and 0.1 -> 0.6 rad in 1 s, rest to rest, gravity
+
+
+def test_a_feasible_task_passes_every_check():
+    assert feasibility.check(BASE) == []
+    assert feasibility.check(with_task(BASE, torque_limit=2.0, coupling_margin=1e-3,
+                                       tip_target={"x": 0.5, "y": 0.3})) == []
+
+
+def test_a_start_or_goal_outside_a_bound_names_its_entry():
+    bounds = {"lower": [None, -1.0], "upper": [0.3, 1.0]}
+    assert fields(with_task(BASE, position_bounds=bounds)) == [("task.final.q.0", "bounds")]
+    rates = {"lower": [-5.0, 0.5], "upper": [5.0, 5.0]}
+    assert ("task.initial.dq.1", "bounds") in fields(with_task(BASE, velocity_bounds=rates))
+
+
+def test_velocity_bounds_that_cannot_cover_the_move_in_the_longest_duration():
+    slow = {"lower": [-0.1, -1.0], "upper": [0.1, 1.0]}
+    assert fields(with_task(BASE, velocity_bounds=slow)) == [("task.final.q.0",
+                                                              "velocity reach")]
+    # 0.5 rad at 0.1 rad/s needs 5 s: a duration range reaching 6 s allows it
+    longer = with_task(BASE, velocity_bounds=slow, duration={"min": 1.0, "max": 6.0})
+    assert fields(longer) == []
+    backwards = {"lower": [0.0, -1.0], "upper": [0.0, 1.0]}  # joint 0 may not move at all
+    assert fields(with_task(BASE, velocity_bounds=backwards)) == [("task.final.q.0",
+                                                                   "velocity reach")]
+
+
+def test_a_start_or_goal_inside_the_coupling_margin():
+    from planner.coupling_block import at
+
+    sigma = at(BASE.robot, BASE.task.initial.q).sigma_min
+    assert sigma is not None
+    found = fields(with_task(BASE, coupling_margin=2 * sigma))
+    assert ("task.initial.q", "coupling margin") in found
+    goal_free = with_task(BASE, coupling_margin=2 * sigma,
+                          final={"q": [0.5, None], "dq": [0.0, 0.0]})
+    assert ("task.final.q", "coupling margin") not in fields(goal_free)
+    co = with_task(BASE, coupling_margin=2 * sigma,
+                   co_design={"amplitude_max": 0.05, "frequency": [3.0]})
+    assert fields(co) == []  # the waves are designed by the solve: not known before it
+
+
+def test_a_tip_target_beyond_the_largest_link_radii():
+    reach = feasibility.reach(BASE.robot)
+    assert reach == pytest.approx(0.4 + 0.4 + 0.04)  # the active link's wave adds 0.1 l
+    assert fields(with_task(BASE, tip_target={"x": 0.0, "y": 1.01 * reach})) == [
+        ("task.tip_target", "reach")]
+    assert fields(with_task(BASE, tip_target={"x": 0.0, "y": 0.99 * reach})) == []
+
+
+def test_zero_torque_is_infeasible_unless_the_free_motion_reaches_the_goal():
+    assert fields(with_task(BASE, torque_limit=0.0)) == [("task.torque_limit", "zero torque")]
+    assert fields(with_task(BASE, torque_limit=[0.0])) == [("task.torque_limit",
+                                                            "zero torque")]
+    # the goal where the arm falls to in 1 s under gravity alone: zero torque does it
+    x0 = [0.0, 0.1, 0.0, 0.0]
+    free = simulate(BASE.robot, [0.0, 1.0], np.zeros((1, 1, 1)), x0)
+    goal = {"q": free.q[-1], "dq": free.dq[-1]}
+    assert fields(with_task(BASE, torque_limit=0.0, final=goal)) == []
+
+
+def test_plan_returns_at_once_with_the_fields_to_blame():
+    scene = with_task(BASE, tip_target={"x": 3.0, "y": 0.0}, torque_limit=0.0)
+    start = time.perf_counter()
+    p = plan(scene)
+    assert time.perf_counter() - start < 1.0
+    assert p.infeasibility is not None and p.infeasibility.source == "checks"
+    assert [f.field for f in p.infeasibility.fields] == ["task.tip_target",
+                                                          "task.torque_limit"]
+    assert p.solver.status == CHECKS_STATUS and not p.solver.success
+    assert p.mesh_passes == [] and p.t == [] and p.verification.verified is False
+    status, error = _verdict(p, False, False, 60.0)
+    assert status == "failed" and error is not None
+    assert error.startswith("infeasible: the task is infeasible before any solve: "
+                            "task.tip_target: ")
+
+
+def test_two_starts_that_agree_stop_the_retries_with_the_violated_rows():
+    """0.5 rad in 0.15 s with 1 N m is too fast for the arm: the first start stalls, the
+    next two report infeasibility, and no further retry runs."""
+    scene = chain_scene(2, intervals=10)
+    scene = with_task(scene, duration=0.15, torque_limit=1.0)
+    p = plan(scene)
+    found = p.infeasibility
+    assert found is not None and found.source == "solver"
+    starts = {a.split(":")[0] for a in found.attempts} - {RESTART}
+    assert len(starts) == AGREEING  # a restart from an attempt's last iterate not counted
+    assert found.attempt in p.solver.strategy and found.durations == [0.15]
+    assert p.solver.status in ("Infeasible_Problem_Detected", "Restoration_Failed",
+                               "Local_Infeasibility")
+    # the retries stopped at the second agreeing attempt: its solve is the last one
+    assert p.mesh_passes[-1].strategy == found.attempts[-1].split(":")[0]
+    assert "first mesh of 5 intervals" not in {m.strategy for m in p.mesh_passes}
+    assert found.violations and found.violations[0].largest > 1e-3
+    assert all(v.kind in ("dynamics", "continuity", "torque limit") for v in found.violations)
+    assert [v.largest for v in found.violations] == sorted(
+        (v.largest for v in found.violations), reverse=True)
+    assert "cannot be done in 0.15 s" in p.solver.message
+    status, error = _verdict(p, False, False, 60.0)
+    assert status == "failed" and error == f"infeasible: {found.summary}"
+
+
+def test_a_feasible_plan_has_no_infeasibility():
+    p = plan(chain_scene(2, intervals=10))
+    assert p.solver.success and p.infeasibility is None
+
+
+@pytest.fixture(scope="module")
+def api(tmp_path_factory):
+    with client(tmp_path_factory.mktemp("infeasible"), solve=fake_plan) as c:
+        yield c
+
+
+def test_the_service_answers_422_at_the_infeasible_fields(api):
+    scene = two_link_scene()
+    scene["task"]["tip_target"] = {"x": 5.0, "y": 0.0}
+    scene["task"]["position_bounds"] = {"lower": [None, None], "upper": [0.5, None]}
+    r = api.post("/v1/plans", json=scene)
+    assert r.status_code == 422, r.text
+    assert r.headers["content-type"] == "application/problem+json"
+    errors = r.json()["errors"]
+    assert [(e["loc"], e["type"]) for e in errors] == [
+        (["body", "task", "final", "q", 0], "infeasible"),
+        (["body", "task", "tip_target"], "infeasible")]
+    assert "above its upper bound 0.5" in errors[0]["msg"]
+    assert "beyond the arm's reach" in errors[1]["msg"]
+    assert api.post("/v1/plans", json=two_link_scene()).status_code == 202
+
+
+def test_a_duration_range_found_infeasible_says_so_for_the_whole_range():
+    scene = with_task(chain_scene(2, intervals=10), duration={"min": 0.1, "max": 0.15},
+                      torque_limit=1.0)
+    p = plan(scene)
+    assert p.infeasibility is not None and p.infeasibility.durations == [0.1, 0.15]
+    assert "cannot be done with a free duration in [0.1, 0.15] s" in p.infeasibility.summary
+
+
+def test_a_fixed_duration_held_infeasible_reports_a_duration_a_free_time_solve_found():
+    """A fully actuated arm cannot move 0.5 rad per joint in 0.5 s with 1 N m; a free-time
+    solve in [0.5, 2] s finds a verified plan, and a restart does not count as a start."""
+    scene = with_task(chain_scene(2, under=False, intervals=10), duration=0.5,
+                      torque_limit=1.0)
+    p = plan(scene)
+    found = p.infeasibility
+    assert found is not None and found.source == "solver"
+    assert len({a.split(":")[0] for a in found.attempts} - {RESTART}) == AGREEING
+    assert found.shortest_duration is not None
+    assert 0.5 < found.shortest_duration <= FREE_SPAN * 0.5
+    assert f"a verified plan of {found.shortest_duration:.4g} s" in p.solver.message
+    assert p.duration == 0.5  # the plan is still the infeasible task's own iterate
+
+
+def _attempt(name: str, status: str):
+    from types import SimpleNamespace
+
+    solution = SimpleNamespace(status=status, success=False, g=None)
+    outcome = SimpleNamespace(solution=solution, finite=True)
+    return SimpleNamespace(start=SimpleNamespace(name=name), outcomes=[outcome]), outcome
+
+
+def test_attempts_that_do_not_agree_leave_the_verdict_but_name_the_one_that_found_infeasibility():
+    from planner.ocp import infeasibility
+
+    p = plan(with_task(BASE, tip_target={"x": 3.0, "y": 0.0}))  # any plan to annotate
+    failed = p.model_copy(update={
+        "infeasibility": None,
+        "solver": p.solver.model_copy(update={"status": "Maximum_Iterations_Exceeded",
+                                              "message": "the iteration limit was reached"})})
+    first, best = _attempt("direct", "Maximum_Iterations_Exceeded")
+    other, _ = _attempt("inverse-dynamics start", "Infeasible_Problem_Detected")
+    last, _ = _attempt("first mesh of 100 intervals", "Maximum_Iterations_Exceeded")
+    attempts = [first, other, last]
+    assert not infeasibility.agreed(attempts)  # one start alone does not make a verdict
+    out = infeasibility.annotate(failed, BASE, attempts, best, first)
+    assert out.infeasibility is None
+    assert out.solver.message == ("the iteration limit was reached; the attempt "
+                                  "'inverse-dynamics start' ended Infeasible_Problem_Detected")
+    restart, _ = _attempt(infeasibility.RESTART, "Infeasible_Problem_Detected")
+    assert not infeasibility.agreed([first, other, restart])
+    third, _ = _attempt("first mesh of 25 intervals", "Restoration_Failed")
+    assert infeasibility.agreed([first, other, third])
