@@ -115,20 +115,22 @@ def test_a_refinement_whose_objective_grows_without_gaining_accuracy_left_an_art
 def test_a_companion_solves_the_continuation_and_is_gone_when_the_plan_returns(
         crossing: Scene, monkeypatch: pytest.MonkeyPatch):
     monkeypatch.setenv(portfolio.ENVIRONMENT, "2")
+    before = set(_children())  # e.g. multiprocessing's resource tracker, started by others
     result = plan(crossing)
     assert result.solver.success and result.verification.verified
     strategies = {p.strategy.split(":")[0] for p in result.mesh_passes}
     assert "continuation" in strategies and "direct" in strategies
     assert result.solver.iterations == sum(p.iterations for p in result.mesh_passes)
-    assert _children() == []
+    assert set(_children()) <= before
 
 
 def test_a_cancelled_plan_ends_cancelled_whatever_its_companion_found(
         crossing: Scene, monkeypatch: pytest.MonkeyPatch):
     monkeypatch.setenv(portfolio.ENVIRONMENT, "2")
+    before = set(_children())
     result = plan(crossing, progress=lambda p: p.iteration < 5)
     assert result.solver.status == "User_Requested_Stop" and not result.solver.success
-    assert _children() == []
+    assert set(_children()) <= before
 
 
 def test_a_companion_stops_once_the_process_that_forked_it_is_gone(
