@@ -31,8 +31,8 @@ def _draw(record: JobRecord | None, job_id: str, fmt: plots.Format) -> bytes:
         why = f" ({record.error})" if record.error else ""
         raise ApiError(409, "no-plan", "The job has no plan yet",
                        f"plan job {job_id!r} is {record.status}{why}; a plot needs its plan")
-    robot = Scene.model_validate(record.scene).robot
-    return plots.plan_plot(Plan.model_validate(record.plan), robot, fmt)
+    scene = Scene.model_validate(record.scene)
+    return plots.plan_plot(Plan.model_validate(record.plan), scene.robot, fmt, scene.task)
 
 
 async def _plot(job_id: str, store: StoreDep, limiter: LimiterDep, fmt: plots.Format) -> Response:
