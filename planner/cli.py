@@ -333,7 +333,7 @@ def parser(*extensions: Callable[[Commands], None]) -> argparse.ArgumentParser:
     pl.add_argument("-o", "--output", required=True, metavar="PLAN.json",
                     help='where to write the plan ("-": stdout)')
     pl.add_argument("--plot", metavar="PLAN.png|PLAN.svg", help="also draw the plan")
-    pl.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
+    pl.add_argument("-q", "--quiet", action="store_true", help="no progress lines or summary")
     pl.set_defaults(run=cmd_plan)
 
     dw = commands.add_parser("design-wave", help="design waves that keep sigma_min >= margin",
