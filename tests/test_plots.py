@@ -316,6 +316,12 @@ def test_the_plot_endpoint_serves_the_library_figure(api, fmt, media):
     posted = Scene.model_validate(scene)
     expected = plots.plan_plot(Plan.model_validate(job["plan"]), posted.robot, fmt, posted.task)
     assert r.content == expected
+    # the same bytes as application/octet-stream for a client that asks only for that
+    for accept, served in (("application/octet-stream", "application/octet-stream"),
+                           (f"{media}, application/octet-stream;q=0.5", media),
+                           ("image/*, application/octet-stream", media), ("*/*", media)):
+        r = api.get(f"/v1/plans/{job['id']}/plot.{fmt}", headers={"accept": accept})
+        assert r.headers["content-type"] == served and r.content == expected, accept
 
 
 def test_a_failed_job_with_its_last_iterate_is_drawn(api):
