@@ -322,8 +322,10 @@ def _mark(ax: Axes, times: list[float], gid: str, label: str, panel: str) -> Non
 
 
 def _legend(ax: Axes) -> None:
+    """The panel's legend right of its frame, where it can never cover a curve."""
     if ax.get_legend_handles_labels()[0]:
-        ax.legend(loc="best", fontsize=8, framealpha=0.85)
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0,
+                  fontsize=8, frameon=False)
 
 
 _TERMS = (  # (weight's field, the term's integral, its unit)

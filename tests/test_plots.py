@@ -9,6 +9,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import pytest
 from conftest import point_mass_dynamics
+from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from service_fixtures import client, two_link_scene
 
@@ -169,6 +170,15 @@ def test_each_snapshot_draws_the_gravity_arrow_of_its_key(crossing_plan, scene):
     (tail,), (head,) = [arrows[0][0].xyann], [arrows[0][0].xy]
     assert head[0] == tail[0] and head[1] < tail[1]  # straight down the drawing
     assert "gravity (x) down" in legend_texts(fig)
+
+
+def test_legends_sit_beside_the_panels_not_on_their_curves(crossing_plan, scene):
+    fig = plots.plan_figure(crossing_plan, scene.robot)
+    FigureCanvasAgg(fig)
+    fig.draw_without_rendering()
+    for name, ax in time_axes(fig).items():
+        legend, frame = ax.get_legend().get_window_extent(), ax.get_window_extent()
+        assert legend.x0 >= frame.x1, name
 
 
 def test_the_title_says_what_the_objective_is(crossing_plan, scene):
