@@ -149,6 +149,9 @@ def test_plan_an_example_and_watch_it(page, server, tmp_path):
     assert plan["solver"]["status"] in page.text_content("#summary")
     assert plan["verification"]["verified"]
     assert "verifiedyes (tolerance 0.001 rad)" in page.text_content("#summary")
+    weights = scene["task"].get("objective", {})
+    if weights.get("time", 0) == 0 and weights.get("smoothness", 0) == 0:
+        assert " N²m²s (effort " in page.text_content("#summary")  # what the objective is
     crossings = plan["verification"]["waveless_singular_crossings"]
     assert page.locator("#crossings li").count() == len(crossings) + 1
 

@@ -372,6 +372,26 @@
     return { with: v.sigma_min, without: v.waveless_sigma_min };
   }
 
+  // the objective's terms: weight's field, integral, unit (planner.plots.objective_text)
+  const TERMS = [["effort", "∫|τ|² dt", "N²m²s"], ["time", "T", "s"],
+                 ["smoothness", "∫|dτ/dt|² dt", "N²m²/s"]];
+
+  /** "1.12246 N²m²s (effort ∫|τ|² dt)": the value with the scene's weighted terms, and a
+   *  unit when there is one term. */
+  function objectiveText(value, task) {
+    const weights = { effort: 1, time: 0, smoothness: 0, ...((task && task.objective) || {}) };
+    const used = TERMS.map(([name, integral, unit]) => [name, integral, unit, weights[name]])
+      .filter((term) => term[3] > 0);
+    const tracking = task && task.tracking;
+    if (tracking && tracking.mode === "weighted") {
+      used.push(["tracking", "∫|q_p − q_ref|² dt", "rad²s", tracking.weight ?? 100]);
+    }
+    if (!used.length) return fmt(value, 6);
+    const terms = used.map(([name, integral, , w]) => w === 1 ? `${name} ${integral}` : `${name} ${w}·${integral}`);
+    const unit = used.length === 1 && Number.isFinite(value) ? ` ${used[0][2]}` : "";
+    return `${fmt(value, 6)}${unit} (${terms.join(" + ")})`;
+  }
+
   function renderSummary(job) {
     const { plan } = job;
     const s = plan.solver, v = plan.verification;
@@ -379,7 +399,7 @@
       ["solver", s.status, s.success ? "good" : "bad"],
       ["message", s.message],
       ["iterations", String(s.iterations)],
-      ["objective", fmt(plan.objective, 6)],
+      ["objective", objectiveText(plan.objective, state.submitted.task)],
       ["duration T", `${fmt(plan.duration)} s`],
       ["time", `build ${s.build_time.toFixed(2)} s · solve ${s.solve_time.toFixed(2)} s`],
       ["re-simulation", v.resimulation_error === null ? v.resimulation_status : `${fmt(v.resimulation_error, 3)} rad`,
