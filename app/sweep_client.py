@@ -14,7 +14,7 @@ import sys
 import time
 import urllib.error
 import urllib.request
-from typing import Any
+from typing import Any, TextIO
 
 from planner import cli
 from planner.errors import InputError
@@ -64,6 +64,31 @@ def table(batch: dict[str, Any]) -> str:
     return "\n".join(rows)
 
 
+class Follow:
+    """The batch's progress on a stream: on a terminal one line rewritten in place at every
+    look (with the time waited); on a file or a pipe a line only when the counts change, so
+    a log holds one line per finished member rather than one per second."""
+
+    def __init__(self, stream: TextIO):
+        self.stream, self.tty = stream, stream.isatty()
+        self.last: str | None = None
+
+    def show(self, batch: dict[str, Any], waited: float) -> None:
+        line = f"  {batch['finished']}/{batch['size']} finished, {batch['verified']} verified"
+        if self.tty:
+            self.stream.write(f"\r{line}  {waited:5.0f} s")
+        elif line != self.last:
+            self.stream.write(line + "\n")
+        self.stream.flush()
+        self.last = line
+
+    def close(self) -> None:
+        """End the line rewritten in place."""
+        if self.tty and self.last is not None:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
 def run(args: argparse.Namespace) -> int:
     """Submit, follow and summarise one batch (see the module for the exit codes)."""
     request = cli.read_json(args.request)
@@ -75,14 +100,16 @@ def run(args: argparse.Namespace) -> int:
     if args.no_wait:
         print(batch["id"])
         return cli.OK
-    deadline = time.monotonic() + args.timeout
+    started = time.monotonic()
+    deadline, follow = started + args.timeout, Follow(sys.stderr)
     while batch["finished"] < batch["size"] and time.monotonic() < deadline:
         time.sleep(POLL)
         status, batch = _call("GET", f"{base}/v1/batches/{batch['id']}", args.api_key)
         if status != 200:
+            follow.close()
             raise cli.OutputError(f"the service answered {status}: {batch.get('detail', '')}")
-        print(f"  {batch['finished']}/{batch['size']} finished, {batch['verified']} verified",
-              file=sys.stderr, flush=True)
+        follow.show(batch, time.monotonic() - started)
+    follow.close()
     print(table(batch), file=sys.stderr)
     if args.output:
         cli.write(args.output, json.dumps(batch) + "\n")

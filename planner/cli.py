@@ -221,7 +221,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
     write(args.output, dump(result))
     if args.plot and result.t:  # an infeasible task refused before a solve has no plan
         from planner.plots import format_of, plan_plot
-        write(args.plot, plan_plot(result, scene.robot, format_of(args.plot)))
+        write(args.plot, plan_plot(result, scene.robot, format_of(args.plot), scene.task))
+        say(args, f"wrote the plan's figure to {args.plot}")
     s, v = result.solver, result.verification
     local = "n/a" if v.local_error is None else f"{v.local_error:.2g} rad"
     resim = "n/a" if v.resimulation_error is None else f"{v.resimulation_error:.2g} rad"
@@ -264,6 +265,7 @@ def cmd_inverse(args: argparse.Namespace) -> int:
     if args.plot:
         from planner.plots import format_of, inverse_plot
         write(args.plot, inverse_plot(result, request, format_of(args.plot)))
+        say(args, f"wrote the figure to {args.plot}")
     say(args, f"{result.status}: {result.message}")
     return OK if result.status == "completed" else FAILED
 
@@ -333,7 +335,7 @@ def parser(*extensions: Callable[[Commands], None]) -> argparse.ArgumentParser:
     pl.add_argument("-o", "--output", required=True, metavar="PLAN.json",
                     help='where to write the plan ("-": stdout)')
     pl.add_argument("--plot", metavar="PLAN.png|PLAN.svg", help="also draw the plan")
-    pl.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
+    pl.add_argument("-q", "--quiet", action="store_true", help="no progress lines or summary")
     pl.set_defaults(run=cmd_plan)
 
     dw = commands.add_parser("design-wave", help="design waves that keep sigma_min >= margin",

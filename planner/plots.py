@@ -38,6 +38,7 @@ from planner.errors import InputError
 from planner.inverse import InverseDynamicsRequest, InverseDynamicsResult
 from planner.model import Robot, Wave
 from planner.ocp.result import Plan, Verification
+from planner.scene import Task
 
 Format = Literal["png", "svg"]
 FORMATS: tuple[Format, ...] = ("png", "svg")
@@ -73,8 +74,10 @@ def plan_robot(robot: Robot, plan: Plan) -> Robot:
     return robot.with_waves(waves) if waves else robot
 
 
-def plan_figure(plan: Plan, robot: Robot, snapshots: int = SNAPSHOTS) -> Figure:
-    """Snapshots, angles, torques and sigma_min of a plan of `robot` (the scene's robot)."""
+def plan_figure(plan: Plan, robot: Robot, snapshots: int = SNAPSHOTS,
+                task: Task | None = None) -> Figure:
+    """Snapshots, angles, torques and sigma_min of a plan of `robot` (the scene's robot);
+    the scene's `task`, when given, names the objective's terms in the title."""
     robot = plan_robot(robot, plan)
     t, q = np.asarray(plan.dense.t), np.asarray(plan.dense.q)
     tau = np.asarray(plan.dense.tau)
@@ -96,7 +99,7 @@ def plan_figure(plan: Plan, robot: Robot, snapshots: int = SNAPSHOTS) -> Figure:
     ax_s.set_xlabel("t [s]")
     if len(t) > 1 and t[-1] > t[0]:
         ax_q.set_xlim(t[0], t[-1])
-    fig.suptitle(_plan_title(plan), fontsize=11)
+    fig.suptitle(_plan_title(plan, task), fontsize=11)
     return fig
 
 
@@ -151,10 +154,11 @@ def render(fig: Figure, fmt: Format = "png", dpi: int = 110) -> bytes:
     return buffer.getvalue()
 
 
-def plan_plot(plan: Plan, robot: Robot, fmt: Format = "png") -> bytes:
-    """`render(plan_figure(plan, robot), fmt)`, the figure built and drawn in one turn."""
+def plan_plot(plan: Plan, robot: Robot, fmt: Format = "png", task: Task | None = None) -> bytes:
+    """`render(plan_figure(plan, robot, task=task), fmt)`, the figure built and drawn in
+    one turn."""
     with _RENDERING:
-        return render(plan_figure(plan, robot), fmt)
+        return render(plan_figure(plan, robot, task=task), fmt)
 
 
 def inverse_plot(result: InverseDynamicsResult, request: InverseDynamicsRequest | None = None,
@@ -226,9 +230,10 @@ def _snapshots(fig: Figure, strip, robot: Robot, t: np.ndarray, q: np.ndarray,
         ax.scatter(*_screen(tips[1:]), s=sizes, c=colors, zorder=4, edgecolors="white",
                    linewidths=0.6)
         ax.plot([0.0], [0.0], marker="s", color="#222222", ms=5, zorder=5)
-        ax.annotate("", xy=(0.07, 0.66), xytext=(0.07, 0.94), xycoords="axes fraction",
-                    arrowprops={"arrowstyle": "-|>", "color": "#777777", "lw": 1.2},
-                    gid=f"{GRAVITY_GID}-{col}")  # the model's x axis: drawn downwards
+        if robot.gravity:  # no arrow for a weightless arm (g = 0)
+            ax.annotate("", xy=(0.07, 0.66), xytext=(0.07, 0.94), xycoords="axes fraction",
+                        arrowprops={"arrowstyle": "-|>", "color": "#777777", "lw": 1.2},
+                        gid=f"{GRAVITY_GID}-{col}")  # the model's x axis: drawn downwards
         ax.set_title(f"t = {t[k]:.2f} s", fontsize=9)
         ax.set_xlim(cx - half, cx + half)
         ax.set_ylim(cy - half, cy + half)
@@ -237,10 +242,10 @@ def _snapshots(fig: Figure, strip, robot: Robot, t: np.ndarray, q: np.ndarray,
         ax.set_yticks([])
         for side in ax.spines.values():
             side.set_color("#dddddd")
-    _snapshot_key(fig.add_subplot(strip[0, -1]))
+    _snapshot_key(fig.add_subplot(strip[0, -1]), bool(robot.gravity))
 
 
-def _snapshot_key(ax: Axes) -> None:
+def _snapshot_key(ax: Axes, gravity: bool) -> None:
     """The legend of the snapshot strip, in an empty cell."""
     ax.axis("off")
     handles = [Line2D([], [], color="#333333", lw=2.2, label="link"),
@@ -248,9 +253,10 @@ def _snapshot_key(ax: Axes) -> None:
                Line2D([], [], ls="", marker="o", color=_ACTIVE, label="mass, active joint"),
                Line2D([], [], color=_ACTIVE, lw=1.5,
                       label="active link's mass\npath r(q) e(q), swept"),
-               Line2D([], [], color="#c7c7c7", lw=0.9, label="last tip's path"),
-               Line2D([], [], ls="", marker="$\\downarrow$", color="#777777",
-                      label="gravity (x) down")]
+               Line2D([], [], color="#c7c7c7", lw=0.9, label="last tip's path")]
+    handles.append(Line2D([], [], ls="", marker="$\\downarrow$", color="#777777",
+                          label="gravity (x) down") if gravity else
+                   Line2D([], [], ls="", marker="", label="no gravity (g = 0)"))
     ax.legend(handles=handles, loc="center left", fontsize=7.5, frameon=False,
               borderaxespad=0.0, handlelength=1.6)
 
@@ -316,11 +322,40 @@ def _mark(ax: Axes, times: list[float], gid: str, label: str, panel: str) -> Non
 
 
 def _legend(ax: Axes) -> None:
+    """The panel's legend right of its frame, where it can never cover a curve."""
     if ax.get_legend_handles_labels()[0]:
-        ax.legend(loc="best", fontsize=8, framealpha=0.85)
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0,
+                  fontsize=8, frameon=False)
 
 
-def _plan_title(plan: Plan) -> str:
+_TERMS = (  # (weight's field, the term's integral, its unit)
+    ("effort", "∫|τ|² dt", "N²m²s"),
+    ("time", "T", "s"),
+    ("smoothness", "∫|dτ/dt|² dt", "N²m²/s"),
+)
+
+
+def objective_text(value: float | None, task: Task | None = None) -> str:
+    """The objective's value with what it is: its weighted terms from the scene's task and
+    its unit when there is one term ("objective (effort ∫|τ|² dt) 1.122 N²m²s"); without
+    the task, the bare value."""
+    shown = "n/a" if value is None else f"{value:.4g}"
+    if task is None:
+        return f"objective {shown}"
+    weights = task.objective
+    terms = [(name, integral, unit, getattr(weights, name)) for name, integral, unit in _TERMS]
+    if task.tracking is not None and task.tracking.mode == "weighted":
+        terms.append(("tracking", "∫|q_p − q_ref|² dt", "rad²s", task.tracking.weight))
+    used = [term for term in terms if term[3] > 0.0]
+    if not used:
+        return f"objective {shown}"
+    parts = [f"{name} {integral}" if weight == 1.0 else f"{name} {weight:g}·{integral}"
+             for name, integral, _, weight in used]
+    unit = f" {used[0][2]}" if len(used) == 1 and value is not None else ""
+    return f"objective ({' + '.join(parts)}) {shown}{unit}"
+
+
+def _plan_title(plan: Plan, task: Task | None = None) -> str:
     """Whether the plan is verified (its re-simulation error against the tolerance), then
     Ipopt's outcome and the plan's figures."""
     v = plan.verification
@@ -330,6 +365,6 @@ def _plan_title(plan: Plan) -> str:
         bound = f" (tolerance {v.tolerance:.2g} rad)" if v.tolerance is not None else ""
         verdict += f": re-simulation error {v.resimulation_error:.2g} rad{bound}"
     parts = [f"Ipopt {plan.solver.status} ({plan.solver.iterations} iterations)",
-             f"T = {plan.duration:.3g} s", f"objective {plan.objective:.4g}",
+             f"T = {plan.duration:.3g} s", objective_text(plan.objective, task),
              f"{len(v.waveless_singular_crossings)} waveless singular crossing(s)"]
     return f"plan {verdict}\n" + " · ".join(parts)

@@ -3,13 +3,14 @@ summary table, field-level 422s, the member bound, the queue's room, and `undert
 
 from __future__ import annotations
 
+import io
 import json
 import time
 
 import pytest
 from service_fixtures import client, serving, two_link_scene
 
-from app import cli
+from app import cli, sweep_client
 from app.main import create_app
 from app.settings import Settings
 from testbed.fake_solvers import fake_plan
@@ -126,3 +127,28 @@ def test_undertow_sweep_submits_follows_and_prints_the_table(tmp_path, capsys):
         assert cli.main(["sweep", str(request), "--url", url]) == 2
         assert "grid.task.duration: member 0 (duration=-1)" in capsys.readouterr().err
     assert cli.main(["sweep", str(request), "--url", url]) == 3  # no server any more
+
+
+class _Terminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def test_sweep_progress_on_a_file_is_a_line_per_change_and_on_a_terminal_one_line():
+    looks = [(0, 0), (0, 0), (0, 0), (1, 1), (1, 1), (2, 1), (2, 1)]
+    batches = [{"finished": f, "verified": v, "size": 3} for f, v in looks]
+    logged = io.StringIO()
+    follow = sweep_client.Follow(logged)
+    for k, batch in enumerate(batches):
+        follow.show(batch, float(k))
+    follow.close()
+    assert logged.getvalue().splitlines() == ["  0/3 finished, 0 verified",
+                                              "  1/3 finished, 1 verified",
+                                              "  2/3 finished, 1 verified"]
+    terminal = _Terminal()
+    follow = sweep_client.Follow(terminal)
+    for k, batch in enumerate(batches):
+        follow.show(batch, float(k))
+    follow.close()
+    assert terminal.getvalue().count("\n") == 1 and terminal.getvalue().endswith("\n")
+    assert terminal.getvalue().split("\r")[-1] == "  2/3 finished, 1 verified      6 s\n"

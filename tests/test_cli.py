@@ -103,6 +103,7 @@ def test_plan_writes_the_library_plan_a_figure_and_a_progress_line_per_iteration
     assert written.objective == pytest.approx(reference.objective, rel=1e-9)
     assert np.allclose(written.q, reference.q, rtol=0.0, atol=1e-9)
     assert figure.read_bytes().startswith(PNG)
+    assert f"wrote the plan's figure to {figure}" in err.splitlines()
     iterations = [int(line.split("iteration")[1].split()[0])
                   for line in err.splitlines() if line.startswith("[mesh pass")]
     # every iteration of every solve is reported, counted as Ipopt counts them
@@ -199,7 +200,7 @@ def test_inverse_completes_or_stops_singular_with_exit_codes_0_and_1(capsys, tmp
     out, figure = tmp_path / "out.json", tmp_path / "out.svg"
     request = write_json(tmp_path / "waves.json", example("two-link-waves").request)
     code, _, err = run(capsys, "inverse", request, "-o", str(out), "--plot", str(figure))
-    assert code == 0 and err == "completed: completed\n"
+    assert code == 0 and err == f"wrote the figure to {figure}\ncompleted: completed\n"
     assert InverseDynamicsResult.model_validate_json(out.read_text()).status == "completed"
     assert figure.read_bytes().startswith(b"<?xml")
 

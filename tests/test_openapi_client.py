@@ -1,6 +1,7 @@
 """A Python client generated from openapi/openapi.json (openapi-python-client) lists the
-examples and plans the first plan example (a two-link scene while there is none) against
-a live server, with the API key."""
+examples, plans the first plan example (a two-link scene while there is none) and fetches
+its figures against a live server, with the API key; the generated code is used as
+generated, and needs only the packages docs/api.md names (httpx, attrs)."""
 
 from __future__ import annotations
 
@@ -39,8 +40,9 @@ def generated(tmp_path_factory):
 
 def test_the_generated_client_plans_an_example(generated, tmp_path):
     from undertow_client.api.examples import list_examples
-    from undertow_client.api.plans import create_plan, get_plan
+    from undertow_client.api.plans import create_plan, get_plan, plan_plot_png, plan_plot_svg
     from undertow_client.models import Job, Problem, Scene
+    from undertow_client.types import File
 
     with LiveServer(tmp_path / "jobs.sqlite3", UNDERTOW_API_KEY=KEY) as live:
         client = generated.AuthenticatedClient(base_url=live.url, token=KEY, prefix="",
@@ -61,5 +63,11 @@ def test_the_generated_client_plans_an_example(generated, tmp_path):
             assert isinstance(job, Job), job
             assert job.status == "succeeded" and job.plan.solver.success
             again = get_plan.sync(client=client, job_id=job.id)
+            png = plan_plot_png.sync(client=client, job_id=job.id)
+            svg = plan_plot_svg.sync(client=client, job_id=job.id)
+            missing = plan_plot_png.sync(client=client, job_id="nope")
+    assert isinstance(png, File) and png.payload.read().startswith(b"\x89PNG\r\n\x1a\n")
+    assert isinstance(svg, File) and b"<svg" in svg.payload.read()
+    assert isinstance(missing, Problem) and missing.status == 404
     assert again.plan.to_dict() == job.plan.to_dict()
     assert again.plan.q[0] == scene.task.initial.q

@@ -9,6 +9,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import pytest
 from conftest import point_mass_dynamics
+from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from service_fixtures import client, two_link_scene
 
@@ -143,16 +144,59 @@ def test_the_snapshots_draw_the_links_through_the_dynamics_tips(crossing_plan, s
     assert np.allclose(links.get_ydata(), -tips[:, 0])
 
 
-def test_each_snapshot_draws_the_gravity_arrow_of_its_key(crossing_plan, scene):
-    fig = plots.plan_figure(crossing_plan, scene.robot, snapshots=4)
+def gravity_arrows(fig: Figure) -> list[list]:
     strip = [ax for ax in fig.axes if ax.get_title().startswith("t = ")]
-    arrows = [[a for a in ax.texts if (a.get_gid() or "").startswith(plots.GRAVITY_GID)]
-              for ax in strip]
+    return [[a for a in ax.texts if (a.get_gid() or "").startswith(plots.GRAVITY_GID)]
+            for ax in strip]
+
+
+def legend_texts(fig: Figure) -> list[str]:
+    return [t.get_text() for ax in fig.axes if ax.get_legend() for t in ax.get_legend().texts]
+
+
+def test_a_weightless_arm_has_no_gravity_arrow(crossing_plan, scene):
+    assert scene.robot.gravity == 0.0
+    fig = plots.plan_figure(crossing_plan, scene.robot, snapshots=4)
+    assert gravity_arrows(fig) == [[], [], [], []]
+    keys = legend_texts(fig)
+    assert "no gravity (g = 0)" in keys and "gravity (x) down" not in keys
+
+
+def test_each_snapshot_draws_the_gravity_arrow_of_its_key(crossing_plan, scene):
+    heavy = scene.robot.model_copy(update={"gravity": 9.81})
+    fig = plots.plan_figure(crossing_plan, heavy, snapshots=4)
+    arrows = gravity_arrows(fig)
     assert [len(a) for a in arrows] == [1, 1, 1, 1]
     (tail,), (head,) = [arrows[0][0].xyann], [arrows[0][0].xy]
     assert head[0] == tail[0] and head[1] < tail[1]  # straight down the drawing
-    keys = [t.get_text() for ax in fig.axes if ax.get_legend() for t in ax.get_legend().texts]
-    assert "gravity (x) down" in keys
+    assert "gravity (x) down" in legend_texts(fig)
+
+
+def test_legends_sit_beside_the_panels_not_on_their_curves(crossing_plan, scene):
+    fig = plots.plan_figure(crossing_plan, scene.robot)
+    FigureCanvasAgg(fig)
+    fig.draw_without_rendering()
+    for name, ax in time_axes(fig).items():
+        legend, frame = ax.get_legend().get_window_extent(), ax.get_window_extent()
+        assert legend.x0 >= frame.x1, name
+
+
+def test_the_title_says_what_the_objective_is(crossing_plan, scene):
+    title = plots.plan_figure(crossing_plan, scene.robot, task=scene.task)._suptitle.get_text()
+    assert f"objective (effort ∫|τ|² dt) {crossing_plan.objective:.4g} N²m²s" in title
+    bare = plots.plan_figure(crossing_plan, scene.robot)._suptitle.get_text()
+    assert f"objective {crossing_plan.objective:.4g}" in bare
+
+
+def test_the_objective_names_every_weighted_term():
+    task = Scene.model_validate(CROSSING_SCENE).task
+    mixed = task.model_copy(update={"objective": task.objective.model_copy(
+        update={"effort": 2.0, "time": 0.5})})
+    assert plots.objective_text(1.5, mixed) == "objective (effort 2·∫|τ|² dt + time 0.5·T) 1.5"
+    only_time = task.model_copy(update={"objective": task.objective.model_copy(
+        update={"effort": 0.0, "time": 1.0})})
+    assert plots.objective_text(3.0, only_time) == "objective (time T) 3 s"
+    assert plots.objective_text(None, task) == "objective (effort ∫|τ|² dt) n/a"
 
 
 @pytest.mark.parametrize("verified, word", [(True, "verified"), (False, "not verified")])
@@ -279,9 +323,15 @@ def test_the_plot_endpoint_serves_the_library_figure(api, fmt, media):
     job = finished(api, scene)
     r = api.get(f"/v1/plans/{job['id']}/plot.{fmt}")
     assert r.status_code == 200 and r.headers["content-type"] == media
-    expected = plots.plan_plot(Plan.model_validate(job["plan"]),
-                               Scene.model_validate(scene).robot, fmt)
+    posted = Scene.model_validate(scene)
+    expected = plots.plan_plot(Plan.model_validate(job["plan"]), posted.robot, fmt, posted.task)
     assert r.content == expected
+    # the same bytes as application/octet-stream for a client that asks only for that
+    for accept, served in (("application/octet-stream", "application/octet-stream"),
+                           (f"{media}, application/octet-stream;q=0.5", media),
+                           ("image/*, application/octet-stream", media), ("*/*", media)):
+        r = api.get(f"/v1/plans/{job['id']}/plot.{fmt}", headers={"accept": accept})
+        assert r.headers["content-type"] == served and r.content == expected, accept
 
 
 def test_a_failed_job_with_its_last_iterate_is_drawn(api):
@@ -314,7 +364,7 @@ def test_drawing_does_not_block_the_event_loop(tmp_path, monkeypatch):
 
     drawing = threading.Event()
 
-    def slow_plot(plan, robot, fmt):
+    def slow_plot(plan, robot, fmt, task=None):
         drawing.set()
         time.sleep(1.0)
         return b"drawn"

@@ -87,6 +87,23 @@ ARM_DIGEST = """() => {
 }"""
 
 
+LEGEND_BAND = """(id) => {
+  const c = document.getElementById(id);
+  const ratio = c.width / c.clientWidth;
+  const data = c.getContext("2d").getImageData(0, 0, c.width, Math.floor(22 * ratio)).data;
+  const want = {with: [31, 111, 180], without: [154, 154, 154]};
+  const counts = {with: 0, without: 0};
+  for (let i = 0; i < data.length; i += 4) {
+    for (const [k, [r, g, b]] of Object.entries(want)) {
+      if (Math.abs(data[i] - r) + Math.abs(data[i + 1] - g) + Math.abs(data[i + 2] - b) < 30
+          && data[i + 3] > 200) counts[k] += 1;
+    }
+  }
+  return counts;
+}"""
+"""Pixels of the sigma legend's colours in the band above the plot frame."""
+
+
 def colors(page, canvas: str, *names: str) -> dict[str, int]:
     """Pixels of each named colour on a canvas."""
     return page.evaluate(COUNT_COLORS, [canvas, {n: COLORS[n] for n in names}])
@@ -114,6 +131,10 @@ def test_plan_an_example_and_watch_it(page, server, tmp_path):
     scene = (CROSSING_SCENE if name == "pasted"
              else httpx.get(f"{server.url}/v1/examples/{name}").json()["request"])
     assert page.locator("#links tbody tr").count() >= 2
+    # before any plan, the arm is drawn at the scene's start
+    page.wait_for_timeout(200)
+    start = colors(page, "arm", "active", "link")
+    assert start["active"] > 100 and start["link"] > 100, start
     page.click("#plan")
     page.wait_for_function("['succeeded', 'failed', 'cancelled']"
                            ".includes(document.getElementById('p-status').textContent)",
@@ -128,6 +149,9 @@ def test_plan_an_example_and_watch_it(page, server, tmp_path):
     assert plan["solver"]["status"] in page.text_content("#summary")
     assert plan["verification"]["verified"]
     assert "verifiedyes (tolerance 0.001 rad)" in page.text_content("#summary")
+    weights = scene["task"].get("objective", {})
+    if weights.get("time", 0) == 0 and weights.get("smoothness", 0) == 0:
+        assert " N²m²s (effort " in page.text_content("#summary")  # what the objective is
     crossings = plan["verification"]["waveless_singular_crossings"]
     assert page.locator("#crossings li").count() == len(crossings) + 1
 
@@ -142,6 +166,8 @@ def test_plan_an_example_and_watch_it(page, server, tmp_path):
     labels = {name: page.get_attribute(f"#{name}", "aria-label")
               for name in ("torque-plot", "sigma-plot", "angle-plot")}
     joints = [link["joint"] for link in scene["robot"]["links"]]
+    band = page.evaluate(LEGEND_BAND, "sigma-plot")  # the legend sits above the curves
+    assert band["with"] > 10 and band["without"] > 10, band
     assert labels == {  # the legends, as the PNG's
         "torque-plot": ", ".join([f"tau{j}" for j, kind in enumerate(joints) if kind == "active"]
                                  + ["over t [s]"]),
@@ -164,6 +190,24 @@ def test_plan_an_example_and_watch_it(page, server, tmp_path):
     target = SCREENSHOT if os.environ.get("UNDERTOW_SCREENSHOT") == "1" else tmp_path / "viewer.png"
     page.screenshot(path=str(target), full_page=True)
     assert target.stat().st_size > 50_000
+
+    # an edit marks the plan stale; a refused edit clears it
+    assert page.locator("#stale").is_hidden()
+    row = page.locator("#links tbody tr.active").first
+    index = int(row.locator("td").first.text_content())
+    length = float(row.locator(f"[data-loc='robot.links.{index}.length']").input_value())
+    row.locator(f"[data-loc='robot.links.{index}.mass']").fill("0.7")
+    assert page.locator("#stale").is_visible()
+    row.locator(f"[data-loc='robot.links.{index}.wave.amplitude']").fill(str(2 * length))
+    page.click("#plan")
+    page.wait_for_selector("#error:not([hidden])")
+    assert plan["solver"]["status"] not in page.text_content("#summary")
+    assert "the edited scene was refused" in page.text_content("#summary")
+    assert page.locator("#stale").is_hidden() and page.locator("#downloads").is_hidden()
+    assert page.is_disabled("#play")
+    assert colors(page, "sigma-plot", "with")["with"] == 0
+    assert colors(page, "arm", "link")["link"] > 100  # the edited arm at its start
+    assert page.page_errors == []
 
 
 def test_field_errors_are_shown_at_the_field(page, server):

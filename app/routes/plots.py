@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from anyio import to_thread
-from fastapi import APIRouter, Response
+from fastapi import APIRouter, Request, Response
 
 from app.deps import LimiterDep, StoreDep
 from app.errors import ApiError
@@ -14,10 +14,14 @@ from planner.service import Plan, Scene
 
 router = APIRouter(prefix="/v1/plans", tags=["plans"])
 
+OCTETS = "application/octet-stream"
+"""The figure's bytes under a generic type, for a client that asks for it (`Accept`):
+generated clients (openapi-python-client) read a binary body only under this type."""
+_BINARY = {"schema": {"type": "string", "format": "binary"}}
+
 
 def _image(fmt: plots.Format) -> dict:
-    return {200: {"content": {plots.MEDIA_TYPES[fmt]: {"schema": {"type": "string",
-                                                                   "format": "binary"}}},
+    return {200: {"content": {plots.MEDIA_TYPES[fmt]: _BINARY, OCTETS: _BINARY},
                   "description": "snapshots of the arm, joint angles, torques and "
                                  "sigma_min(M_pa) with and without waves; waveless "
                                  "singular crossings marked"},
@@ -31,23 +35,36 @@ def _draw(record: JobRecord | None, job_id: str, fmt: plots.Format) -> bytes:
         why = f" ({record.error})" if record.error else ""
         raise ApiError(409, "no-plan", "The job has no plan yet",
                        f"plan job {job_id!r} is {record.status}{why}; a plot needs its plan")
-    robot = Scene.model_validate(record.scene).robot
-    return plots.plan_plot(Plan.model_validate(record.plan), robot, fmt)
+    scene = Scene.model_validate(record.scene)
+    return plots.plan_plot(Plan.model_validate(record.plan), scene.robot, fmt, scene.task)
 
 
-async def _plot(job_id: str, store: StoreDep, limiter: LimiterDep, fmt: plots.Format) -> Response:
+def _media_type(accept: str, fmt: plots.Format) -> str:
+    """The figure's own type, or application/octet-stream when the client accepts that and
+    not the figure's type (nor image/*)."""
+    own = plots.MEDIA_TYPES[fmt]
+    accepted = {part.split(";")[0].strip().lower() for part in accept.split(",")}
+    if OCTETS in accepted and not accepted & {own, "image/*", "*/*"}:
+        return OCTETS
+    return own
+
+
+async def _plot(request: Request, job_id: str, store: StoreDep, limiter: LimiterDep,
+                fmt: plots.Format) -> Response:
     record = await to_thread.run_sync(store.get, job_id)
     body = await to_thread.run_sync(_draw, record, job_id, fmt, limiter=limiter)
-    return Response(body, media_type=plots.MEDIA_TYPES[fmt])
+    return Response(body, media_type=_media_type(request.headers.get("accept", ""), fmt))
 
 
 @router.get("/{job_id}/plot.png", summary="The plan's figure as PNG", response_class=Response,
             responses=_image("png"))
-async def plan_plot_png(job_id: str, store: StoreDep, limiter: LimiterDep) -> Response:
-    return await _plot(job_id, store, limiter, "png")
+async def plan_plot_png(request: Request, job_id: str, store: StoreDep,
+                        limiter: LimiterDep) -> Response:
+    return await _plot(request, job_id, store, limiter, "png")
 
 
 @router.get("/{job_id}/plot.svg", summary="The plan's figure as SVG", response_class=Response,
             responses=_image("svg"))
-async def plan_plot_svg(job_id: str, store: StoreDep, limiter: LimiterDep) -> Response:
-    return await _plot(job_id, store, limiter, "svg")
+async def plan_plot_svg(request: Request, job_id: str, store: StoreDep,
+                        limiter: LimiterDep) -> Response:
+    return await _plot(request, job_id, store, limiter, "svg")

@@ -17,6 +17,9 @@
   const C = { ink: "#1d2733", muted: "#8a94a0", grid: "#eef1f5", active: PALETTE.active,
               passive: PALETTE.passive, with: PALETTE.with, without: PALETTE.without, mark: PALETTE.mark };
 
+  const START_CAPTION = "The scene's arm at its start (task.initial.q), each active link's " +
+    "mass path faint; plan the scene to see it move. Gravity (x) points down.";
+
   const state = {
     scene: null,        // the scene being edited (JSON object)
     submitted: null,    // the scene of the latest job
@@ -140,6 +143,35 @@
     state.scene = scene;
     renderRobotForm();
     $("scene-json").value = JSON.stringify(scene, null, 2);
+    sceneChanged();
+  }
+
+  /** After any change of the scene: without a plan, draw the edited arm at its start;
+   *  with one, say that the plan shown is of an earlier scene. */
+  function sceneChanged() {
+    state.previewView = null;
+    if (state.plan) $("stale").hidden = false;
+    else drawArm();
+  }
+
+  /** Forget the plan shown (a refused edit must not sit beside the old plan). */
+  function clearPlan(why) {
+    if (state.playing) togglePlay();
+    Object.assign(state, { plan: null, robot: null, frames: null, sigma: null, view: null, t: 0 });
+    state.plots.forEach((p) => prepare(p.canvas));
+    state.plots = [];
+    const dt = document.createElement("dt"), dd = document.createElement("dd");
+    dt.textContent = "–";
+    dd.textContent = why;
+    $("summary").replaceChildren(dt, dd);
+    $("crossings").replaceChildren();
+    $("downloads").hidden = true;
+    $("stale").hidden = true;
+    $("play").disabled = true;
+    $("time").disabled = true;
+    $("time-label").textContent = "t = –";
+    $("arm-caption").textContent = START_CAPTION;
+    drawArm();
   }
 
   const LINK_FIELDS = [["length", 0.001], ["mass", 0.01], ["inertia", 0.001]];
@@ -218,6 +250,7 @@
   function sceneEdited() {
     $("example").value = "";
     $("scene-json").value = JSON.stringify(state.scene, null, 2);
+    sceneChanged();
   }
 
   function applyJson() {
@@ -250,6 +283,7 @@
       $("plan").disabled = false;
       $("progress").hidden = true;
       showError(err, "The scene was refused");
+      if (state.plan) clearPlan("no plan: the edited scene was refused (see the error); the earlier plan is cleared");
     }
   }
 
@@ -322,6 +356,7 @@
     state.robot = planRobot(state.submitted.robot, plan);
     state.frames = plan.dense.q.map((q) => joints(state.robot, q));
     state.t = 0;
+    $("stale").hidden = true;
     renderSummary(job);
     setupPlayer();
     state.sigma = sigmaOf(plan, state.robot);
@@ -338,6 +373,26 @@
     return { with: v.sigma_min, without: v.waveless_sigma_min };
   }
 
+  // the objective's terms: weight's field, integral, unit (planner.plots.objective_text)
+  const TERMS = [["effort", "∫|τ|² dt", "N²m²s"], ["time", "T", "s"],
+                 ["smoothness", "∫|dτ/dt|² dt", "N²m²/s"]];
+
+  /** "1.12246 N²m²s (effort ∫|τ|² dt)": the value with the scene's weighted terms, and a
+   *  unit when there is one term. */
+  function objectiveText(value, task) {
+    const weights = { effort: 1, time: 0, smoothness: 0, ...((task && task.objective) || {}) };
+    const used = TERMS.map(([name, integral, unit]) => [name, integral, unit, weights[name]])
+      .filter((term) => term[3] > 0);
+    const tracking = task && task.tracking;
+    if (tracking && tracking.mode === "weighted") {
+      used.push(["tracking", "∫|q_p − q_ref|² dt", "rad²s", tracking.weight ?? 100]);
+    }
+    if (!used.length) return fmt(value, 6);
+    const terms = used.map(([name, integral, , w]) => w === 1 ? `${name} ${integral}` : `${name} ${w}·${integral}`);
+    const unit = used.length === 1 && Number.isFinite(value) ? ` ${used[0][2]}` : "";
+    return `${fmt(value, 6)}${unit} (${terms.join(" + ")})`;
+  }
+
   function renderSummary(job) {
     const { plan } = job;
     const s = plan.solver, v = plan.verification;
@@ -345,7 +400,7 @@
       ["solver", s.status, s.success ? "good" : "bad"],
       ["message", s.message],
       ["iterations", String(s.iterations)],
-      ["objective", fmt(plan.objective, 6)],
+      ["objective", objectiveText(plan.objective, state.submitted.task)],
       ["duration T", `${fmt(plan.duration)} s`],
       ["time", `build ${s.build_time.toFixed(2)} s · solve ${s.solve_time.toFixed(2)} s`],
       ["re-simulation", v.resimulation_error === null ? v.resimulation_status : `${fmt(v.resimulation_error, 3)} rad`,
@@ -476,19 +531,103 @@
     return { left: Math.min(...xs), right: Math.max(...xs), top: Math.min(...ys), bottom: Math.max(...ys) };
   }
 
-  function drawArm() {
-    const canvas = $("arm");
-    const [ctx, W, H] = prepare(canvas);
-    ctx.fillStyle = "#fbfcfd";
-    ctx.fillRect(0, 0, W, H);
-    if (!state.plan) return;
-    const box = state.view || (state.view = armView());
+  /** The scene's robot and its start q when both are readable, else null. */
+  function sceneStart() {
+    const robot = state.scene && state.scene.robot;
+    const initial = state.scene && state.scene.task && state.scene.task.initial;
+    const q = initial && initial.q;
+    if (!robot || !Array.isArray(robot.links) || !robot.links.length || !Array.isArray(q)) return null;
+    const numbers = (v) => Number.isFinite(v);
+    if (q.length !== robot.links.length || !q.every(numbers)) return null;
+    if (!robot.links.every((l) => l && numbers(l.length) && numbers(l.mass) && l.mass > 0)) return null;
+    const wavy = (l) => !l.wave || ["amplitude", "frequency", "phase"].every((f) => numbers(l.wave[f]));
+    return robot.links.every(wavy) ? { robot, q } : null;
+  }
+
+  function startView(robot, q) {
+    const at = joints(robot, q);
+    const pts = [...at];
+    robot.links.forEach((link, j) => {
+      if (link.joint === "active") pts.push(...wavePath(link, at[j], 0, 2 * Math.PI, 48));
+    });
+    const xs = pts.map((p) => p[1]), ys = pts.map((p) => p[0]);
+    return { left: Math.min(...xs), right: Math.max(...xs), top: Math.min(...ys), bottom: Math.max(...ys) };
+  }
+
+  /** Without a plan: the scene's arm at its start (task.initial.q), its mass paths faint. */
+  function drawStart(ctx, W, H) {
+    const start = sceneStart();
+    if (!start) {
+      ctx.fillStyle = C.muted;
+      ctx.font = "13px system-ui, sans-serif";
+      ctx.fillText("no arm to draw: the scene's robot or task.initial.q is incomplete", 12, 22);
+      return;
+    }
+    const { robot, q } = start;
+    const box = state.previewView || (state.previewView = startView(robot, q));
+    const S = toScreen(box, W, H);
+    const now = joints(robot, q);
+    robot.links.forEach((link, j) => {
+      if (link.joint !== "active") return;
+      ctx.strokeStyle = "rgba(255,127,14,0.30)";
+      ctx.lineWidth = 1;
+      polyline(ctx, wavePath(link, now[j], 0, 2 * Math.PI, 240).map(S), true);
+    });
+    drawLinks(ctx, robot, now, S);
+    ctx.fillStyle = C.ink;
+    ctx.font = "600 14px system-ui, sans-serif";
+    ctx.fillText("t = 0: the scene's start (no plan yet)", 12, 22);
+    gravityLabel(ctx, robot, W);
+  }
+
+  function toScreen(box, W, H) {
     const pad = 24;
     const scale = Math.min((W - 2 * pad) / Math.max(box.right - box.left, 1e-6),
                            (H - 2 * pad) / Math.max(box.bottom - box.top, 1e-6));
     const ox = W / 2 - scale * (box.left + box.right) / 2;
     const oy = H / 2 - scale * (box.top + box.bottom) / 2;
-    const S = (p) => [ox + scale * p[1], oy + scale * p[0]];
+    return (p) => [ox + scale * p[1], oy + scale * p[0]];
+  }
+
+  /** Links, masses (sized by mass; orange on active joints) and the base. */
+  function drawLinks(ctx, robot, now, S) {
+    ctx.strokeStyle = "#2b3440";
+    ctx.lineWidth = 3.5;
+    ctx.lineCap = "round";
+    polyline(ctx, now.map(S));
+    const mmax = Math.max(...robot.links.map((l) => l.mass));
+    robot.links.forEach((link, i) => {
+      const [x, y] = S(now[i + 1]);
+      ctx.beginPath();
+      ctx.arc(x, y, 5 + 7 * Math.sqrt(link.mass / mmax), 0, 2 * Math.PI);
+      ctx.fillStyle = link.joint === "active" ? C.active : C.passive;
+      ctx.fill();
+      ctx.strokeStyle = "#fff";
+      ctx.lineWidth = 1.5;
+      ctx.stroke();
+    });
+    const [bx, by] = S([0, 0]);
+    ctx.fillStyle = "#17212d";
+    ctx.fillRect(bx - 6, by - 6, 12, 12);
+  }
+
+  /** "g, x ↓" top right; without gravity only the axis ("x ↓, g = 0"). */
+  function gravityLabel(ctx, robot, W) {
+    ctx.font = "12px system-ui, sans-serif";
+    ctx.fillStyle = C.muted;
+    ctx.textAlign = "right";
+    ctx.fillText(robot.gravity ? "g, x ↓" : "x ↓, g = 0", W - 12, 22);
+    ctx.textAlign = "left";
+  }
+
+  function drawArm() {
+    const canvas = $("arm");
+    const [ctx, W, H] = prepare(canvas);
+    ctx.fillStyle = "#fbfcfd";
+    ctx.fillRect(0, 0, W, H);
+    if (!state.plan) { drawStart(ctx, W, H); return; }
+    const box = state.view || (state.view = armView());
+    const S = toScreen(box, W, H);
 
     const plan = state.plan, t = state.t;
     const q = sampleAt(t, plan.dense.t, plan.dense.q);
@@ -513,33 +652,13 @@
       polyline(ctx, wavePath(link, now[j], lo, hi, 120).map(S));
     });
 
-    // links and masses
-    ctx.strokeStyle = "#2b3440";
-    ctx.lineWidth = 3.5;
-    ctx.lineCap = "round";
-    polyline(ctx, now.map(S));
-    const mmax = Math.max(...state.robot.links.map((l) => l.mass));
-    state.robot.links.forEach((link, i) => {
-      const [x, y] = S(now[i + 1]);
-      ctx.beginPath();
-      ctx.arc(x, y, 5 + 7 * Math.sqrt(link.mass / mmax), 0, 2 * Math.PI);
-      ctx.fillStyle = link.joint === "active" ? C.active : C.passive;
-      ctx.fill();
-      ctx.strokeStyle = "#fff";
-      ctx.lineWidth = 1.5;
-      ctx.stroke();
-    });
-    const [bx, by] = S([0, 0]);
-    ctx.fillStyle = "#17212d";
-    ctx.fillRect(bx - 6, by - 6, 12, 12);
+    drawLinks(ctx, state.robot, now, S);
 
     // labels: time, gravity, nearby waveless singular crossing
     ctx.fillStyle = C.ink;
     ctx.font = "600 14px system-ui, sans-serif";
     ctx.fillText(`t = ${t.toFixed(2)} s`, 12, 22);
-    ctx.font = "12px system-ui, sans-serif";
-    ctx.fillStyle = C.muted;
-    ctx.fillText("g, x ↓", W - 52, 22);
+    gravityLabel(ctx, state.robot, W);
     const span = plan.dense.t[plan.dense.t.length - 1] - plan.dense.t[0];
     const near = (plan.verification.waveless_singular_crossings || [])
       .find((c) => Math.abs(c.time - t) < 0.015 * span);
@@ -588,7 +707,8 @@
       const [ctx, W, H] = prepare(this.canvas);
       const { t, series, options } = this;
       this.left = 58; this.right = 12;
-      const top = 8, bottom = 34;
+      const keyed = series.filter((s) => s.label).length > 0;
+      const top = keyed ? 24 : 8, bottom = 34; // the legend has its own band above the frame
       const t0 = t[0], t1 = t[t.length - 1];
       const log = !!options.log;
       const tr = (v) => log ? Math.log10(Math.max(v, SIGMA_FLOOR)) : v;
@@ -645,7 +765,7 @@
       }
       ctx.restore();
       ctx.setLineDash([]);
-      legend(ctx, series.filter((s) => s.label), W - this.right - 6, top + 10);
+      legend(ctx, series.filter((s) => s.label), W - this.right, top / 2);
       this.canvas.setAttribute("aria-label", [...series.filter((s) => s.label).map((s) => s.label),
         "over t [s]"].join(", "));
       if (options.note) {
