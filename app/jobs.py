@@ -57,13 +57,14 @@ class JobRunner:
 
     def start(self) -> list[str]:
         """Recover after a restart: running jobs of this owner held by its own workers
-        become failed ("interrupted"); queued ones run (the workers start now if any job
-        waits, else with the first submitted one). Returns the interrupted ids."""
-        interrupted = self.store.interrupt(self.owner)
+        had an infrastructure failure (the server stopped under them) and are requeued;
+        queued ones run (the workers start now if any job waits, else with the first
+        submitted one). Returns the recovered ids."""
+        recovered = self.store.recover(self.owner)
         self.supervisor.start()
         if self.store.count_by_status()["queued"]:
             self.supervisor.wake()
-        return interrupted
+        return list(recovered)
 
     def submit(self, scene: dict[str, Any], job_id: str) -> None:
         """Store a new queued job; QueueFull when the instance is at capacity."""
@@ -98,8 +99,9 @@ class JobRunner:
         return self.supervisor.problem
 
     def shutdown(self) -> None:
-        """Stop: running jobs end interrupted, queued ones stay queued in the store for
-        the next start; the store is then checkpointed and closed."""
+        """Stop: running jobs are released (queued again), queued ones stay queued in the
+        store for the next start or another server's workers; the store is then
+        checkpointed and closed."""
         self.supervisor.stop()
         try:
             self.store.checkpoint(final=True)

@@ -6,8 +6,11 @@ Its supervisor (`app.supervisor`) is the one an API server runs, claiming anyone
 it renews its jobs' leases (reading their cancel flags, so a cancel sent to any API server
 stops the solve), holds each job to its wall-time budget, and settles jobs of any worker
 whose lease ran out. SIGTERM or Ctrl-C stops the node: idle processes leave, running
-jobs end interrupted. A node killed outright (SIGKILL, machine lost) leaves its jobs'
-leases to run out: whoever sees that first requeues them once.
+jobs are released at once (queued again, for another node). A node whose main process is
+killed (SIGKILL, the OOM killer) has its solver processes requeue their jobs themselves
+within a quarter of a second; a node killed whole (or its machine lost) leaves its jobs'
+leases to run out, and whoever sees that first requeues them (infrastructure failures,
+retried up to UNDERTOW_MAX_RETRIES times).
 """
 
 from __future__ import annotations
