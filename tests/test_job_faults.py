@@ -81,7 +81,7 @@ def solving(job: dict) -> bool:
 @pytest.fixture(scope="module")
 def api(tmp_path_factory):
     with client(tmp_path_factory.mktemp("faults"), solve=fake_plan, workers=2, max_queued=2,
-                wall_time_grace=1.0) as c:
+                wall_time_grace=1.0, max_retries=1, retry_backoff=0.1) as c:
         yield c
 
 
@@ -105,13 +105,16 @@ def test_a_plan_too_big_for_a_worker_is_refused_before_it_runs(api):
     api.delete(f"/v1/plans/{r.json()['id']}")
 
 
-def test_a_dead_worker_fails_only_its_own_job(api):
+def test_a_dead_worker_requeues_only_its_own_job_then_dead_letters_it(api):
     wait_idle(api)
     neighbour = post(api, iterations=500)  # 10 s on one worker
     wait_for(api, neighbour, solving)
-    crash = post(api, tol=0.95)  # kills the other worker
+    crash = post(api, tol=0.95)  # kills every worker that takes it
     job = wait_final(api, crash)
-    assert (job["status"], job["error"]) == ("failed", died(3))
+    assert (job["status"], job["dead_letter"], job["infra_failures"]) == ("failed", True, 2)
+    assert job["error"] == (f"dead letter: {died(3)}; it failed for infrastructure reasons "
+                            "2 times (UNDERTOW_MAX_RETRIES=1)")
+    assert [e["event"] for e in job["history"]] == ["claimed", "infrastructure-failure"] * 2
     assert api.get(f"/v1/plans/{neighbour}").json()["status"] == "running"
     assert wait_final(api, neighbour)["status"] == "succeeded"
     assert wait_final(api, post(api))["status"] == "succeeded"  # a worker took its place
@@ -167,21 +170,22 @@ def test_no_state_of_one_job_leaks_into_the_next(tmp_path):
         "Invalid_Problem_Definition", 0)
 
 
-def test_sigterm_interrupts_running_jobs_and_keeps_queued_ones_queued(tmp_path):
+def test_sigterm_releases_running_jobs_and_keeps_queued_ones_queued(tmp_path):
     live = fake_server(tmp_path)
     with live, httpx.Client(base_url=live.url, timeout=30) as api:
-        running = post(api, iterations=1000)
+        running = post(api, iterations=100)
         queued = [post(api) for _ in range(3)]
         wait_for(api, running, solving)
         live.stop(signal.SIGTERM)
         wait_gone(live.proc.pid)  # the server and every worker it started
         store = SqliteJobStore(tmp_path / "jobs.sqlite3")
-        assert (store.get(running).status, store.get(running).error) == (
-            "failed", "interrupted")
+        released = store.get(running)
+        assert (released.status, released.error, released.infra_failures) == (
+            "queued", None, 0)
         assert [(store.get(j).status, store.get(j).started) for j in queued] == [
             ("queued", None)] * 3
     with live, httpx.Client(base_url=live.url, timeout=30) as api:
-        assert [wait_final(api, j)["status"] for j in queued] == ["succeeded"] * 3
+        assert [wait_final(api, j)["status"] for j in [running, *queued]] == ["succeeded"] * 4
 
 
 def test_ctrl_c_stops_server_and_workers_with_json_log_lines_only(tmp_path):
@@ -193,7 +197,7 @@ def test_ctrl_c_stops_server_and_workers_with_json_log_lines_only(tmp_path):
         live.proc.wait(30)
         wait_gone(live.proc.pid)
     store = SqliteJobStore(tmp_path / "jobs.sqlite3")
-    assert (store.get(running).status, store.get(running).error) == ("failed", "interrupted")
+    assert (store.get(running).status, store.get(running).error) == ("queued", None)
     for line in live.log.read_text().splitlines():
         assert json.loads(line)["level"] in ("INFO", "WARNING"), line
 

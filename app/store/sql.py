@@ -105,7 +105,8 @@ class SqlJobStore(JobStore):
         rows = self._write(
             "UPDATE jobs SET status = 'running', started = :now, worker = :worker, "
             "lease_until = :until, lease = :lease, not_before = NULL, progress = :progress, "
-            f"attempts = attempts + 1, history = {self._push(event('claimed', 'CAST(:worker AS TEXT)'))} "
+            "attempts = attempts + 1, "
+            f"history = {self._push(event('claimed', 'CAST(:worker AS TEXT)'))} "
             "WHERE status = 'queued' AND id = (SELECT id FROM jobs WHERE status = 'queued' "
             f"{mine} AND (not_before IS NULL OR not_before <= :now) ORDER BY created, id "
             f"LIMIT 1 {self.claim_lock}) RETURNING {COLUMNS}",
