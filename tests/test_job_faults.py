@@ -248,3 +248,47 @@ def test_workers_that_cannot_start_make_health_503(tmp_path, monkeypatch):
         assert r.status_code == 503 and r.json()["detail"].startswith(
             "no solver worker process could start (")
         assert api.get("/metrics").status_code == 503
+
+
+def refused(api, what: str) -> None:
+    """POST /v1/plans and /healthz answer 503 problems naming `what`."""
+    for method, path, body in (("post", "/v1/plans", two_link_scene()),
+                               ("get", "/healthz", None)):
+        r = api.request(method, path, json=body)
+        assert r.status_code == 503, (path, r.text)
+        assert r.headers["content-type"] == "application/problem+json"
+        assert what in r.json()["detail"], r.json()
+
+
+def test_a_deleted_write_ahead_log_refuses_new_plans_and_loses_none(tmp_path):
+    live = fake_server(tmp_path)
+    with live, httpx.Client(base_url=live.url, timeout=30) as api:
+        accepted = [post(api) for _ in range(3)] + [post(api, iterations=1000)]
+        wait_for(api, accepted[0], lambda j: j["status"] == "succeeded")
+        os.unlink(tmp_path / "jobs.sqlite3-wal")
+        for _ in range(3):
+            refused(api, "write-ahead log")
+        os.killpg(live.proc.pid, signal.SIGKILL)  # the worst end: nothing shuts down cleanly
+        live.proc.wait(30)
+        wait_gone(live.proc.pid)
+    with live, httpx.Client(base_url=live.url, timeout=30) as api:
+        for job_id in accepted:  # every plan that was answered 202 is still known
+            assert api.get(f"/v1/plans/{job_id}").status_code == 200
+        assert [wait_final(api, j)["status"] for j in accepted[:3]] == ["succeeded"] * 3
+        api.delete(f"/v1/plans/{accepted[3]}")
+
+
+@pytest.mark.parametrize("damage", ["garbage", "pages"])
+def test_a_store_overwritten_in_place_refuses_new_plans_and_health(tmp_path, damage):
+    with client(tmp_path, solve=fake_plan) as api:
+        done = [post(api) for _ in range(3)]
+        for job_id in done:
+            wait_final(api, job_id)
+        path = tmp_path / "jobs.sqlite3"
+        api.app.state.store.checkpoint(final=True)
+        data = bytearray(path.read_bytes())
+        start = 0 if damage == "garbage" else 4096  # the whole file, or all but its header
+        data[start:] = b"\xa5" * (len(data) - start)
+        with open(path, "r+b") as file:  # in place: the same inode
+            file.write(bytes(data))
+        refused(api, "job store")

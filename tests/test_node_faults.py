@@ -165,3 +165,16 @@ def test_a_stopped_database_is_loud_and_nothing_accepted_is_lost(cluster, server
         server.resume()
     wait_for(lambda: http.get("/healthz").status_code == 200, 30, "health back at 200")
     all_succeed(http, submit(http, 2, iterations=3))
+
+
+def test_an_idle_node_claims_a_queued_plan_within_milliseconds(cluster):
+    http, node_1, node_2, store, _ = cluster
+    all_succeed(http, submit(http, 2, iterations=1))  # both nodes up and idle
+    waits = []
+    for _ in range(5):
+        [job_id] = submit(http, 1, iterations=1)
+        wait_final(http, job_id, timeout=30)
+        record = store.get(job_id)
+        waits.append(record.started - record.created)
+        time.sleep(0.1)
+    assert sorted(waits)[2] < 0.2, waits  # the median: a notification, not the 1 s poll

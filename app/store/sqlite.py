@@ -143,6 +143,7 @@ class SqliteJobStore(SqlJobStore):
         sqlite3.connect(self.path).close()  # creates an empty file if there is none
         self._identity = _identity(self.path)
         self._local = threading.local()
+        self._wal_state()
         self._checkpointed = time.monotonic()
         self._verify()
         self._migrate()
@@ -158,7 +159,14 @@ class SqliteJobStore(SqlJobStore):
         self.checkpoint_interval, self._identity = state["checkpoint_interval"], state["identity"]
         self.policy, self._started = state["policy"], True
         self._local = threading.local()
+        self._wal_state()
         self._checkpointed = time.monotonic()
+
+    def _wal_state(self) -> None:
+        self._wal: tuple[int, tuple[int, int]] | None = None  # (pid, identity) first seen
+        self._wal_lost = False
+        self._wal_lock = threading.Lock()
+        self._connections: list[sqlite3.Connection] = []
 
     def _verify(self) -> None:
         """StoreDamaged unless the file is a database that passes PRAGMA quick_check."""
@@ -223,40 +231,59 @@ class SqliteJobStore(SqlJobStore):
 
     def _connection(self) -> sqlite3.Connection:
         """This thread's connection (a new one after a fork); every use checks that the
-        path still names the file opened first, and that the write-ahead log this
-        connection writes to is still the file at PATH-wal."""
+        path still names the file opened first, and that PATH-wal is still the
+        write-ahead log this process first saw (SQLite deletes it only when the last
+        connection closes, and this process keeps its connections open)."""
         local = self._local
         if getattr(local, "pid", None) != os.getpid():
+            self._check_wal()
             local.conn, local.pid = self._open(), os.getpid()
-            local.wal = _identity(self.wal_path)
+            with self._wal_lock:
+                self._connections.append(local.conn)
         elif _identity(self.path) != self._identity:
             self._open()  # raises StoreUnavailable
         else:
-            wal = _identity(self.wal_path)
-            if local.wal is None:
-                local.wal = wal
-            elif wal != local.wal:
-                self._salvage(local.conn)
-                raise StoreUnavailable(
-                    f"the job store's write-ahead log {self.wal_path} was deleted or replaced "
-                    "while the service ran; new jobs are refused until the service is "
-                    "restarted (what the log held was moved into the database file)")
+            self._check_wal()
         return local.conn
+
+    def _check_wal(self) -> None:
+        wal = _identity(self.wal_path)
+        with self._wal_lock:
+            if self._wal is None or self._wal[0] != os.getpid():
+                if wal is not None:
+                    self._wal = (os.getpid(), wal)
+                return
+            if wal == self._wal[1]:
+                return
+            first = not self._wal_lost
+            self._wal_lost = True
+        if first:
+            self._salvage()
+        raise StoreUnavailable(
+            f"the job store's write-ahead log {self.wal_path} was deleted or replaced "
+            "while the service ran; new jobs are refused until the service is restarted "
+            "(what the log held was moved into the database file)")
 
     @property
     def wal_path(self) -> str:
         return self.path + "-wal"
 
-    def _salvage(self, conn: sqlite3.Connection) -> None:
-        """Move what the deleted write-ahead log (still open in `conn`) holds into the
-        database file, so that the jobs accepted before it was deleted survive."""
-        try:
-            busy, _, _ = conn.execute("PRAGMA wal_checkpoint(FULL)").fetchone()
-        except sqlite3.Error as exc:
-            log.error("the job store's write-ahead log could not be saved: %s", exc)
-            return
-        if busy:
-            log.error("the job store's write-ahead log was only partly saved (busy)")
+    def _salvage(self) -> None:
+        """Move what the deleted write-ahead log (still open in this process's
+        connections) holds into the database file, so that the jobs accepted before it
+        was deleted survive."""
+        for conn in list(self._connections):
+            try:
+                busy, _, _ = conn.execute("PRAGMA wal_checkpoint(FULL)").fetchone()
+            except sqlite3.Error as exc:
+                log.error("the job store's write-ahead log could not be saved: %s", exc)
+                continue
+            if not busy:
+                log.error("the job store's write-ahead log %s was deleted; what it held was "
+                          "moved into %s", self.wal_path, self.path)
+                return
+        log.error("the job store's write-ahead log %s was deleted and could not be moved "
+                  "into %s entirely", self.wal_path, self.path)
 
     def _rows(self, sql: str, params: tuple | dict = (), fresh: bool = False) -> list[tuple]:
         """Every row of one statement (fetched at once, so a write is complete); `fresh`:
@@ -266,10 +293,9 @@ class SqliteJobStore(SqlJobStore):
                 self._connection()  # the checks of the files
                 with contextlib.closing(self._open()) as conn:
                     return conn.execute(sql, params).fetchall()
-            conn = self._connection()
-            rows = conn.execute(sql, params).fetchall()
-            if self._local.wal is None:
-                self._local.wal = _identity(self.wal_path)
+            rows = self._connection().execute(sql, params).fetchall()
+            if self._wal is None:
+                self._check_wal()  # the log this process writes to, once there is one
             return rows
         except sqlite3.IntegrityError:
             raise
@@ -414,4 +440,9 @@ class SqliteJobStore(SqlJobStore):
         conn = getattr(self._local, "conn", None)
         if conn is not None and self._local.pid == os.getpid():
             conn.close()
+            with self._wal_lock:
+                if conn in self._connections:
+                    self._connections.remove(conn)
+                if not self._connections:  # the log may go with the last connection
+                    self._wal = None
         self._local = threading.local()
