@@ -72,6 +72,14 @@ class JobRunner:
             raise QueueFull(self.retry_after)
         self.supervisor.wake()
 
+    def retry(self, job_id: str) -> bool:
+        """Queue a failed or cancelled job again as this server's; False when it is not
+        failed or cancelled, or the server is at capacity."""
+        if not self.store.retry(job_id, self.owner, limit=self.capacity):
+            return False
+        self.supervisor.wake()
+        return True
+
     def submit_batch(self, batch_id: str, spec: dict[str, Any],
                      members: list[tuple[str, dict[str, Any]]]) -> None:
         """Store a batch and its member jobs, all or none; QueueFull when they would take

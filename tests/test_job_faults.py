@@ -115,9 +115,32 @@ def test_a_dead_worker_requeues_only_its_own_job_then_dead_letters_it(api):
     assert job["error"] == (f"dead letter: {died(3)}; it failed for infrastructure reasons "
                             "2 times (UNDERTOW_MAX_RETRIES=1)")
     assert [e["event"] for e in job["history"]] == ["claimed", "infrastructure-failure"] * 2
+    dead = api.get("/v1/plans?dead_letter=true").json()["items"]
+    assert [j["id"] for j in dead] == [crash]
+    assert crash not in [j["id"] for j in api.get("/v1/plans?dead_letter=false").json()["items"]]
     assert api.get(f"/v1/plans/{neighbour}").json()["status"] == "running"
     assert wait_final(api, neighbour)["status"] == "succeeded"
     assert wait_final(api, post(api))["status"] == "succeeded"  # a worker took its place
+
+
+def test_a_failed_job_is_queued_again_by_id(api):
+    wait_idle(api)
+    failing = post(api, tol=0.6)  # Maximum_Iterations_Exceeded, a solver failure
+    first = wait_final(api, failing)
+    assert (first["status"], first["dead_letter"]) == ("failed", False)
+    r = api.post(f"/v1/plans/{failing}/retry")
+    assert r.status_code == 202, r.text
+    assert r.headers["location"] == f"/v1/plans/{failing}"
+    assert (r.json()["status"], r.json()["error"], r.json()["plan"]) == ("queued", None, None)
+    again = wait_final(api, failing)
+    assert (again["status"], again["attempts"]) == ("failed", 2)
+    assert [e["event"] for e in again["history"]] == [
+        "claimed", "finished", "retried", "claimed", "finished"]
+    done = post(api)
+    wait_final(api, done)
+    r = api.post(f"/v1/plans/{done}/retry")
+    assert (r.status_code, r.json()["type"]) == (409, "urn:undertow:problem:not-finished")
+    assert api.post("/v1/plans/nope/retry").status_code == 404
 
 
 def test_a_build_that_outlasts_its_budget_is_stopped(api):

@@ -11,7 +11,7 @@ from starlette.concurrency import run_in_threadpool
 from app.capacity import capacity_errors
 from app.deps import RunnerDep, SettingsDep, StoreDep
 from app.errors import ApiError, field_error, invalid
-from app.jobs import QueueFull
+from app.jobs import JobRunner, QueueFull
 from app.limits import check_scene
 from app.openapi import UNAVAILABLE, problems
 from app.schema_examples import body_examples
@@ -79,8 +79,12 @@ async def create_plan(scene: Annotated[Scene, Body(openapi_examples=body_example
 async def list_plans(store: StoreDep,
                      status: Annotated[JobStatus | None, Query()] = None,
                      limit: Annotated[int, Query(ge=1, le=100)] = 20,
-                     offset: Annotated[int, Query(ge=0, le=1_000_000_000)] = 0) -> JobList:
-    records = await run_in_threadpool(store.list, status, limit + 1, offset)
+                     offset: Annotated[int, Query(ge=0, le=1_000_000_000)] = 0,
+                     dead_letter: Annotated[bool | None, Query(description=(
+                         "true: only dead letters (failed for infrastructure reasons more "
+                         "often than UNDERTOW_MAX_RETRIES allows); false: none of them"))] = None
+                     ) -> JobList:
+    records = await run_in_threadpool(store.list, status, limit + 1, offset, dead_letter)
     items = [JobSummary.of(r) for r in records[:limit]]
     return JobList(items=items, limit=limit, offset=offset,
                    next_offset=offset + limit if len(records) > limit else None)
@@ -98,6 +102,32 @@ def _cancel(store: JobStore, job_id: str) -> JobRecord:
         raise ApiError(409, "already-finished", "The job has already ended",
                        f"plan job {job_id!r} ended as {before.status}; nothing to cancel")
     return _found(store.request_cancel(job_id), job_id)
+
+
+def _retry(runner: JobRunner, job_id: str) -> JobRecord:
+    before = _found(runner.store.get(job_id), job_id)
+    if before.status not in ("failed", "cancelled"):
+        raise ApiError(409, "not-finished", "Only a failed or cancelled job can be retried",
+                       f"plan job {job_id!r} is {before.status}")
+    if not runner.retry(job_id):
+        now = _found(runner.store.get(job_id), job_id)
+        if now.status not in ("failed", "cancelled"):  # retried meanwhile by someone else
+            return now
+        raise ApiError(429, "queue-full", "The job queue is full",
+                       f"this server already holds {runner.capacity} unfinished plans; "
+                       f"retry in {runner.retry_after} s",
+                       headers={"Retry-After": str(runner.retry_after)})
+    return _found(runner.store.get(job_id), job_id)
+
+
+@router.post("/{job_id}/retry", status_code=202, summary="Queue a failed or cancelled plan "
+             "job again, by id (a dead letter included)",
+             responses={202: {"description": "queued again; poll the Location"},
+                        **problems(404, 409, 429, 503, s503=UNAVAILABLE)})
+async def retry_plan(job_id: str, runner: RunnerDep, response: Response) -> Job:
+    record = await run_in_threadpool(_retry, runner, job_id)
+    response.headers["Location"] = f"/v1/plans/{job_id}"
+    return Job.of(record)
 
 
 @router.delete("/{job_id}", summary="Cancel a plan job (Ipopt stops at its next iteration)",

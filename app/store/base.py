@@ -143,8 +143,8 @@ class JobStore(ABC):
 
     @abstractmethod
     def list(self, status: JobStatus | None = None, limit: int = 50,
-             offset: int = 0) -> list[JobRecord]:
-        """Jobs, newest first, optionally of one status."""
+             offset: int = 0, dead_letter: bool | None = None) -> list[JobRecord]:
+        """Jobs, newest first, optionally of one status, and dead letters or not."""
 
     @abstractmethod
     def count_by_status(self) -> dict[str, int]:

@@ -82,8 +82,14 @@ class SqlJobStore(JobStore):
         return self._record(rows[0]) if rows else None
 
     def list(self, status: JobStatus | None = None, limit: int = 50,
-             offset: int = 0) -> builtins.list[JobRecord]:
-        where, params = ("WHERE status = ?", (status,)) if status else ("", ())
+             offset: int = 0, dead_letter: bool | None = None) -> builtins.list[JobRecord]:
+        conditions, params = [], []
+        if status:
+            conditions.append("status = ?")
+            params.append(status)
+        if dead_letter is not None:
+            conditions.append("dead_letter" if dead_letter else "NOT dead_letter")
+        where = f"WHERE {' AND '.join(conditions)}" if conditions else ""
         rows = self._rows(
             f"SELECT {COLUMNS} FROM jobs {where} ORDER BY created DESC, id LIMIT ? OFFSET ?",
             (*params, limit, offset))

@@ -167,6 +167,7 @@ class SqliteJobStore(SqlJobStore):
         self._wal_lost = False
         self._wal_lock = threading.Lock()
         self._connections: list[sqlite3.Connection] = []
+        self._header_fd: tuple[int, int] | None = None  # (pid, descriptor), never closed
 
     def _verify(self) -> None:
         """StoreDamaged unless the file is a database that passes PRAGMA quick_check."""
@@ -216,15 +217,20 @@ class SqliteJobStore(SqlJobStore):
 
     def _check_header(self) -> None:
         """StoreUnavailable unless the file still starts with SQLite's header (it was not
-        overwritten in place since the store was opened)."""
+        overwritten in place since the store was opened). The header is read through a
+        descriptor this process keeps open: closing any descriptor of the file would drop
+        the process's POSIX locks on it, and with them SQLite's knowledge that this
+        process still uses the write-ahead log."""
         if not self._started:
             return
         try:
-            with open(self.path, "rb") as file:
-                header = file.read(16)
+            with self._wal_lock:
+                if self._header_fd is None or self._header_fd[0] != os.getpid():
+                    self._header_fd = (os.getpid(), os.open(self.path, os.O_RDONLY))
+                header = os.pread(self._header_fd[1], 16, 0)
         except OSError as exc:
             raise StoreUnavailable(f"the job store {self.path} cannot be read: {exc}") from exc
-        if self._started and header != b"SQLite format 3\0":
+        if header != b"SQLite format 3\0":
             raise StoreUnavailable(f"the job store file {self.path} was overwritten while the "
                                    "service ran (it no longer starts with SQLite's header); "
                                    "restart the service")
