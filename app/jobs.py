@@ -81,11 +81,12 @@ class JobRunner:
         return True
 
     def submit_batch(self, batch_id: str, spec: dict[str, Any],
-                     members: list[tuple[str, dict[str, Any]]]) -> None:
+                     members: list[tuple[str, dict[str, Any]]], extra: int = 0) -> None:
         """Store a batch and its member jobs, all or none; QueueFull when they would take
-        the instance past its capacity."""
+        the instance past its capacity plus `extra` (the room one batch may take beyond
+        the queue, UNDERTOW_MAX_BATCH_MEMBERS)."""
         if not self.store.create_batch(batch_id, spec, members, self.owner,
-                                       limit=self.capacity):
+                                       limit=self.capacity + extra):
             raise QueueFull(self.retry_after)
         self.supervisor.wake()
 
