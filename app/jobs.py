@@ -66,9 +66,10 @@ class JobRunner:
             self.supervisor.wake()
         return list(recovered)
 
-    def submit(self, scene: dict[str, Any], job_id: str) -> None:
-        """Store a new queued job; QueueFull when the instance is at capacity."""
-        if self.store.create(job_id, scene, self.owner, limit=self.capacity) is None:
+    def submit(self, scene: dict[str, Any], job_id: str, key: str | None = None) -> None:
+        """Store a new queued job (with idempotency key `key`: DuplicateKey when another
+        job has it); QueueFull when the instance is at capacity."""
+        if self.store.create(job_id, scene, self.owner, limit=self.capacity, key=key) is None:
             raise QueueFull(self.retry_after)
         self.supervisor.wake()
 

@@ -315,3 +315,19 @@ def test_a_store_overwritten_in_place_refuses_new_plans_and_health(tmp_path, dam
         with open(path, "r+b") as file:  # in place: the same inode
             file.write(bytes(data))
         refused(api, "job store")
+
+
+def test_an_idempotency_key_makes_a_resubmission_answer_with_the_first_job(api):
+    wait_idle(api)
+    headers = {"Idempotency-Key": "sweep-7/point-3"}
+    first = api.post("/v1/plans", json=two_link_scene(), headers=headers)
+    assert first.status_code == 202, first.text
+    again = api.post("/v1/plans", json=two_link_scene(), headers=headers)
+    assert again.json()["id"] == first.json()["id"]
+    assert again.headers["location"] == first.headers["location"]
+    wait_final(api, first.json()["id"])
+    done = api.post("/v1/plans", json=two_link_scene(), headers=headers)
+    assert (done.status_code, done.json()["id"]) == (200, first.json()["id"])
+    other = api.post("/v1/plans", json=two_link_scene(), headers={"Idempotency-Key": "x"})
+    assert other.json()["id"] != first.json()["id"]
+    api.delete(f"/v1/plans/{other.json()['id']}")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import uuid
 from typing import Annotated
 
-from fastapi import APIRouter, Body, Query, Response
+from fastapi import APIRouter, Body, Header, Query, Response
 from starlette.concurrency import run_in_threadpool
 
 from app.capacity import capacity_errors
@@ -16,7 +16,7 @@ from app.limits import check_scene
 from app.openapi import UNAVAILABLE, problems
 from app.schema_examples import body_examples
 from app.schemas import Job, JobList, JobSummary
-from app.store import FINAL, JobRecord, JobStatus, JobStore
+from app.store import FINAL, DuplicateKey, JobRecord, JobStatus, JobStore
 from planner.scene import Scene
 
 router = APIRouter(prefix="/v1/plans", tags=["plans"])
@@ -34,6 +34,12 @@ def check_warm_start(store: JobStore, job_id: str,
                                    "value_error")])
 
 
+def _found_key(job_id: str | None) -> str:
+    if job_id is None:  # the other submission's job is gone again (it cannot be)
+        raise ApiError(409, "conflict", "Idempotency key in use", "retry the request")
+    return job_id
+
+
 def _found(record: JobRecord | None, job_id: str) -> JobRecord:
     if record is None:
         raise ApiError(404, "not-found", "No such plan job", f"there is no plan job {job_id!r}")
@@ -48,7 +54,11 @@ async def create_plan(scene: Annotated[Scene, Body(openapi_examples=body_example
                       response: Response, settings: SettingsDep,
                       runner: RunnerDep, store: StoreDep,
                       wait: Annotated[float, Query(ge=0.0, description=(
-                          "seconds to wait for the job to end (at most UNDERTOW_MAX_WAIT)"))] = 0.0
+                          "seconds to wait for the job to end (at most UNDERTOW_MAX_WAIT)"))] = 0.0,
+                      idempotency_key: Annotated[str | None, Header(
+                          min_length=1, max_length=200, description=(
+                              "a key of the client's choosing: a second submission with the "
+                              "same key creates no job and answers with the first one"))] = None
                       ) -> Job:
     if wait > settings.max_wait:
         raise invalid([field_error(["query", "wait"], f"at most {settings.max_wait:g} s on "
@@ -61,7 +71,15 @@ async def create_plan(scene: Annotated[Scene, Body(openapi_examples=body_example
         await run_in_threadpool(check_warm_start, store, scene.solver.warm_start)
     job_id = uuid.uuid4().hex
     try:
-        await run_in_threadpool(runner.submit, scene.model_dump(mode="json"), job_id)
+        earlier = (None if idempotency_key is None
+                   else await run_in_threadpool(store.find_key, idempotency_key))
+        if earlier is None:
+            await run_in_threadpool(runner.submit, scene.model_dump(mode="json"), job_id,
+                                    idempotency_key)
+        else:
+            job_id = earlier
+    except DuplicateKey as exc:  # submitted concurrently with the same key
+        job_id = _found_key(await run_in_threadpool(store.find_key, str(exc.args[0])))
     except QueueFull as exc:
         raise ApiError(429, "queue-full", "The job queue is full",
                        f"this server already holds {runner.capacity} unfinished plans; "
