@@ -49,11 +49,12 @@ class JobRunner:
     def __init__(self, store: JobStore, solve: SolveFunction, owner: str, workers: int,
                  max_queued: int, retry_after: int = 5, memory_mb: float | None = None,
                  grace: float = 30.0, log_level: str = "INFO",
-                 on_done: Callable[[Outcome], None] | None = None, lease: float = 60.0):
+                 on_done: Callable[[Outcome], None] | None = None, lease: float = 60.0,
+                 retention: tuple[float, int] | None = None):
         self.store, self.owner = store, owner
         self.capacity, self.retry_after = workers + max_queued, retry_after
         self.supervisor = Supervisor(store, solve, owner, workers, memory_mb, grace,
-                                     log_level, on_done, lease=lease)
+                                     log_level, on_done, lease=lease, retention=retention)
 
     def start(self) -> list[str]:
         """Recover after a restart: running jobs of this owner held by its own workers

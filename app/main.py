@@ -58,7 +58,9 @@ def create_app(settings: Settings | None = None, solve: SolveFunction | None = N
                            max_queued=settings.max_queued, retry_after=settings.retry_after,
                            memory_mb=settings.worker_memory_mb,
                            grace=settings.wall_time_grace, log_level=settings.log_level,
-                           on_done=app.state.metrics.job_done, lease=settings.lease)
+                           on_done=app.state.metrics.job_done, lease=settings.lease,
+                           retention=(86400.0 * settings.retention_days,
+                                      settings.retention_count))
         runner.start()
         app.state.store, app.state.runner = store, runner
         app.state.limiter = CapacityLimiter(settings.compute_threads)

@@ -56,6 +56,10 @@ class Settings(BaseSettings):
     max_horizon: float = Field(default=60.0, gt=0.0, description="longest plan duration [s]")
     max_wall_time: float = Field(default=60.0, gt=0.0, description="cap on one solve [s]")
     max_queued: int = Field(default=32, ge=0, description="plans waiting for a worker")
+    retention_days: float = Field(default=30.0, gt=0.0, description=(
+        "days a finished job (its plan, its history) is kept after it ended"))
+    retention_count: int = Field(default=100_000, ge=1, description=(
+        "finished jobs kept at most: older ones beyond this count are deleted"))
     max_batch_members: int = Field(default=200, ge=1, le=1000, description=(
         "plans one batch (POST /v1/batches) may create; a batch may take the server this "
         "many plans beyond UNDERTOW_MAX_QUEUED"))

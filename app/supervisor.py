@@ -13,6 +13,7 @@ and holds it to three bounds:
   job alone, which is requeued at once (`JobStore.requeue`: after a pause, up to
   UNDERTOW_MAX_RETRIES times, then a dead letter).
 
+Every `PURGE_INTERVAL` it deletes the finished jobs past their retention (age or count).
 It also renews the leases of the jobs it knows its workers run (by job and worker, reading
 their cancel flags in the same statement) and settles jobs whose lease ran out, of any
 server or worker sharing the store (`JobStore.expire`, an infrastructure failure too). A
@@ -62,6 +63,7 @@ MAX_BACKOFF = 30.0  # [s] longest pause before restarting a worker that failed t
 FAILED_STARTS = 3  # workers in a row that exit before they are ready: the workers are broken
 WORKER_DIED = "the worker process died during the solve"
 STOPPING = "the worker's node or server was stopping"
+PURGE_INTERVAL = 600.0  # [s] between two deletions of jobs past their retention
 RELEASE_TRIES = 10.0  # [s] a stopping supervisor tries this long to give its jobs back
 
 
@@ -116,11 +118,12 @@ class Supervisor:
     def __init__(self, store: JobStore, solve: SolveFunction, owner: str, workers: int,
                  memory_mb: float | None, grace: float, log_level: str = "INFO",
                  on_done: Callable[[Outcome], None] | None = None, lease: float = LEASE,
-                 any_owner: bool = False):
+                 any_owner: bool = False, retention: tuple[float, int] | None = None):
         self.store, self.solve, self.owner = store, solve, owner
         self.count, self.memory_mb, self.grace = workers, memory_mb, grace
         self.log_level, self.on_done = log_level, on_done
-        self.lease, self.any_owner = lease, any_owner
+        self.lease, self.any_owner, self.retention = lease, any_owner, retention
+        self._next_purge = 0.0
         self._expire_interval = min(EXPIRE_INTERVAL, lease / 4)
         self._context = multiprocessing.get_context("spawn")
         self._slots: list[_Worker | None] = [None] * workers
@@ -147,6 +150,10 @@ class Supervisor:
             return (f"no solver worker process could start ({self._failed_starts} tries in a "
                     f"row, the last one ended with {_how(self._last_exit)}; see the log)")
         return None
+
+    def busy(self) -> int:
+        """Worker processes running a job now."""
+        return sum(w is not None and w.job is not None for w in self._slots)
 
     def wake(self) -> None:
         """Tell the idle workers that a job was queued (starting them the first time)."""
@@ -248,6 +255,12 @@ class Supervisor:
                             "requeued" if status == "queued" else status)
                 if status == "queued":
                     self.wake()
+        if self.retention is not None and now >= self._next_purge:
+            self._next_purge = now + PURGE_INTERVAL
+            age, keep = self.retention
+            purged = self.store.purge(time.time() - age, keep)
+            if purged:
+                log.info("%d finished jobs past their retention deleted", purged)
 
     def _drain(self, worker: _Worker) -> None:
         """Handle every message the worker has sent."""

@@ -30,9 +30,11 @@ def api_server(folder: Path, db_url: str, instance: str, **extra: str) -> LiveSe
 class WorkerNode:
     """`undertow worker --processes N`, in its own process group."""
 
-    def __init__(self, folder: Path, instance: str, processes: int = 1, **settings: str):
-        """`settings`: UNDERTOW_* variables, the store's among them."""
-        self.instance, self.processes = instance, processes
+    def __init__(self, folder: Path, instance: str, processes: int = 1,
+                 args: tuple[str, ...] = (), **settings: str):
+        """`settings`: UNDERTOW_* variables, the store's among them; `args`: more options
+        of `undertow worker`."""
+        self.instance, self.processes, self.args = instance, processes, args
         self.env = {**os.environ, "UNDERTOW_INSTANCE": instance, "UNDERTOW_LOG_LEVEL": "WARNING",
                     **settings, "PYTHONPATH": str(ROOT)}  # testbed's fake solver
         self.log = folder / f"{instance}.log"
@@ -41,7 +43,8 @@ class WorkerNode:
     def start(self) -> Self:
         with open(self.log, "ab") as log:
             self.proc = subprocess.Popen(
-                [str(UNDERTOW), "worker", "--processes", str(self.processes)], cwd=ROOT,
+                [str(UNDERTOW), "worker", "--processes", str(self.processes), *self.args],
+                cwd=ROOT,
                 env=self.env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
         return self
 

@@ -17,7 +17,7 @@ from service_fixtures import two_link_scene
 
 from app.store.postgres import PostgresJobStore
 from testbed.cluster import FAKE_SOLVER, WorkerNode, api_server
-from testbed.service import LiveServer, wait_final
+from testbed.service import LiveServer, free_port, wait_final
 
 LEASE = 3.0  # [s] short, so that a lost node's job is requeued quickly
 PLANS = 40
@@ -107,10 +107,18 @@ def test_an_api_only_server_queues_and_a_worker_node_solves(tmp_path):
         job = http.post("/v1/plans", json=two_link_scene()).json()["id"]
         time.sleep(1.0)
         assert http.get(f"/v1/plans/{job}").json()["status"] == "queued"  # no workers here
-        node = WorkerNode(tmp_path, "node", UNDERTOW_DB_PATH=str(db),
-                          UNDERTOW_SOLVE_FUNCTION=FAKE_SOLVER, UNDERTOW_LOG_LEVEL="INFO")
+        port = free_port()
+        node = WorkerNode(tmp_path, "node", args=("--metrics-port", str(port)),
+                          UNDERTOW_DB_PATH=str(db), UNDERTOW_SOLVE_FUNCTION=FAKE_SOLVER,
+                          UNDERTOW_LOG_LEVEL="INFO")
         with node:
             assert wait_final(http, job, timeout=60)["status"] == "succeeded"
+            metrics = httpx.get(f"http://127.0.0.1:{port}/metrics", timeout=10).text
+            assert ('undertow_worker_solve_duration_seconds_count{status="succeeded"} 1.0'
+                    in metrics)
+            for line in ("undertow_worker_processes 1.0", "undertow_worker_busy_processes 0.0",
+                         "undertow_worker_up 1.0"):
+                assert line in metrics.splitlines(), metrics
             node.proc.send_signal(signal.SIGTERM)
             assert node.proc.wait(30) == 0
         assert http.get("/healthz").status_code == 200

@@ -531,3 +531,23 @@ def test_a_file_overwritten_in_place_refuses_new_jobs_and_health(tmp_path, damag
         store.create("new", SCENE, "host")
     with pytest.raises(StoreUnavailable):
         store.create_batch("b", {}, [("b-0", SCENE)], "host")
+
+
+def test_finished_jobs_past_their_retention_are_deleted(store):
+    for k in range(5):
+        store.create(f"j{k}", SCENE, "host")
+    members = [(f"b-{k}", SCENE) for k in range(2)]
+    store.create_batch("b", {"base": SCENE}, members, "host")
+    for k in range(4):
+        job_id = claim(store, worker=f"w{k}")
+        assert store.finish(job_id, "succeeded", None, None)
+        time.sleep(0.01)
+    assert store.purge(time.time() - 3600, keep=3) == 1  # the oldest finished one
+    assert store.get("j0") is None and store.get("j1") is not None
+    assert store.purge(time.time() + 1, keep=100) == 3  # every finished one: all too old
+    assert sorted(r.id for r in store.list(limit=10)) == ["b-0", "b-1", "j4"]  # unfinished stay
+    for k in range(3):
+        job_id = claim(store, worker=f"v{k}")
+        store.finish(job_id, "failed", None, "x")
+    assert store.purge(time.time() + 1, keep=100) == 3
+    assert store.get_batch("b") is None  # no member left

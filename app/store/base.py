@@ -239,6 +239,11 @@ class JobStore(ABC):
         jobs."""
 
     @abstractmethod
+    def purge(self, before: float, keep: int) -> int:
+        """Delete the finished jobs that ended before `before` and those beyond the
+        newest `keep` finished ones (and batches left without members); how many jobs."""
+
+    @abstractmethod
     def find_key(self, key: str) -> str | None:
         """The id of the job created with idempotency key `key`, or None."""
 

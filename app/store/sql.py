@@ -101,6 +101,17 @@ class SqlJobStore(JobStore):
             counts[status] = count
         return counts
 
+    def purge(self, before: float, keep: int) -> int:
+        final = "status IN ('succeeded', 'failed', 'cancelled')"
+        rows = self._write(
+            f"DELETE FROM jobs WHERE {final} AND (finished < :before OR id IN (SELECT id "
+            f"FROM jobs WHERE {final} ORDER BY finished DESC, id LIMIT :all OFFSET :keep)) "
+            "RETURNING id", {"before": before, "keep": keep, "all": 2**62})
+        if rows:
+            self._write("DELETE FROM batches WHERE NOT EXISTS (SELECT 1 FROM jobs "
+                        "WHERE jobs.batch = batches.id) RETURNING id")
+        return len(rows)
+
     def find_key(self, key: str) -> str | None:
         rows = self._rows("SELECT id FROM jobs WHERE idem_key = ?", (key,))
         return rows[0][0] if rows else None
