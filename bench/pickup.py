@@ -59,14 +59,14 @@ def postgres_node(folder: Path) -> Iterator[tuple[str, JobStore]]:
 @contextlib.contextmanager
 def sqlite_server(folder: Path) -> Iterator[tuple[str, JobStore]]:
     path = folder / "jobs.sqlite3"
-    with LiveServer(path, UNDERTOW_WORKERS="1", **SETTINGS) as api:
+    with LiveServer(path, UNDERTOW_WORKERS="1", UNDERTOW_SOLVE_FUNCTION=FAKE_SOLVER) as api:
         yield api.url, SqliteJobStore(path)
 
 
 @contextlib.contextmanager
 def sqlite_node(folder: Path) -> Iterator[tuple[str, JobStore]]:
     path = folder / "jobs.sqlite3"
-    with LiveServer(path, UNDERTOW_WORKERS="0", **SETTINGS) as api, \
+    with LiveServer(path, UNDERTOW_WORKERS="0", UNDERTOW_SOLVE_FUNCTION=FAKE_SOLVER) as api, \
             WorkerNode(folder, "node", 1, UNDERTOW_DB_PATH=str(path), **SETTINGS):
         yield api.url, SqliteJobStore(path)
 

@@ -30,11 +30,11 @@ def api_server(folder: Path, db_url: str, instance: str, **extra: str) -> LiveSe
 class WorkerNode:
     """`undertow worker --processes N`, in its own process group."""
 
-    def __init__(self, folder: Path, instance: str, processes: int = 1,
-                 args: tuple[str, ...] = (), **settings: str):
-        """`settings`: UNDERTOW_* variables, the store's among them; `args`: more options
-        of `undertow worker`."""
-        self.instance, self.processes, self.args = instance, processes, args
+    def __init__(self, folder: Path, instance: str, processes: int = 1, **settings: str):
+        """`settings`: UNDERTOW_* variables, the store's among them. `args`, set before
+        `start`, adds options of `undertow worker`."""
+        self.instance, self.processes = instance, processes
+        self.args: tuple[str, ...] = ()
         self.env = {**os.environ, "UNDERTOW_INSTANCE": instance, "UNDERTOW_LOG_LEVEL": "WARNING",
                     **settings, "PYTHONPATH": str(ROOT)}  # testbed's fake solver
         self.log = folder / f"{instance}.log"

@@ -108,9 +108,9 @@ def test_an_api_only_server_queues_and_a_worker_node_solves(tmp_path):
         time.sleep(1.0)
         assert http.get(f"/v1/plans/{job}").json()["status"] == "queued"  # no workers here
         port = free_port()
-        node = WorkerNode(tmp_path, "node", args=("--metrics-port", str(port)),
-                          UNDERTOW_DB_PATH=str(db), UNDERTOW_SOLVE_FUNCTION=FAKE_SOLVER,
-                          UNDERTOW_LOG_LEVEL="INFO")
+        node = WorkerNode(tmp_path, "node", UNDERTOW_DB_PATH=str(db),
+                          UNDERTOW_SOLVE_FUNCTION=FAKE_SOLVER, UNDERTOW_LOG_LEVEL="INFO")
+        node.args = ("--metrics-port", str(port))
         with node:
             assert wait_final(http, job, timeout=60)["status"] == "succeeded"
             metrics = httpx.get(f"http://127.0.0.1:{port}/metrics", timeout=10).text
