@@ -64,7 +64,7 @@ FAILED_STARTS = 3  # workers in a row that exit before they are ready: the worke
 WORKER_DIED = "the worker process died during the solve"
 STOPPING = "the worker's node or server was stopping"
 PURGE_INTERVAL = 600.0  # [s] between two deletions of jobs past their retention
-RELEASE_TRIES = 10.0  # [s] a stopping supervisor tries this long to give its jobs back
+RELEASE_TRIES = 5.0  # [s] a stopping supervisor tries this long to give its jobs back
 
 
 def _how(exitcode: int | None) -> str:
