@@ -26,7 +26,7 @@ from app.jobs import JobRunner
 from app.logging import RequestIdMiddleware, configure
 from app.metrics import Metrics, MetricsMiddleware
 from app.openapi import document
-from app.routes import batches, dynamics, examples, health, plans, plots
+from app.routes import batches, dynamics, examples, health, plans, plots, workers
 from app.settings import Settings, get_settings
 from app.store import StoreUnavailable
 from app.store.open import open_store
@@ -79,7 +79,7 @@ def create_app(settings: Settings | None = None, solve: SolveFunction | None = N
     app.include_router(health.router)
     secured = [Depends(require_api_key)]
     for router in (dynamics.router, plans.router, batches.router, examples.router,
-                   plots.router):
+                   plots.router, workers.router):
         app.include_router(router, dependencies=secured)
     app.add_middleware(errors.UnexpectedErrorMiddleware)
     app.add_middleware(BodyLimitMiddleware, limit=settings.max_body_bytes,

@@ -63,6 +63,7 @@ MAX_BACKOFF = 30.0  # [s] longest pause before restarting a worker that failed t
 FAILED_STARTS = 3  # workers in a row that exit before they are ready: the workers are broken
 WORKER_DIED = "the worker process died during the solve"
 STOPPING = "the worker's node or server was stopping"
+HEARTBEAT = 5.0  # [s] between two heartbeats of a supervisor with workers (GET /v1/workers)
 PURGE_INTERVAL = 600.0  # [s] between two deletions of jobs past their retention
 RELEASE_TRIES = 5.0  # [s] a stopping supervisor tries this long to give its jobs back
 
@@ -123,7 +124,8 @@ class Supervisor:
         self.count, self.memory_mb, self.grace = workers, memory_mb, grace
         self.log_level, self.on_done = log_level, on_done
         self.lease, self.any_owner, self.retention = lease, any_owner, retention
-        self._next_purge = 0.0
+        self._next_purge = self._next_heartbeat = 0.0
+        self._started = time.time()
         self._expire_interval = min(EXPIRE_INTERVAL, lease / 4)
         self._context = multiprocessing.get_context("spawn")
         self._slots: list[_Worker | None] = [None] * workers
@@ -191,6 +193,9 @@ class Supervisor:
                 continue
             for job_id in released:
                 log.warning("job %s released: %s", job_id, STOPPING)
+        if self.count:
+            with contextlib.suppress(StoreUnavailable):
+                self.store.forget_worker(self.owner)
 
     def _spawn(self, slot: int) -> None:
         name = f"{self.owner}/{slot}/{uuid.uuid4().hex[:8]}"
@@ -255,6 +260,9 @@ class Supervisor:
                             "requeued" if status == "queued" else status)
                 if status == "queued":
                     self.wake()
+        if self.count and now >= self._next_heartbeat:
+            self._next_heartbeat = now + HEARTBEAT
+            self.store.heartbeat(self.owner, self.count, self.busy(), self._started)
         if self.retention is not None and now >= self._next_purge:
             self._next_purge = now + PURGE_INTERVAL
             age, keep = self.retention

@@ -98,6 +98,13 @@ def test_two_apis_and_two_workers_lose_no_plan_when_a_worker_is_killed(cluster):
     assert node_2.proc.poll() is None
     for api in (a, b):
         assert api.get("/healthz").status_code == 200
+    def node_1_gone() -> dict | None:  # node 1 stopped beating with its death
+        live = a.get("/v1/workers").json()
+        names = [w["name"].split(":")[0] for w in live["items"]]
+        return live if names == ["node-2"] else None
+
+    live = wait_for(node_1_gone, 20, "node 1 leaving the list of live workers")
+    assert live["processes"] == 1 and live["busy"] <= 1  # as of its last heartbeat
 
 
 def test_an_api_only_server_queues_and_a_worker_node_solves(tmp_path):

@@ -48,7 +48,7 @@ def reopen(store: JobStore) -> JobStore:
 
 
 def test_both_stores_have_had_the_same_migrations():
-    assert sqlite_store.SCHEMA_VERSION == pg_store.SCHEMA_VERSION == 5
+    assert sqlite_store.SCHEMA_VERSION == pg_store.SCHEMA_VERSION == 6
 
 
 def test_wal_mode_is_on(sqlite):
@@ -551,3 +551,16 @@ def test_finished_jobs_past_their_retention_are_deleted(store):
         store.finish(job_id, "failed", None, "x")
     assert store.purge(time.time() + 1, keep=100) == 3
     assert store.get_batch("b") is None  # no member left
+
+
+def test_heartbeats_list_the_live_workers(store):
+    started = time.time()
+    store.heartbeat("node-b:worker:7", 2, 1, started)
+    store.heartbeat("api-a", 1, 0, started)
+    store.heartbeat("node-b:worker:7", 2, 2, started)
+    listed = store.workers(started - 1)
+    assert [(w.name, w.processes, w.busy) for w in listed] == [
+        ("api-a", 1, 0), ("node-b:worker:7", 2, 2)]
+    assert store.workers(time.time() + 1) == []  # none heard from since
+    store.forget_worker("api-a")
+    assert [w.name for w in store.workers(started - 1)] == ["node-b:worker:7"]

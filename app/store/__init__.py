@@ -17,9 +17,11 @@ from app.store.base import (
     RetryPolicy,
     StoreDamaged,
     StoreUnavailable,
+    WorkerRecord,
 )
 from app.store.sqlite import SqliteJobStore
 
 __all__ = ["BUILDING", "CANCELLED_ON_REQUEST", "DEAD_LETTER", "FINAL", "INTERRUPTED",
            "STATUSES", "BatchRecord", "DuplicateKey", "JobRecord", "JobStatus", "JobStore",
-           "MemberRecord", "RetryPolicy", "SqliteJobStore", "StoreDamaged", "StoreUnavailable"]
+           "MemberRecord", "RetryPolicy", "SqliteJobStore", "StoreDamaged", "StoreUnavailable",
+           "WorkerRecord"]

@@ -112,6 +112,18 @@ class MemberRecord:
 
 
 @dataclass(frozen=True)
+class WorkerRecord:
+    """A supervisor of solver processes (a server's or a worker node's) as its last
+    heartbeat left it. Times are Unix seconds."""
+
+    name: str
+    processes: int
+    busy: int
+    started: float
+    seen: float
+
+
+@dataclass(frozen=True)
 class BatchRecord:
     """One stored batch: its specification (a JSON object) and its members by index."""
 
@@ -242,6 +254,19 @@ class JobStore(ABC):
     def purge(self, before: float, keep: int) -> int:
         """Delete the finished jobs that ended before `before` and those beyond the
         newest `keep` finished ones (and batches left without members); how many jobs."""
+
+    @abstractmethod
+    def heartbeat(self, name: str, processes: int, busy: int, started: float) -> None:
+        """Record that supervisor `name` lives, with `busy` of its `processes` running a
+        job (and forget supervisors silent for an hour)."""
+
+    @abstractmethod
+    def forget_worker(self, name: str) -> None:
+        """Remove supervisor `name` (it stopped)."""
+
+    @abstractmethod
+    def workers(self, since: float) -> builtins.list[WorkerRecord]:
+        """The supervisors heard from since `since`, by name."""
 
     @abstractmethod
     def find_key(self, key: str) -> str | None:

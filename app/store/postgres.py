@@ -96,6 +96,14 @@ _MIGRATIONS: tuple[tuple[str, ...], ...] = (
         "CREATE TRIGGER undertow_job_queued AFTER INSERT OR UPDATE OF status ON jobs "
         "FOR EACH ROW WHEN (NEW.status = 'queued') EXECUTE FUNCTION undertow_job_queued()",
     ),
+    (  # 6: the live solver workers, each supervisor's heartbeat
+        """CREATE TABLE IF NOT EXISTS workers (
+            name      TEXT PRIMARY KEY,
+            processes INTEGER NOT NULL,
+            busy      INTEGER NOT NULL,
+            started   double precision NOT NULL,
+            seen      double precision NOT NULL)""",
+    ),
 )
 SCHEMA_VERSION = len(_MIGRATIONS)
 _MIGRATION_LOCK = 0x756E6474  # advisory lock key held while migrating ("undt")

@@ -24,6 +24,7 @@ from app.store.base import (
     JobRecord,
     JobStatus,
     JobStore,
+    WorkerRecord,
 )
 
 COLUMNS = ("id, status, scene, progress, plan, error, cancel_requested, owner, "
@@ -111,6 +112,23 @@ class SqlJobStore(JobStore):
             self._write("DELETE FROM batches WHERE NOT EXISTS (SELECT 1 FROM jobs "
                         "WHERE jobs.batch = batches.id) RETURNING id")
         return len(rows)
+
+    def heartbeat(self, name: str, processes: int, busy: int, started: float) -> None:
+        now = time.time()
+        self._write("INSERT INTO workers (name, processes, busy, started, seen) VALUES "
+                    "(:name, :processes, :busy, :started, :now) ON CONFLICT (name) DO UPDATE "
+                    "SET processes = :processes, busy = :busy, seen = :now RETURNING name",
+                    {"name": name, "processes": processes, "busy": busy, "started": started,
+                     "now": now})
+        self._write("DELETE FROM workers WHERE seen < :old RETURNING name", {"old": now - 3600})
+
+    def forget_worker(self, name: str) -> None:
+        self._write("DELETE FROM workers WHERE name = ? RETURNING name", (name,))
+
+    def workers(self, since: float) -> builtins.list[WorkerRecord]:
+        rows = self._rows("SELECT name, processes, busy, started, seen FROM workers "
+                          "WHERE seen >= ? ORDER BY name", (since,))
+        return [WorkerRecord(*row) for row in rows]
 
     def find_key(self, key: str) -> str | None:
         rows = self._rows("SELECT id FROM jobs WHERE idem_key = ?", (key,))

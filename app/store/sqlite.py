@@ -87,6 +87,14 @@ _MIGRATIONS: tuple[tuple[str, ...], ...] = (
         "CREATE UNIQUE INDEX IF NOT EXISTS jobs_idem_key ON jobs (idem_key) "
         "WHERE idem_key IS NOT NULL",
     ),
+    (  # 6: the live solver workers, each supervisor's heartbeat
+        """CREATE TABLE IF NOT EXISTS workers (
+            name      TEXT PRIMARY KEY,
+            processes INTEGER NOT NULL,
+            busy      INTEGER NOT NULL,
+            started   REAL NOT NULL,
+            seen      REAL NOT NULL)""",
+    ),
 )
 SCHEMA_VERSION = len(_MIGRATIONS)
 
