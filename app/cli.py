@@ -29,7 +29,9 @@ def cmd_worker(args: argparse.Namespace) -> int:
     from app.settings import get_settings
 
     settings = get_settings()
-    return worker_node.run(settings, args.processes or settings.workers or 1)
+    return worker_node.run(settings, args.processes or settings.workers or 1,
+                           metrics=(args.metrics_host, args.metrics_port)
+                           if args.metrics_port else None)
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
@@ -70,6 +72,11 @@ def add_serve(commands: cli.Commands) -> None:
                        "(UNDERTOW_DB_URL)")
     worker.add_argument("--processes", type=positive, default=None,
                         help="solver processes (default UNDERTOW_WORKERS, 2)")
+    worker.add_argument("--metrics-port", type=positive, default=None,
+                        help="serve Prometheus metrics at http://HOST:PORT/metrics "
+                             "(default: none)")
+    worker.add_argument("--metrics-host", default="127.0.0.1",
+                        help="interface of the metrics (default 127.0.0.1)")
     worker.set_defaults(run=cmd_worker)
 
     sweep = commands.add_parser("sweep", help="submit a batch sweep to a running service and "

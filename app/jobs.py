@@ -49,34 +49,46 @@ class JobRunner:
     def __init__(self, store: JobStore, solve: SolveFunction, owner: str, workers: int,
                  max_queued: int, retry_after: int = 5, memory_mb: float | None = None,
                  grace: float = 30.0, log_level: str = "INFO",
-                 on_done: Callable[[Outcome], None] | None = None, lease: float = 60.0):
+                 on_done: Callable[[Outcome], None] | None = None, lease: float = 60.0,
+                 retention: tuple[float, int] | None = None):
         self.store, self.owner = store, owner
         self.capacity, self.retry_after = workers + max_queued, retry_after
         self.supervisor = Supervisor(store, solve, owner, workers, memory_mb, grace,
-                                     log_level, on_done, lease=lease)
+                                     log_level, on_done, lease=lease, retention=retention)
 
     def start(self) -> list[str]:
         """Recover after a restart: running jobs of this owner held by its own workers
-        become failed ("interrupted"); queued ones run (the workers start now if any job
-        waits, else with the first submitted one). Returns the interrupted ids."""
-        interrupted = self.store.interrupt(self.owner)
+        had an infrastructure failure (the server stopped under them) and are requeued;
+        queued ones run (the workers start now if any job waits, else with the first
+        submitted one). Returns the recovered ids."""
+        recovered = self.store.recover(self.owner)
         self.supervisor.start()
         if self.store.count_by_status()["queued"]:
             self.supervisor.wake()
-        return interrupted
+        return list(recovered)
 
-    def submit(self, scene: dict[str, Any], job_id: str) -> None:
-        """Store a new queued job; QueueFull when the instance is at capacity."""
-        if self.store.create(job_id, scene, self.owner, limit=self.capacity) is None:
+    def submit(self, scene: dict[str, Any], job_id: str, key: str | None = None) -> None:
+        """Store a new queued job (with idempotency key `key`: DuplicateKey when another
+        job has it); QueueFull when the instance is at capacity."""
+        if self.store.create(job_id, scene, self.owner, limit=self.capacity, key=key) is None:
             raise QueueFull(self.retry_after)
         self.supervisor.wake()
 
+    def retry(self, job_id: str) -> bool:
+        """Queue a failed or cancelled job again as this server's; False when it is not
+        failed or cancelled, or the server is at capacity."""
+        if not self.store.retry(job_id, self.owner, limit=self.capacity):
+            return False
+        self.supervisor.wake()
+        return True
+
     def submit_batch(self, batch_id: str, spec: dict[str, Any],
-                     members: list[tuple[str, dict[str, Any]]]) -> None:
+                     members: list[tuple[str, dict[str, Any]]], extra: int = 0) -> None:
         """Store a batch and its member jobs, all or none; QueueFull when they would take
-        the instance past its capacity."""
+        the instance past its capacity plus `extra` (the room one batch may take beyond
+        the queue, UNDERTOW_MAX_BATCH_MEMBERS)."""
         if not self.store.create_batch(batch_id, spec, members, self.owner,
-                                       limit=self.capacity):
+                                       limit=self.capacity + extra):
             raise QueueFull(self.retry_after)
         self.supervisor.wake()
 
@@ -98,8 +110,9 @@ class JobRunner:
         return self.supervisor.problem
 
     def shutdown(self) -> None:
-        """Stop: running jobs end interrupted, queued ones stay queued in the store for
-        the next start; the store is then checkpointed and closed."""
+        """Stop: running jobs are released (queued again), queued ones stay queued in the
+        store for the next start or another server's workers; the store is then
+        checkpointed and closed."""
         self.supervisor.stop()
         try:
             self.store.checkpoint(final=True)

@@ -27,7 +27,7 @@ from app.jobs import JobRunner
 from app.logging import RequestIdMiddleware, configure
 from app.metrics import Metrics, MetricsMiddleware
 from app.openapi import document
-from app.routes import batches, dynamics, examples, health, plans, plots, samples
+from app.routes import batches, dynamics, examples, health, plans, plots, samples, workers
 from app.settings import PLAN_PROCESSES, Settings, get_settings
 from app.store import StoreUnavailable
 from app.store.open import open_store
@@ -60,7 +60,9 @@ def create_app(settings: Settings | None = None, solve: SolveFunction | None = N
                            max_queued=settings.max_queued, retry_after=settings.retry_after,
                            memory_mb=settings.worker_memory_mb,
                            grace=settings.wall_time_grace, log_level=settings.log_level,
-                           on_done=app.state.metrics.job_done, lease=settings.lease)
+                           on_done=app.state.metrics.job_done, lease=settings.lease,
+                           retention=(86400.0 * settings.retention_days,
+                                      settings.retention_count))
         runner.start()
         app.state.store, app.state.runner = store, runner
         app.state.limiter = CapacityLimiter(settings.compute_threads)
@@ -79,7 +81,7 @@ def create_app(settings: Settings | None = None, solve: SolveFunction | None = N
     app.include_router(health.router)
     secured = [Depends(require_api_key)]
     for router in (dynamics.router, plans.router, batches.router, examples.router,
-                   plots.router, samples.router):
+                   plots.router, samples.router, workers.router):
         app.include_router(router, dependencies=secured)
     app.add_middleware(errors.UnexpectedErrorMiddleware)
     app.add_middleware(BodyLimitMiddleware, limit=settings.max_body_bytes,

@@ -32,19 +32,36 @@ class JobProgress(BaseModel):
                            "first mesh)")
 
 
+class JobEvent(BaseModel):
+    """One entry of a job's history."""
+
+    at: datetime
+    event: Literal["claimed", "released", "infrastructure-failure", "retried", "finished"]
+    worker: str | None = Field(default=None, description="the worker that held the job")
+    reason: str | None = Field(default=None, description="why (the final status for "
+                               "`finished`)")
+
+
 class JobSummary(BaseModel):
     """A plan job without its plan."""
 
     id: str
     status: JobStatus = Field(description="queued, running, succeeded (the solver converged), "
-                              "failed (solver failure, error or interruption), cancelled")
+                              "failed (solver failure or error; or a dead letter), cancelled")
     progress: JobProgress | None
-    error: str | None = Field(description='why the job failed ("interrupted": the server '
-                              "stopped during the solve) or was cancelled")
+    error: str | None = Field(description="why the job failed or was cancelled")
     cancel_requested: bool
     created: datetime
     started: datetime | None
     finished: datetime | None
+    attempts: int = Field(default=0, description="claims the job has had (a claim released "
+                          "by a stopping node is not counted)")
+    infra_failures: int = Field(default=0, description=(
+        "infrastructure failures the job has had (worker process or node died, lease ran "
+        "out, server stopped under it); each requeued it, up to UNDERTOW_MAX_RETRIES"))
+    dead_letter: bool = Field(default=False, description=(
+        "failed because infrastructure failed it more often than UNDERTOW_MAX_RETRIES "
+        "allows (not the solver's verdict); POST /v1/plans/{id}/retry queues it again"))
 
     @classmethod
     def of(cls, record: JobRecord) -> JobSummary:
@@ -56,17 +73,20 @@ class Job(JobSummary):
     jobs: then it is the solver's last iterate)."""
 
     plan: Plan | None
+    history: list[JobEvent] = Field(default_factory=list, description=(
+        "claims, releases, infrastructure failures, retries and the verdict, oldest first"))
 
     @classmethod
     def of(cls, record: JobRecord) -> Job:
-        return cls(**_fields(record), plan=record.plan)
+        return cls(**_fields(record), plan=record.plan, history=record.history or [])
 
 
 def _fields(record: JobRecord) -> dict:
     return {"id": record.id, "status": record.status, "progress": record.progress,
             "error": record.error, "cancel_requested": record.cancel_requested,
             "created": _time(record.created), "started": _time(record.started),
-            "finished": _time(record.finished)}
+            "finished": _time(record.finished), "attempts": record.attempts,
+            "infra_failures": record.infra_failures, "dead_letter": record.dead_letter}
 
 
 class JobList(BaseModel):

@@ -28,7 +28,7 @@ class Settings(BaseSettings):
                          description="SQLite job store file (relative to the working directory)")
     instance: str = Field(default_factory=socket.gethostname,
                           description="name of this server; jobs its own workers leave "
-                                      "running are marked interrupted when a server of that "
+                                      "running are requeued when a server of that "
                                       "name starts")
     workers: int = Field(default=2, ge=0, le=64, description=(
         "solver worker processes of this server (0: an API-only server, whose jobs "
@@ -39,7 +39,17 @@ class Settings(BaseSettings):
         "cores shared among the solver workers, cores // workers, at least 1"))
     lease: float = Field(default=60.0, ge=1.0, le=3600.0, description=(
         "seconds a worker's claim on a job holds without renewal (renewed every 0.25 s); a "
-        "job whose worker stays silent that long is requeued once, then marked interrupted"))
+        "job whose worker stays silent that long has had an infrastructure failure and is "
+        "requeued (UNDERTOW_MAX_RETRIES)"))
+    max_retries: int = Field(default=3, ge=0, le=100, description=(
+        "requeues a job gets after infrastructure failures (its worker process or node "
+        "died, its lease ran out, its server stopped under it); one more failure ends it "
+        "failed as a dead letter. Solver failures are never retried by themselves"))
+    retry_backoff: float = Field(default=1.0, ge=0.0, le=3600.0, description=(
+        "seconds before a requeued job may be claimed again after its first infrastructure "
+        "failure; doubled after each further one"))
+    retry_max_backoff: float = Field(default=60.0, ge=0.0, le=86400.0, description=(
+        "longest pause before a requeued job may be claimed again [s]"))
     worker_memory_mb: int = Field(default=4096, ge=64, description=(
         "memory a solver worker may take beyond its start-up size [MB]: plans estimated "
         "above it are refused (422), a solve that needs more fails"))
@@ -56,8 +66,13 @@ class Settings(BaseSettings):
     max_horizon: float = Field(default=60.0, gt=0.0, description="longest plan duration [s]")
     max_wall_time: float = Field(default=60.0, gt=0.0, description="cap on one solve [s]")
     max_queued: int = Field(default=32, ge=0, description="plans waiting for a worker")
-    max_batch_members: int = Field(default=32, ge=1, le=1000, description=(
-        "plans one batch (POST /v1/batches) may create"))
+    retention_days: float = Field(default=30.0, gt=0.0, description=(
+        "days a finished job (its plan, its history) is kept after it ended"))
+    retention_count: int = Field(default=100_000, ge=1, description=(
+        "finished jobs kept at most: older ones beyond this count are deleted"))
+    max_batch_members: int = Field(default=200, ge=1, le=1000, description=(
+        "plans one batch (POST /v1/batches) may create; a batch may take the server this "
+        "many plans beyond UNDERTOW_MAX_QUEUED"))
     max_wait: float = Field(default=30.0, ge=0.0, description="cap on POST /v1/plans?wait= [s]")
     max_points: int = Field(default=20_000, ge=2, description="states, configurations, grid "
                             "points, samples or time steps one request may ask for")

@@ -9,20 +9,25 @@ and holds it to three bounds:
   counted from the claim) has its worker killed and fails, saying so;
 - cancellation: a job whose cancel flag has been set for `CANCEL_GRACE` seconds without
   the solver stopping (e.g. during the NLP build) has its worker killed and is cancelled;
-- the worker's death: its job alone fails ("the worker process died ...").
+- the worker's death (killed, the OOM killer, a crash): an infrastructure failure of its
+  job alone, which is requeued at once (`JobStore.requeue`: after a pause, up to
+  UNDERTOW_MAX_RETRIES times, then a dead letter).
 
-It also renews the leases of its workers' jobs (reading their cancel flags in the same
-statement) and settles jobs whose lease ran out, of any server or worker sharing the store
-(requeued once, then interrupted: `JobStore.expire`). A supervisor with no workers (an
-API-only server) still does that. A server's supervisor runs workers that claim the
-server's own jobs; `undertow worker` runs one whose workers claim anyone's. On stop, idle
-workers leave at once and running jobs are marked interrupted before their workers are
-killed; queued jobs stay queued for the next start.
+Every `PURGE_INTERVAL` it deletes the finished jobs past their retention (age or count).
+It also renews the leases of the jobs it knows its workers run (by job and worker, reading
+their cancel flags in the same statement) and settles jobs whose lease ran out, of any
+server or worker sharing the store (`JobStore.expire`, an infrastructure failure too). A
+supervisor with no workers (an API-only server) still does that. A server's supervisor
+runs workers that claim the server's own jobs; `undertow worker` runs one whose workers
+claim anyone's. On stop (SIGTERM, Ctrl-C), idle workers leave at once, busy ones are
+killed and their jobs released (queued again at once, not counted as a failure) for
+another worker or node, or the next start; queued jobs stay queued.
 """
 
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 import multiprocessing
 import signal
@@ -34,7 +39,7 @@ from dataclasses import dataclass, field
 from multiprocessing.connection import Connection, wait
 from multiprocessing.process import BaseProcess
 
-from app.store import INTERRUPTED, JobStatus, JobStore, StoreUnavailable
+from app.store import JobStatus, JobStore, StoreUnavailable
 from app.worker import (
     READY,
     STOP,
@@ -43,6 +48,7 @@ from app.worker import (
     Outcome,
     SolveFunction,
     WorkerSpec,
+    persist,
     serve,
 )
 
@@ -56,6 +62,10 @@ STOP_WAIT = 5.0  # [s] idle workers have to leave on stop
 MAX_BACKOFF = 30.0  # [s] longest pause before restarting a worker that failed to start
 FAILED_STARTS = 3  # workers in a row that exit before they are ready: the workers are broken
 WORKER_DIED = "the worker process died during the solve"
+STOPPING = "the worker's node or server was stopping"
+HEARTBEAT = 5.0  # [s] between two heartbeats of a supervisor with workers (GET /v1/workers)
+PURGE_INTERVAL = 600.0  # [s] between two deletions of jobs past their retention
+RELEASE_TRIES = 5.0  # [s] a stopping supervisor tries this long to give its jobs back
 
 
 def _how(exitcode: int | None) -> str:
@@ -109,11 +119,13 @@ class Supervisor:
     def __init__(self, store: JobStore, solve: SolveFunction, owner: str, workers: int,
                  memory_mb: float | None, grace: float, log_level: str = "INFO",
                  on_done: Callable[[Outcome], None] | None = None, lease: float = LEASE,
-                 any_owner: bool = False):
+                 any_owner: bool = False, retention: tuple[float, int] | None = None):
         self.store, self.solve, self.owner = store, solve, owner
         self.count, self.memory_mb, self.grace = workers, memory_mb, grace
         self.log_level, self.on_done = log_level, on_done
-        self.lease, self.any_owner = lease, any_owner
+        self.lease, self.any_owner, self.retention = lease, any_owner, retention
+        self._next_purge = self._next_heartbeat = 0.0
+        self._started = time.time()
         self._expire_interval = min(EXPIRE_INTERVAL, lease / 4)
         self._context = multiprocessing.get_context("spawn")
         self._slots: list[_Worker | None] = [None] * workers
@@ -141,6 +153,10 @@ class Supervisor:
                     f"row, the last one ended with {_how(self._last_exit)}; see the log)")
         return None
 
+    def busy(self) -> int:
+        """Worker processes running a job now."""
+        return sum(w is not None and w.job is not None for w in self._slots)
+
     def wake(self) -> None:
         """Tell the idle workers that a job was queued (starting them the first time)."""
         self._wanted = True
@@ -149,7 +165,8 @@ class Supervisor:
                 self._send(worker, WAKE)
 
     def stop(self) -> None:
-        """Stop every worker: queued jobs stay queued, running ones end interrupted."""
+        """Stop every worker: queued jobs stay queued, running ones are released (queued
+        again at once for another worker, or the next start) once their worker is gone."""
         self._stopping.set()
         if self._thread.is_alive():
             self._thread.join()
@@ -162,14 +179,23 @@ class Supervisor:
             if worker.job is None:
                 worker.process.join(max(0.0, deadline - time.monotonic()))
         for worker in workers:
-            try:
-                self._end_claims(worker, INTERRUPTED)
-            except StoreUnavailable as exc:
-                log.error("stopping worker %s: %s", worker.name, exc)
             if worker.process.is_alive():
                 worker.process.kill()
             worker.process.join()
             worker.channel.close()
+        for worker in workers:
+            try:
+                released = persist(functools.partial(self.store.release_claimed, worker.name,
+                                                     STOPPING),
+                                   f"stopping worker {worker.name}", give_up=RELEASE_TRIES)
+            except StoreUnavailable as exc:  # their leases run out instead
+                log.error("stopping worker %s: %s", worker.name, exc)
+                continue
+            for job_id in released:
+                log.warning("job %s released: %s", job_id, STOPPING)
+        if self.count:
+            with contextlib.suppress(StoreUnavailable):
+                self.store.forget_worker(self.owner)
 
     def _spawn(self, slot: int) -> None:
         name = f"{self.owner}/{slot}/{uuid.uuid4().hex[:8]}"
@@ -232,6 +258,17 @@ class Supervisor:
             for job_id, status in self.store.expire(time.time()).items():
                 log.warning("job %s lost its worker (lease ran out): %s", job_id,
                             "requeued" if status == "queued" else status)
+                if status == "queued":
+                    self.wake()
+        if self.count and now >= self._next_heartbeat:
+            self._next_heartbeat = now + HEARTBEAT
+            self.store.heartbeat(self.owner, self.count, self.busy(), self._started)
+        if self.retention is not None and now >= self._next_purge:
+            self._next_purge = now + PURGE_INTERVAL
+            age, keep = self.retention
+            purged = self.store.purge(time.time() - age, keep)
+            if purged:
+                log.info("%d finished jobs past their retention deleted", purged)
 
     def _drain(self, worker: _Worker) -> None:
         """Handle every message the worker has sent."""
@@ -261,7 +298,8 @@ class Supervisor:
         busy = {w.job: w for w in self._slots if w is not None and w.job is not None}
         if not busy:
             return
-        flags = self.store.renew([w.name for w in busy.values()], time.time() + self.lease)
+        flags = self.store.renew([(job, w.name) for job, w in busy.items()],
+                                 time.time() + self.lease)
         for job_id, cancelled in flags.items():
             worker = busy.get(job_id)
             if worker is None or not cancelled or worker.fate is not None:
@@ -295,10 +333,9 @@ class Supervisor:
             job_id, status, error = worker.fate
             if self.store.finish(job_id, status, None, error, worker=worker.name):
                 self._done(Outcome(job_id, status, time.monotonic() - worker.job_started))
-        self._end_claims(worker, died(exitcode))
-
-    def _end_claims(self, worker: _Worker, error: str) -> None:
-        """Fail the jobs the worker still holds (none when it ended them itself)."""
-        for job_id in self.store.fail_claimed(worker.name, error):
-            log.warning("job %s: %s", job_id, error)
-            self._done(Outcome(job_id, "failed", time.monotonic() - worker.job_started))
+        reason = died(exitcode)
+        for job_id, status in self.store.requeue_claimed(worker.name, reason).items():
+            log.warning("job %s: %s; %s", job_id, reason,
+                        "requeued" if status == "queued" else status)
+            if status != "queued":
+                self._done(Outcome(job_id, status, time.monotonic() - worker.job_started))

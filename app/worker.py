@@ -12,7 +12,17 @@ Its supervisor (`app.supervisor`) talks to it over a pipe: WAKE when a job was q
 STOP to end; the worker answers READY once started, CLAIMED when it takes a job and the
 job's `Outcome` when it ends. The worker limits its own memory (UNDERTOW_WORKER_MEMORY_MB)
 and leaves after a job that ran out of it, so a fresh process takes its place. A watchdog
-thread marks its job interrupted and exits when the supervising process is gone.
+thread requeues its job (an infrastructure failure: the node's main process died) and
+exits when the supervising process is gone. SIGINT and SIGTERM are for the supervisor to
+handle: it gives the running jobs back before it stops its workers.
+
+The store may fail for a while during a solve (a database restart): progress that cannot
+be written is written later, and the verdict (and the reads before it) are retried with
+backoff until the store answers, so a row is never left running by a worker that moved
+on. A claim whose answer was lost (the connection broke after the database committed it)
+is given back as soon as the store answers again. On PostgreSQL an idle worker LISTENs for
+queued jobs and claims one within milliseconds; otherwise it looks every `IDLE_POLL`
+seconds (or when its supervisor says WAKE).
 """
 
 from __future__ import annotations
@@ -28,14 +38,13 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from multiprocessing.connection import Connection
-from typing import Any
+from multiprocessing.connection import Connection, wait
+from typing import Any, TypeVar
 
 from app.logging import configure
 from app.procmem import limit_growth
 from app.store import (
     CANCELLED_ON_REQUEST,
-    INTERRUPTED,
     JobRecord,
     JobStatus,
     JobStore,
@@ -51,6 +60,12 @@ SolveFunction = Callable[..., Plan]
 PROGRESS_INTERVAL = 0.2  # [s] between two progress writes of one job
 IDLE_POLL = 1.0  # [s] an idle worker looks for queued jobs at least this often
 WATCH_INTERVAL = 0.25  # [s] between two checks that the supervising process still runs
+STORE_RETRY = 0.05  # [s] first pause before retrying a store that failed; doubled each time
+STORE_RETRY_MAX = 2.0  # [s] longest pause between two tries
+ORPHAN_TRIES = 20.0  # [s] an orphaned worker tries this long to give its job back
+LISTEN_RETRY = 5.0  # [s] between two tries to LISTEN again after the connection broke
+PARENT_DIED = "the node's main process died (killed?) while the job ran"
+T = TypeVar("T")
 WAKE, STOP, READY = "wake", "stop", "ready"
 
 
@@ -128,14 +143,33 @@ class _Reporter:
         return self.go_on and not self.expired
 
     def flush(self) -> None:
-        """Write the latest progress and read the cancel flag (a store that cannot be
-        written stops the solve too)."""
+        """Write the latest progress and read the cancel flag; a store that cannot be
+        written now is written at a later iteration (the solve goes on meanwhile)."""
         if not self.written and self.latest is not None:
+            self.last = time.monotonic()
             try:
                 self.go_on = self.store.report_progress(self.job_id, self.latest, self.worker)
-            except StoreUnavailable:
-                self.go_on = False
-            self.last, self.written = time.monotonic(), True
+            except StoreUnavailable as exc:
+                log.warning("job %s: progress not written (will retry): %s", self.job_id, exc)
+                return
+            self.written = True
+
+
+def persist(action: Callable[[], T], what: str, give_up: float = math.inf) -> T:
+    """`action()`, retried with backoff while the store is unavailable, for up to
+    `give_up` seconds (then its StoreUnavailable is raised)."""
+    pause, deadline, warned = STORE_RETRY, time.monotonic() + give_up, False
+    while True:
+        try:
+            return action()
+        except StoreUnavailable as exc:
+            if time.monotonic() + pause > deadline:
+                raise
+            if not warned:
+                log.warning("%s: the store failed, retrying: %s", what, exc)
+                warned = True
+            time.sleep(pause)
+            pause = min(STORE_RETRY_MAX, 2 * pause)
 
 
 def _verdict(plan: Plan, cancel_requested: bool, expired: bool,
@@ -157,8 +191,9 @@ def _verdict(plan: Plan, cancel_requested: bool, expired: bool,
     return "failed", f"{plan.solver.status}: {message}" if message else plan.solver.status
 
 
-_current: tuple[JobStore, str] | None = None
-"""The job this worker process is solving, for the orphan watchdog."""
+_current: tuple[JobStore, str, str | None] | None = None
+"""The job this worker process is solving (store, job id, worker), for the orphan
+watchdog."""
 
 
 def run_job(store: JobStore, job_id: str, scene: Scene, solve: SolveFunction,
@@ -167,10 +202,11 @@ def run_job(store: JobStore, job_id: str, scene: Scene, solve: SolveFunction,
     from `worker` meanwhile: its lease ran out and another worker holds it)."""
     global _current
     start, budget = time.monotonic(), scene.solver.max_wall_time
-    _current = (store, job_id)
+    _current = (store, job_id, worker)
     reporter = _Reporter(store, job_id, start + budget, worker)
     try:
-        earlier = _earlier(store, scene.solver.warm_start)
+        earlier = persist(lambda: _earlier(store, scene.solver.warm_start),
+                          f"job {job_id}: warm start")
         plan = solve(scene, progress=reporter, **({"warm_start": earlier} if earlier else {}))
     except MemoryError:
         return _failed(store, job_id, out_of_memory(memory_mb), start, worker, exhausted=True)
@@ -183,11 +219,13 @@ def run_job(store: JobStore, job_id: str, scene: Scene, solve: SolveFunction,
     finally:
         _current = None
     reporter.flush()
-    current = store.get(job_id)
+    current = persist(lambda: store.get(job_id), f"job {job_id}: reading its cancel flag")
     status, error = _verdict(plan, bool(current and current.cancel_requested),
                              reporter.expired, budget)
     solution = plan.solution.model_dump(mode="json") if plan.solution is not None else None
-    store.finish(job_id, status, plan.model_dump(mode="json"), error, solution, worker)
+    body = plan.model_dump(mode="json")
+    persist(lambda: store.finish(job_id, status, body, error, solution, worker),
+            f"job {job_id}: writing its verdict")
     return Outcome(job_id, status, time.monotonic() - start)
 
 
@@ -207,7 +245,8 @@ def _earlier(store: JobStore, job_id: str | None) -> Plan | None:
 
 def _failed(store: JobStore, job_id: str, error: str, start: float, worker: str | None,
             exhausted: bool = False) -> Outcome:
-    store.finish(job_id, "failed", None, error, worker=worker)
+    persist(lambda: store.finish(job_id, "failed", None, error, worker=worker),
+            f"job {job_id}: writing its verdict")
     return Outcome(job_id, "failed", time.monotonic() - start, exhausted)
 
 
@@ -226,20 +265,25 @@ def _stop_requested(channel: Connection, wait: float) -> bool:
 
 def _watch(parent: int) -> None:
     """Exit this worker when its supervising process is gone (e.g. killed with SIGKILL),
-    first marking its job interrupted: an orphan must not keep solving."""
+    first requeueing its job (an infrastructure failure, so another worker or node runs
+    it again): an orphan must not keep solving."""
     while os.getppid() == parent:
         time.sleep(WATCH_INTERVAL)
     current = _current
     if current is not None:
-        with contextlib.suppress(StoreUnavailable):
-            current[0].fail(current[1], INTERRUPTED)
+        store, job_id, worker = current
+        with contextlib.suppress(StoreUnavailable):  # else its lease runs out
+            status = persist(lambda: store.requeue(job_id, worker, PARENT_DIED),
+                             f"job {job_id}: giving it back", give_up=ORPHAN_TRIES)
+            log.warning("job %s: %s; %s", job_id, PARENT_DIED, status or "already settled")
     os._exit(0)
 
 
 def _take(spec: WorkerSpec, channel: Connection, record: JobRecord) -> Outcome | None:
     """Run a claimed job; None when it was given back (STOP arrived meanwhile)."""
     if _stop_requested(channel, 0.0):
-        spec.store.release(record.id, spec.name)
+        persist(lambda: spec.store.release(record.id, spec.name, "the worker was stopping"),
+                f"job {record.id}: giving it back", give_up=spec.lease)
         return None
     try:
         scene = Scene.model_validate(record.scene)
@@ -250,29 +294,81 @@ def _take(spec: WorkerSpec, channel: Connection, record: JobRecord) -> Outcome |
     return run_job(spec.store, record.id, scene, spec.solve, spec.memory_mb, spec.name)
 
 
+class _Listening:
+    """An idle worker's wait for work: its supervisor's pipe and, on PostgreSQL, the
+    store's notifications of queued jobs (reopened after a failure, polling meanwhile)."""
+
+    def __init__(self, store: JobStore, channel: Connection):
+        self.store, self.channel = store, channel
+        self.listener: Any = None
+        self.retry_at = 0.0 if hasattr(store, "listen") else math.inf
+
+    def _open(self) -> None:
+        if self.listener is None and time.monotonic() >= self.retry_at:
+            try:
+                self.listener = self.store.listen()  # type: ignore[attr-defined]
+            except Exception as exc:  # noqa: BLE001 - any failure: poll, try again later
+                log.warning("LISTEN failed (polling meanwhile): %s", exc)
+                self.retry_at = time.monotonic() + LISTEN_RETRY
+
+    def _drop(self) -> None:
+        if self.listener is not None:
+            self.listener.close()
+        self.listener, self.retry_at = None, time.monotonic() + LISTEN_RETRY
+
+    def stop_requested(self, timeout: float) -> bool:
+        """Wait up to `timeout` s for a message or a notification; True on STOP or when
+        the supervisor is gone."""
+        self._open()
+        if self.listener is None or timeout <= 0.0:
+            return _stop_requested(self.channel, timeout)
+        try:
+            ready = wait([self.channel, self.listener], timeout)
+            if self.listener in ready:
+                self.listener.drain()
+        except Exception as exc:  # noqa: BLE001 - the listening connection broke
+            log.warning("LISTEN connection lost (polling meanwhile): %s", exc)
+            self._drop()
+        return _stop_requested(self.channel, 0.0)
+
+    def close(self) -> None:
+        if self.listener is not None:
+            self.listener.close()
+
+
 def serve(spec: WorkerSpec, channel: Connection) -> None:
     """The worker process: claim and run jobs until STOP, a lost supervisor, or a job
     that ran out of memory."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is for the supervisor to handle
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C and SIGTERM are for the
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)  # supervisor to handle
     configure(spec.log_level)
     threading.Thread(target=_watch, args=(os.getppid(),), daemon=True,
                      name="orphan-watch").start()
     if spec.memory_mb is not None:
         limit_growth(spec.memory_mb)
+    idle = _Listening(spec.store, channel)
     channel.send(READY)
-    wait = 0.0
-    while not _stop_requested(channel, wait):
-        try:
-            record = spec.store.claim(spec.owner, spec.name, time.time() + spec.lease)
-            outcome = None if record is None else _take(spec, channel, record)
-        except StoreUnavailable as exc:
-            log.error("worker %s: %s", spec.name, exc)
-            wait = IDLE_POLL
-            continue
-        if record is not None and outcome is None:
-            return
-        wait = IDLE_POLL if record is None else 0.0
-        if outcome is not None:
-            channel.send(outcome)
-            if outcome.exhausted:
+    wait_for, unsure = 0.0, False
+    try:
+        while not idle.stop_requested(wait_for):
+            try:
+                if unsure:  # a claim whose answer was lost may have been made
+                    spec.store.release_claimed(spec.name, "the answer to its claim was lost")
+                    unsure = False
+                unsure = True
+                record = spec.store.claim(spec.owner, spec.name, time.time() + spec.lease)
+                unsure = False
+                outcome = None if record is None else _take(spec, channel, record)
+            except StoreUnavailable as exc:
+                log.error("worker %s: %s", spec.name, exc)
+                wait_for = IDLE_POLL
+                continue
+            if record is not None and outcome is None:
                 return
+            wait_for = IDLE_POLL if record is None else 0.0
+            if outcome is not None:
+                channel.send(outcome)
+                if outcome.exhausted:
+                    return
+    finally:
+        idle.close()

@@ -6,8 +6,11 @@ Its supervisor (`app.supervisor`) is the one an API server runs, claiming anyone
 it renews its jobs' leases (reading their cancel flags, so a cancel sent to any API server
 stops the solve), holds each job to its wall-time budget, and settles jobs of any worker
 whose lease ran out. SIGTERM or Ctrl-C stops the node: idle processes leave, running
-jobs end interrupted. A node killed outright (SIGKILL, machine lost) leaves its jobs'
-leases to run out: whoever sees that first requeues them once.
+jobs are released at once (queued again, for another node). A node whose main process is
+killed (SIGKILL, the OOM killer) has its solver processes requeue their jobs themselves
+within a quarter of a second; a node killed whole (or its machine lost) leaves its jobs'
+leases to run out, and whoever sees that first requeues them (infrastructure failures,
+retried up to UNDERTOW_MAX_RETRIES times).
 """
 
 from __future__ import annotations
@@ -17,7 +20,10 @@ import os
 import signal
 import threading
 
+from prometheus_client import CollectorRegistry, Gauge, Histogram, start_http_server
+
 from app.logging import configure
+from app.metrics import _SOLVE_BUCKETS
 from app.settings import PLAN_PROCESSES, Settings
 from app.store.open import open_store
 from app.supervisor import Supervisor
@@ -28,24 +34,59 @@ log = logging.getLogger("undertow.worker_node")
 HEALTH_INTERVAL = 5.0  # [s] between two looks at the node's own health
 
 
+class NodeMetrics:
+    """The node's Prometheus metrics: jobs it ended by status, their solve times, its busy
+    and total solver processes, and whether it can run jobs (1) or not (0)."""
+
+    def __init__(self, supervisor: Supervisor, processes: int):
+        self.registry = CollectorRegistry()
+        self.solves = Histogram("undertow_worker_solve_duration_seconds",
+                                "Wall time of the plan solves this node ended, by status",
+                                ["status"], buckets=_SOLVE_BUCKETS, registry=self.registry)
+        Gauge("undertow_worker_processes", "Solver processes of this node",
+              registry=self.registry).set(processes)
+        Gauge("undertow_worker_busy_processes", "Solver processes of this node running a job",
+              registry=self.registry).set_function(supervisor.busy)
+        Gauge("undertow_worker_up", "1 while this node's solver processes and job store can "
+              "be used", registry=self.registry).set_function(
+            lambda: float(supervisor.problem is None))
+
+    def done(self, outcome: Outcome) -> None:
+        self.solves.labels(outcome.status).observe(outcome.elapsed)
+
+
 def _done(outcome: Outcome) -> None:
     log.info("job %s %s in %.1f s", outcome.job_id, outcome.status, outcome.elapsed)
 
 
-def run(settings: Settings, processes: int, stop: threading.Event | None = None) -> int:
-    """Run the node until SIGTERM, SIGINT or `stop`; the exit code."""
+def run(settings: Settings, processes: int, stop: threading.Event | None = None,
+        metrics: tuple[str, int] | None = None) -> int:
+    """Run the node until SIGTERM, SIGINT or `stop`, serving Prometheus metrics at
+    `metrics` (host, port) when given; the exit code."""
     configure(settings.log_level)
     store = open_store(settings)
     name = f"{settings.instance}:worker:{os.getpid()}"
     os.environ[PLAN_PROCESSES] = str(settings.plan_processes(processes))
+    node_metrics: NodeMetrics | None = None
+
+    def done(outcome: Outcome) -> None:
+        _done(outcome)
+        if node_metrics is not None:
+            node_metrics.done(outcome)
+
     supervisor = Supervisor(store, load_function(settings.solve_function), name, processes,
                             settings.worker_memory_mb, settings.wall_time_grace,
-                            settings.log_level, on_done=_done, lease=settings.lease,
-                            any_owner=True)
+                            settings.log_level, on_done=done, lease=settings.lease,
+                            any_owner=True, retention=(86400.0 * settings.retention_days,
+                                                       settings.retention_count))
     stop = stop or threading.Event()
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGTERM, signal.SIGINT):
             signal.signal(sig, lambda *_: stop.set())
+    if metrics is not None:
+        node_metrics = NodeMetrics(supervisor, processes)
+        start_http_server(metrics[1], metrics[0], registry=node_metrics.registry)
+        log.info("worker node %s: metrics at http://%s:%d/metrics", name, *metrics)
     supervisor.start()
     supervisor.wake()
     log.info("worker node %s: %d solver processes on the job store", name, processes)

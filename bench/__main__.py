@@ -31,6 +31,8 @@ BENCHES = {
                                      "two-link scenes"),
     "planner_internals": ("bench.planner_internals", "the residual form, compiled against "
                                                      "interpreted NLPs, the seed arm's accuracy"),
+    "pickup": ("bench.pickup", "submit-to-claim latency with an idle worker: LISTEN/NOTIFY on "
+                               "PostgreSQL, the server's pipe and a node's poll on SQLite"),
     "plan_response": ("bench.plan_response", "where a GET of a finished plan job spends its "
                                              "time"),
     "planner_speed": ("bench.planner_speed", "the planner against a plain Opti script on a seed "

@@ -31,8 +31,10 @@ class WorkerNode:
     """`undertow worker --processes N`, in its own process group."""
 
     def __init__(self, folder: Path, instance: str, processes: int = 1, **settings: str):
-        """`settings`: UNDERTOW_* variables, the store's among them."""
+        """`settings`: UNDERTOW_* variables, the store's among them. `args`, set before
+        `start`, adds options of `undertow worker`."""
         self.instance, self.processes = instance, processes
+        self.args: tuple[str, ...] = ()
         self.env = {**os.environ, "UNDERTOW_INSTANCE": instance, "UNDERTOW_LOG_LEVEL": "WARNING",
                     **settings, "PYTHONPATH": str(ROOT)}  # testbed's fake solver
         self.log = folder / f"{instance}.log"
@@ -41,7 +43,8 @@ class WorkerNode:
     def start(self) -> Self:
         with open(self.log, "ab") as log:
             self.proc = subprocess.Popen(
-                [str(UNDERTOW), "worker", "--processes", str(self.processes)], cwd=ROOT,
+                [str(UNDERTOW), "worker", "--processes", str(self.processes), *self.args],
+                cwd=ROOT,
                 env=self.env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
         return self
 

@@ -63,6 +63,10 @@ class PostgresServer:
         self.root = Path(tempfile.mkdtemp(prefix="undertow-pg-"))
         self.data, self.log = self.root / "data", self.root / "server.log"
         self._as_postgres = os.geteuid() == 0
+        self.options = (f"-c listen_addresses=127.0.0.1 -c port={self.port} "
+                        f"-c unix_socket_directories={self.root} -c fsync=off "
+                        "-c synchronous_commit=off -c full_page_writes=off "
+                        "-c max_connections=200")
 
     def _run(self, *command: str) -> None:
         prefix = ["runuser", "-u", "postgres", "--"] if self._as_postgres else []
@@ -75,11 +79,8 @@ class PostgresServer:
             os.chown(self.root, account.pw_uid, account.pw_gid)
         self._run(str(self.bin / "initdb"), "-D", str(self.data), "-U", USER, "--auth=trust",
                   "--encoding=UTF8", "--no-sync")
-        options = (f"-c listen_addresses=127.0.0.1 -c port={self.port} "
-                   f"-c unix_socket_directories={self.root} -c fsync=off "
-                   "-c synchronous_commit=off -c full_page_writes=off -c max_connections=200")
         self._run(str(self.bin / "pg_ctl"), "-D", str(self.data), "-l", str(self.log),
-                  "-o", options, "-w", "-t", str(int(START_TIMEOUT)), "start")
+                  "-o", self.options, "-w", "-t", str(int(START_TIMEOUT)), "start")
         return self
 
     def url(self, database: str = "postgres") -> str:
@@ -92,6 +93,21 @@ class PostgresServer:
         with psycopg.connect(self.url(), autocommit=True) as conn:
             conn.execute(f'CREATE DATABASE "{name}"')
         return self.url(name)
+
+    def restart(self, mode: str = "fast") -> None:
+        """`pg_ctl restart -m MODE`: every connection is closed, the server starts again
+        on the same port with the same data."""
+        self._run(str(self.bin / "pg_ctl"), "-D", str(self.data), "-l", str(self.log),
+                  "-m", mode, "-w", "-t", str(int(START_TIMEOUT)), "restart")
+
+    def halt(self) -> None:
+        """Stop the server (`pg_ctl stop -m fast`), keeping its data for `resume`."""
+        self._run(str(self.bin / "pg_ctl"), "-D", str(self.data), "-m", "fast", "-w", "stop")
+
+    def resume(self) -> None:
+        """Start a halted server again with the options it had."""
+        self._run(str(self.bin / "pg_ctl"), "-D", str(self.data), "-l", str(self.log),
+                  "-o", self.options, "-w", "-t", str(int(START_TIMEOUT)), "start")
 
     def stop(self) -> None:
         """Stop the server at once and remove its folder."""

@@ -103,11 +103,16 @@ def test_the_member_bound_and_the_queue_room_are_enforced(tmp_path):
         assert "limit of 8 (UNDERTOW_MAX_BATCH_MEMBERS)" in r.json()["errors"][0]["msg"]
         slow = two_link_scene(iterations=500)
         assert c.post("/v1/plans", json=slow).status_code == 202
+        # a batch may take the server max_batch_members beyond its 5 places: 1 + 8 fit
+        eight = {"duration": [1.0, 2.0], "final.q.0": [0.5, 0.6, 0.7, 0.9]}
+        first = c.post("/v1/batches", json={"base": slow, "grid": eight})
+        assert first.status_code == 202, first.text
         six = {"duration": [1.0, 2.0], "final.q.0": [0.5, 0.7, 0.9]}
         full = c.post("/v1/batches", json={"base": slow, "grid": six})
         assert full.status_code == 429 and full.headers["retry-after"]
-        assert len(c.get("/v1/plans?limit=100").json()["items"]) == 1  # all or none
+        assert len(c.get("/v1/plans?limit=100").json()["items"]) == 9  # all or none
         assert c.get("/v1/batches/nope").status_code == 404
+        assert c.delete(f"/v1/batches/{first.json()['id']}").status_code == 200
 
 
 def test_undertow_sweep_submits_follows_and_prints_the_table(tmp_path, capsys):
@@ -152,3 +157,38 @@ def test_sweep_progress_on_a_file_is_a_line_per_change_and_on_a_terminal_one_lin
     follow.close()
     assert terminal.getvalue().count("\n") == 1 and terminal.getvalue().endswith("\n")
     assert terminal.getvalue().split("\r")[-1] == "  2/3 finished, 1 verified      6 s\n"
+
+
+def test_a_200_member_batch_is_accepted_progresses_is_cancelled_and_downloads_as_csv(tmp_path):
+    with client(tmp_path, solve=fake_plan, workers=1) as c:  # the default limits
+        grid = {"duration": [1.0 + 0.1 * k for k in range(20)],
+                "final.q.0": [0.5 + 0.05 * k for k in range(10)]}
+        answer = c.post("/v1/batches", json={"base": two_link_scene(iterations=5),
+                                             "grid": grid})
+        assert answer.status_code == 202, answer.text
+        batch_id = answer.json()["id"]
+        assert answer.json()["size"] == 200
+        deadline = time.monotonic() + 60
+        while (batch := c.get(f"/v1/batches/{batch_id}").json())["finished"] < 3:
+            assert time.monotonic() < deadline, batch["counts"]
+            time.sleep(0.1)
+        cancelled = c.delete(f"/v1/batches/{batch_id}")
+        assert cancelled.status_code == 200
+        counts = cancelled.json()["counts"]
+        assert counts["queued"] == 0 and counts["cancelled"] >= 190, counts
+        batch = finished(c, batch_id)
+        assert batch["counts"]["succeeded"] + batch["counts"]["cancelled"] == 200
+        assert c.delete("/v1/batches/nope").status_code == 404
+        for r in (c.get(f"/v1/batches/{batch_id}/results.csv"),
+                  c.get(f"/v1/batches/{batch_id}", headers={"accept": "text/csv"})):
+            assert r.status_code == 200 and r.headers["content-type"].startswith("text/csv")
+            lines = r.text.splitlines()
+            assert lines[0] == ("index,job_id,duration,final.q.0,status,verified,objective,"
+                                "time,error")
+            assert len(lines) == 201
+            first = lines[1].split(",")
+            assert (first[0], first[1], first[2], first[3], first[4], first[5]) == (
+                "0", f"{batch_id}-0000", "1.0", "0.5", "succeeded", "true")
+            assert lines[-1].split(",")[4] == "cancelled"
+            assert lines[-1].endswith(",cancelled on request")
+        assert c.get(f"/v1/batches/{batch_id}").headers["content-type"] == "application/json"

@@ -17,7 +17,7 @@ from service_fixtures import two_link_scene
 
 from app.store.postgres import PostgresJobStore
 from testbed.cluster import FAKE_SOLVER, WorkerNode, api_server
-from testbed.service import LiveServer, wait_final
+from testbed.service import LiveServer, free_port, wait_final
 
 LEASE = 3.0  # [s] short, so that a lost node's job is requeued quickly
 PLANS = 40
@@ -98,6 +98,13 @@ def test_two_apis_and_two_workers_lose_no_plan_when_a_worker_is_killed(cluster):
     assert node_2.proc.poll() is None
     for api in (a, b):
         assert api.get("/healthz").status_code == 200
+    def node_1_gone() -> dict | None:  # node 1 stopped beating with its death
+        live = a.get("/v1/workers").json()
+        names = [w["name"].split(":")[0] for w in live["items"]]
+        return live if names == ["node-2"] else None
+
+    live = wait_for(node_1_gone, 20, "node 1 leaving the list of live workers")
+    assert live["processes"] == 1 and live["busy"] <= 1  # as of its last heartbeat
 
 
 def test_an_api_only_server_queues_and_a_worker_node_solves(tmp_path):
@@ -107,10 +114,18 @@ def test_an_api_only_server_queues_and_a_worker_node_solves(tmp_path):
         job = http.post("/v1/plans", json=two_link_scene()).json()["id"]
         time.sleep(1.0)
         assert http.get(f"/v1/plans/{job}").json()["status"] == "queued"  # no workers here
+        port = free_port()
         node = WorkerNode(tmp_path, "node", UNDERTOW_DB_PATH=str(db),
                           UNDERTOW_SOLVE_FUNCTION=FAKE_SOLVER, UNDERTOW_LOG_LEVEL="INFO")
+        node.args = ("--metrics-port", str(port))
         with node:
             assert wait_final(http, job, timeout=60)["status"] == "succeeded"
+            metrics = httpx.get(f"http://127.0.0.1:{port}/metrics", timeout=10).text
+            assert ('undertow_worker_solve_duration_seconds_count{status="succeeded"} 1.0'
+                    in metrics)
+            for line in ("undertow_worker_processes 1.0", "undertow_worker_busy_processes 0.0",
+                         "undertow_worker_up 1.0"):
+                assert line in metrics.splitlines(), metrics
             node.proc.send_signal(signal.SIGTERM)
             assert node.proc.wait(30) == 0
         assert http.get("/healthz").status_code == 200

@@ -81,7 +81,7 @@ def solving(job: dict) -> bool:
 @pytest.fixture(scope="module")
 def api(tmp_path_factory):
     with client(tmp_path_factory.mktemp("faults"), solve=fake_plan, workers=2, max_queued=2,
-                wall_time_grace=1.0) as c:
+                wall_time_grace=1.0, max_retries=1, retry_backoff=0.1) as c:
         yield c
 
 
@@ -105,16 +105,42 @@ def test_a_plan_too_big_for_a_worker_is_refused_before_it_runs(api):
     api.delete(f"/v1/plans/{r.json()['id']}")
 
 
-def test_a_dead_worker_fails_only_its_own_job(api):
+def test_a_dead_worker_requeues_only_its_own_job_then_dead_letters_it(api):
     wait_idle(api)
     neighbour = post(api, iterations=500)  # 10 s on one worker
     wait_for(api, neighbour, solving)
-    crash = post(api, tol=0.95)  # kills the other worker
+    crash = post(api, tol=0.95)  # kills every worker that takes it
     job = wait_final(api, crash)
-    assert (job["status"], job["error"]) == ("failed", died(3))
+    assert (job["status"], job["dead_letter"], job["infra_failures"]) == ("failed", True, 2)
+    assert job["error"] == (f"dead letter: {died(3)}; it failed for infrastructure reasons "
+                            "2 times (UNDERTOW_MAX_RETRIES=1)")
+    assert [e["event"] for e in job["history"]] == ["claimed", "infrastructure-failure"] * 2
+    dead = api.get("/v1/plans?dead_letter=true").json()["items"]
+    assert [j["id"] for j in dead] == [crash]
+    assert crash not in [j["id"] for j in api.get("/v1/plans?dead_letter=false").json()["items"]]
     assert api.get(f"/v1/plans/{neighbour}").json()["status"] == "running"
     assert wait_final(api, neighbour)["status"] == "succeeded"
     assert wait_final(api, post(api))["status"] == "succeeded"  # a worker took its place
+
+
+def test_a_failed_job_is_queued_again_by_id(api):
+    wait_idle(api)
+    failing = post(api, tol=0.6)  # Maximum_Iterations_Exceeded, a solver failure
+    first = wait_final(api, failing)
+    assert (first["status"], first["dead_letter"]) == ("failed", False)
+    r = api.post(f"/v1/plans/{failing}/retry")
+    assert r.status_code == 202, r.text
+    assert r.headers["location"] == f"/v1/plans/{failing}"
+    assert (r.json()["status"], r.json()["error"], r.json()["plan"]) == ("queued", None, None)
+    again = wait_final(api, failing)
+    assert (again["status"], again["attempts"]) == ("failed", 2)
+    assert [e["event"] for e in again["history"]] == [
+        "claimed", "finished", "retried", "claimed", "finished"]
+    done = post(api)
+    wait_final(api, done)
+    r = api.post(f"/v1/plans/{done}/retry")
+    assert (r.status_code, r.json()["type"]) == (409, "urn:undertow:problem:not-finished")
+    assert api.post("/v1/plans/nope/retry").status_code == 404
 
 
 def test_a_build_that_outlasts_its_budget_is_stopped(api):
@@ -167,21 +193,22 @@ def test_no_state_of_one_job_leaks_into_the_next(tmp_path):
         "Invalid_Problem_Definition", 0)
 
 
-def test_sigterm_interrupts_running_jobs_and_keeps_queued_ones_queued(tmp_path):
+def test_sigterm_releases_running_jobs_and_keeps_queued_ones_queued(tmp_path):
     live = fake_server(tmp_path)
     with live, httpx.Client(base_url=live.url, timeout=30) as api:
-        running = post(api, iterations=1000)
+        running = post(api, iterations=100)
         queued = [post(api) for _ in range(3)]
         wait_for(api, running, solving)
         live.stop(signal.SIGTERM)
         wait_gone(live.proc.pid)  # the server and every worker it started
         store = SqliteJobStore(tmp_path / "jobs.sqlite3")
-        assert (store.get(running).status, store.get(running).error) == (
-            "failed", "interrupted")
+        released = store.get(running)
+        assert (released.status, released.error, released.infra_failures) == (
+            "queued", None, 0)
         assert [(store.get(j).status, store.get(j).started) for j in queued] == [
             ("queued", None)] * 3
     with live, httpx.Client(base_url=live.url, timeout=30) as api:
-        assert [wait_final(api, j)["status"] for j in queued] == ["succeeded"] * 3
+        assert [wait_final(api, j)["status"] for j in [running, *queued]] == ["succeeded"] * 4
 
 
 def test_ctrl_c_stops_server_and_workers_with_json_log_lines_only(tmp_path):
@@ -193,7 +220,7 @@ def test_ctrl_c_stops_server_and_workers_with_json_log_lines_only(tmp_path):
         live.proc.wait(30)
         wait_gone(live.proc.pid)
     store = SqliteJobStore(tmp_path / "jobs.sqlite3")
-    assert (store.get(running).status, store.get(running).error) == ("failed", "interrupted")
+    assert (store.get(running).status, store.get(running).error) == ("queued", None)
     for line in live.log.read_text().splitlines():
         assert json.loads(line)["level"] in ("INFO", "WARNING"), line
 
@@ -244,3 +271,63 @@ def test_workers_that_cannot_start_make_health_503(tmp_path, monkeypatch):
         assert r.status_code == 503 and r.json()["detail"].startswith(
             "no solver worker process could start (")
         assert api.get("/metrics").status_code == 503
+
+
+def refused(api, what: str) -> None:
+    """POST /v1/plans and /healthz answer 503 problems naming `what`."""
+    for method, path, body in (("post", "/v1/plans", two_link_scene()),
+                               ("get", "/healthz", None)):
+        r = api.request(method, path, json=body)
+        assert r.status_code == 503, (path, r.text)
+        assert r.headers["content-type"] == "application/problem+json"
+        assert what in r.json()["detail"], r.json()
+
+
+def test_a_deleted_write_ahead_log_refuses_new_plans_and_loses_none(tmp_path):
+    live = fake_server(tmp_path)
+    with live, httpx.Client(base_url=live.url, timeout=30) as api:
+        accepted = [post(api) for _ in range(3)] + [post(api, iterations=1000)]
+        wait_for(api, accepted[0], lambda j: j["status"] == "succeeded")
+        os.unlink(tmp_path / "jobs.sqlite3-wal")
+        for _ in range(3):
+            refused(api, "write-ahead log")
+        os.killpg(live.proc.pid, signal.SIGKILL)  # the worst end: nothing shuts down cleanly
+        live.proc.wait(30)
+        wait_gone(live.proc.pid)
+    with live, httpx.Client(base_url=live.url, timeout=30) as api:
+        for job_id in accepted:  # every plan that was answered 202 is still known
+            assert api.get(f"/v1/plans/{job_id}").status_code == 200
+        assert [wait_final(api, j)["status"] for j in accepted[:3]] == ["succeeded"] * 3
+        api.delete(f"/v1/plans/{accepted[3]}")
+
+
+@pytest.mark.parametrize("damage", ["garbage", "pages"])
+def test_a_store_overwritten_in_place_refuses_new_plans_and_health(tmp_path, damage):
+    with client(tmp_path, solve=fake_plan) as api:
+        done = [post(api) for _ in range(3)]
+        for job_id in done:
+            wait_final(api, job_id)
+        path = tmp_path / "jobs.sqlite3"
+        api.app.state.store.checkpoint(final=True)
+        data = bytearray(path.read_bytes())
+        start = 0 if damage == "garbage" else 4096  # the whole file, or all but its header
+        data[start:] = b"\xa5" * (len(data) - start)
+        with open(path, "r+b") as file:  # in place: the same inode
+            file.write(bytes(data))
+        refused(api, "job store")
+
+
+def test_an_idempotency_key_makes_a_resubmission_answer_with_the_first_job(api):
+    wait_idle(api)
+    headers = {"Idempotency-Key": "sweep-7/point-3"}
+    first = api.post("/v1/plans", json=two_link_scene(), headers=headers)
+    assert first.status_code == 202, first.text
+    again = api.post("/v1/plans", json=two_link_scene(), headers=headers)
+    assert again.json()["id"] == first.json()["id"]
+    assert again.headers["location"] == first.headers["location"]
+    wait_final(api, first.json()["id"])
+    done = api.post("/v1/plans", json=two_link_scene(), headers=headers)
+    assert (done.status_code, done.json()["id"]) == (200, first.json()["id"])
+    other = api.post("/v1/plans", json=two_link_scene(), headers={"Idempotency-Key": "x"})
+    assert other.json()["id"] != first.json()["id"]
+    api.delete(f"/v1/plans/{other.json()['id']}")

@@ -10,7 +10,7 @@ import time
 import pytest
 
 from app.jobs import JobRunner, QueueFull
-from app.store import BUILDING, FINAL, INTERRUPTED, SqliteJobStore, StoreUnavailable
+from app.store import BUILDING, FINAL, RetryPolicy, SqliteJobStore, StoreUnavailable
 from app.supervisor import CANCELLED_STOPPED, TICK, died, over_budget
 from app.worker import Outcome, out_of_memory
 from testbed.fake_solvers import fake_plan
@@ -59,7 +59,8 @@ def solving(store, job_id: str) -> bool:
 
 @pytest.fixture(scope="module")
 def runner(tmp_path_factory):
-    store = SqliteJobStore(tmp_path_factory.mktemp("jobs") / "db.sqlite3")
+    store = SqliteJobStore(tmp_path_factory.mktemp("jobs") / "db.sqlite3",
+                           policy=RetryPolicy(max_retries=1, backoff=0.1))
     done: list[Outcome] = []
     r = JobRunner(store, fake_plan, owner="test", workers=2, max_queued=2, on_done=done.append)
     r.start()
@@ -190,27 +191,30 @@ def test_wait_returns_when_the_job_ends(runner):
     assert runner.store.get("waited").status == "succeeded"
 
 
-def test_a_dead_worker_fails_only_its_job_and_is_replaced(runner):
+def test_a_dead_worker_requeues_only_its_job_until_it_is_a_dead_letter(runner):
     runner.submit(scene(iterations=100), "neighbour")  # 2 s on the other worker
     wait_until(lambda: solving(runner.store, "neighbour"))
-    runner.submit(scene(tol=0.95), "crash")
+    runner.submit(scene(tol=0.95), "crash")  # kills every worker that takes it
     crash = wait_final(runner.store, "crash")
-    assert (crash.status, crash.error) == ("failed", died(3))
-    assert crash.error == ("the worker process died during the solve "
-                           "(exit status 3; out of memory?)")
+    assert (crash.status, crash.dead_letter, crash.infra_failures) == ("failed", True, 2)
+    assert crash.error == (f"dead letter: {died(3)}; it failed for infrastructure reasons "
+                           "2 times (UNDERTOW_MAX_RETRIES=1)")
+    assert died(3) == "the worker process died during the solve (exit status 3; out of memory?)"
+    assert [e["event"] for e in crash.history] == ["claimed", "infrastructure-failure"] * 2
     assert wait_final(runner.store, "neighbour").status == "succeeded"
     runner.submit(scene(), "after-crash")
     assert wait_final(runner.store, "after-crash").status == "succeeded"
 
 
-def test_a_killed_worker_fails_its_job_with_the_signal(runner):
-    runner.submit(scene(iterations=1000), "killed")
+def test_a_killed_worker_requeues_its_job_with_the_signal_in_its_history(runner):
+    runner.submit(scene(iterations=100), "killed")
     wait_until(lambda: solving(runner.store, "killed"))
     worker = next(w for w in runner.supervisor._slots if w is not None and w.job == "killed")
     os.kill(worker.process.pid, signal.SIGKILL)
     record = wait_final(runner.store, "killed")
-    assert record.error == ("the worker process died during the solve "
-                            "(killed by signal SIGKILL; out of memory?)")
+    assert (record.status, record.infra_failures, record.attempts) == ("succeeded", 1, 2)
+    assert record.history[1]["reason"] == ("the worker process died during the solve "
+                                           "(killed by signal SIGKILL; out of memory?)")
 
 
 def test_a_job_past_its_budget_and_grace_has_its_worker_stopped(make_runner):
@@ -257,7 +261,7 @@ def test_nothing_of_one_job_leaks_into_the_next(make_runner):
     assert plain.plan["solver"]["iterations"] == 7
 
 
-def test_shutdown_keeps_queued_jobs_queued_and_interrupts_running_ones(make_runner, tmp_path):
+def test_shutdown_keeps_queued_jobs_queued_and_releases_running_ones(make_runner, tmp_path):
     runner = make_runner()
     runner.submit(scene(iterations=1000), "running")
     runner.submit(scene(), "queued-1")
@@ -266,15 +270,18 @@ def test_shutdown_keeps_queued_jobs_queued_and_interrupts_running_ones(make_runn
     runner.shutdown()
     store = SqliteJobStore(tmp_path / "db.sqlite3")
     running = store.get("running")
-    assert (running.status, running.error) == ("failed", INTERRUPTED)
+    assert (running.status, running.error, running.attempts, running.infra_failures) == (
+        "queued", None, 0, 0)  # released: not a failure
+    assert running.history[-1]["event"] == "released"
     for job_id in ("queued-1", "queued-2"):
         record = store.get(job_id)
         assert (record.status, record.started, record.worker) == ("queued", None, None)
     make_runner(store)
     assert {wait_final(store, j).status for j in ("queued-1", "queued-2")} == {"succeeded"}
+    store.request_cancel("running")
 
 
-def test_start_interrupts_running_jobs_and_runs_queued_ones(tmp_path):
+def test_start_requeues_running_jobs_and_runs_queued_ones(tmp_path):
     store = SqliteJobStore(tmp_path / "db.sqlite3")
     store.create("was-running", scene(), "test")
     store.claim("test", "test/0/old", time.time() + 60)  # a worker of this server
@@ -284,8 +291,9 @@ def test_start_interrupts_running_jobs_and_runs_queued_ones(tmp_path):
     runner = JobRunner(store, fake_plan, owner="test", workers=1, max_queued=1)
     try:
         assert runner.start() == ["was-running"]
-        assert store.get("was-running").error == INTERRUPTED
         assert wait_final(store, "was-queued").status == "succeeded"
+        again = wait_final(store, "was-running")
+        assert (again.status, again.infra_failures) == ("succeeded", 1)
         assert store.get("elsewhere").status == "running"
     finally:
         runner.shutdown()

@@ -18,8 +18,9 @@ import pytest
 
 from app.store import (
     BUILDING,
-    INTERRUPTED,
+    DuplicateKey,
     JobStore,
+    RetryPolicy,
     SqliteJobStore,
     StoreDamaged,
     StoreUnavailable,
@@ -47,7 +48,7 @@ def reopen(store: JobStore) -> JobStore:
 
 
 def test_both_stores_have_had_the_same_migrations():
-    assert sqlite_store.SCHEMA_VERSION == pg_store.SCHEMA_VERSION == 4
+    assert sqlite_store.SCHEMA_VERSION == pg_store.SCHEMA_VERSION == 6
 
 
 def test_wal_mode_is_on(sqlite):
@@ -100,7 +101,7 @@ def test_cancel_queued_is_immediate_and_running_is_flagged(store):
     assert store.request_cancel("missing") is None
 
 
-def test_interrupt_marks_only_the_owners_running_jobs_held_by_its_workers(store):
+def test_recover_requeues_only_the_owners_running_jobs_held_by_its_workers(store):
     for job_id, owner in (("mine", "a"), ("other", "b"), ("waiting", "a"), ("remote", "a")):
         store.create(job_id, SCENE, owner)
     assert claim(store, "a", worker="a/0/x") == "mine"
@@ -108,9 +109,11 @@ def test_interrupt_marks_only_the_owners_running_jobs_held_by_its_workers(store)
     assert claim(store, "a", worker="ab/0/x") == "waiting"  # another instance's worker
     store.create("last", SCENE, "a")
     assert claim(store, "a", worker="elsewhere/0/x") == "remote"
-    assert store.interrupt("a") == ["mine"]
+    assert store.recover("a") == {"mine": "queued"}
     mine = store.get("mine")
-    assert (mine.status, mine.error) == ("failed", INTERRUPTED)
+    assert (mine.status, mine.error, mine.worker, mine.infra_failures) == (
+        "queued", None, None, 1)
+    assert mine.history[-1]["reason"] == "the server stopped while it ran"
     assert {store.get(j).status for j in ("other", "waiting", "remote")} == {"running"}
     assert store.get("last").status == "queued"
 
@@ -154,43 +157,98 @@ def test_the_limit_counts_the_owners_unfinished_jobs(store):
     assert store.create("d", SCENE, "host", limit=2) is None  # running counts too
 
 
-def test_leases_are_renewed_with_cancel_flags_and_expire(store):
+def test_leases_are_renewed_by_job_and_worker_with_cancel_flags_and_expire(store):
     for job_id in ("a", "b", "c"):
         store.create(job_id, SCENE, "host")
     claim(store, worker="w1", lease=-1.0)  # a: lease already over
     claim(store, worker="w2", lease=-1.0)  # b
     claim(store, worker="w3", lease=-1.0)  # c
     store.request_cancel("b")
-    assert store.renew(["w1", "w2"], time.time() + 60) == {"a": False, "b": True}
+    assert store.renew([("a", "w1"), ("b", "w2"), ("c", "w9")], time.time() + 60) == {
+        "a": False, "b": True}  # c is not w9's: its lease is not renewed
     assert store.renew([], time.time() + 60) == {}
-    assert store.expire(time.time()) == {"c": "queued"}  # requeued: its first claim
+    assert store.expire(time.time()) == {"c": "queued"}  # requeued: an infrastructure failure
     c = store.get("c")
-    assert (c.status, c.worker, c.started, c.progress, c.error) == (
-        "queued", None, None, None, None)
+    assert (c.status, c.worker, c.started, c.progress, c.error, c.infra_failures) == (
+        "queued", None, None, None, None, 1)
     assert store.get("a").status == "running"
 
 
-def test_an_expired_job_is_requeued_once_then_interrupted_or_cancelled(store):
+def test_infrastructure_failures_are_retried_after_a_pause_then_dead_lettered(store):
+    store.policy = RetryPolicy(max_retries=2, backoff=0.2, max_backoff=0.3)
     store.create("a", SCENE, "host")
-    store.create("b", SCENE, "host")
-    assert claim(store, worker="w1", lease=-1.0) == "a"
-    assert store.expire(time.time()) == {"a": "queued"}
+    assert claim(store, worker="w1") == "a"
+    assert store.requeue("a", "w2", "not w2's") is None
+    assert store.requeue("a", "w1", "the worker process died") == "queued"
     assert not store.finish("a", "succeeded", None, None, worker="w1")  # w1 lost it
-    assert claim(store, worker="w2", lease=-1.0) == "a"  # its second claim
+    assert claim(store, worker="w2") is None  # not before its pause
+    time.sleep(0.25)
+    assert claim(store, worker="w2", lease=-1.0) == "a"
     assert not store.report_progress("a", {"iteration": 1}, worker="w1")
     assert store.report_progress("a", {"iteration": 1}, worker="w2")
-    assert store.expire(time.time()) == {"a": "failed"}
+    assert store.expire(time.time()) == {"a": "queued"}
+    time.sleep(0.35)  # the second pause: doubled, at most max_backoff
+    assert claim(store, worker="w3") == "a"
+    assert store.requeue_claimed("w3", "the node's main process died") == {"a": "failed"}
     a = store.get("a")
-    assert (a.status, a.error, a.worker) == ("failed", INTERRUPTED, "w2")
+    assert (a.status, a.dead_letter, a.infra_failures, a.attempts, a.worker) == (
+        "failed", True, 3, 3, "w3")
+    assert a.error == ("dead letter: the node's main process died; it failed for "
+                       "infrastructure reasons 3 times (UNDERTOW_MAX_RETRIES=2)")
+    assert [(e["event"], e["worker"]) for e in a.history] == [
+        ("claimed", "w1"), ("infrastructure-failure", "w1"), ("claimed", "w2"),
+        ("infrastructure-failure", "w2"), ("claimed", "w3"), ("infrastructure-failure", "w3")]
+    assert [e.get("reason") for e in a.history][1::2] == [
+        "the worker process died", "its lease ran out: its worker or node was lost",
+        "the node's main process died"]
+    # re-submitted by id: queued again with a clean count, its history kept
+    assert store.retry("a", "other-host")
+    again = store.get("a")
+    assert (again.status, again.owner, again.error, again.dead_letter, again.infra_failures,
+            again.finished) == ("queued", "other-host", None, False, 0, None)
+    assert again.history[-1]["event"] == "retried"
+    assert not store.retry("a", "other-host")  # only failed or cancelled jobs
+    store.create("b", SCENE, "host")
+    assert claim(store, None, worker="w4") == "a"
+    assert store.finish("a", "failed", None, "boom", worker="w4")
+    assert not store.retry("a", "host", limit=1)  # host holds b already
+    assert store.retry("a", "host", limit=2)
+    assert store.get("a").history[-2]["reason"] == "failed"  # the verdict is in it too
+
+
+def test_a_cancelled_job_is_not_requeued_and_a_release_is_not_a_failure(store):
+    store.create("b", SCENE, "host")
     assert claim(store, worker="w3", lease=-1.0) == "b"
     store.request_cancel("b")
     assert store.expire(time.time()) == {"b": "cancelled"}
     assert store.get("b").error == "cancelled on request"
     store.create("c", SCENE, "host")  # a released claim does not count
-    assert claim(store, worker="w4", lease=-1.0) == "c"
-    assert store.release("c", "w4")
-    assert claim(store, worker="w5", lease=-1.0) == "c"
-    assert store.expire(time.time()) == {"c": "queued"}
+    assert claim(store, worker="w4") == "c"
+    assert store.release_claimed("w4", "the node was stopping") == ["c"]
+    c = store.get("c")
+    assert (c.status, c.attempts, c.infra_failures) == ("queued", 0, 0)
+    assert c.history[-1] == {**c.history[-1], "event": "released",
+                             "reason": "the node was stopping"}
+
+
+def test_a_batch_is_cancelled_whole(store):
+    members = [(f"b-{k:03d}", {**SCENE, "k": k}) for k in range(3)]
+    assert store.create_batch("b", {"base": SCENE}, members, "host")
+    assert claim(store) == "b-000"
+    assert store.cancel_batch("b") and not store.cancel_batch("missing")
+    assert [m.status for m in store.get_batch("b").members] == [
+        "running", "cancelled", "cancelled"]
+    assert store.get("b-000").cancel_requested
+    assert not store.report_progress("b-000", {"iteration": 1})
+
+
+def test_an_idempotency_key_names_one_job(store):
+    assert store.find_key("k1") is None
+    store.create("a", SCENE, "host", key="k1")
+    assert store.find_key("k1") == "a"
+    with pytest.raises(DuplicateKey):
+        store.create("b", SCENE, "host", key="k1")
+    assert store.get("b") is None
 
 
 def test_a_verdict_is_written_only_by_the_worker_holding_the_job(store):
@@ -223,13 +281,13 @@ def test_a_batch_is_stored_whole_within_the_limit_and_summarised(store):
     assert store.get_batch("missing") is None
 
 
-def test_fail_claimed_fails_only_the_workers_running_jobs(store):
+def test_requeue_claimed_requeues_only_the_workers_running_jobs(store):
     for job_id in ("a", "b", "c"):
         store.create(job_id, SCENE, "host")
     claim(store, worker="w1")
     claim(store, worker="w2")
-    assert store.fail_claimed("w1", "died") == ["a"]
-    assert (store.get("a").status, store.get("a").error) == ("failed", "died")
+    assert store.requeue_claimed("w1", "died") == {"a": "queued"}
+    assert (store.get("a").status, store.get("a").infra_failures) == ("queued", 1)
     assert store.get("b").status == "running" and store.get("c").status == "queued"
 
 
@@ -434,3 +492,80 @@ def test_check_reads_the_file_not_a_cache(tmp_path):
     overwrite(path, 4096)  # every page after the header's
     with pytest.raises(StoreUnavailable, match="malformed"):
         store.check()
+
+
+def test_a_write_ahead_log_deleted_under_the_service_refuses_writes_and_keeps_jobs(tmp_path):
+    path = tmp_path / "db.sqlite3"
+    store, worker = SqliteJobStore(path), SqliteJobStore(path)  # a server and its worker
+    for k in range(5):
+        store.create(f"j{k}", SCENE, "host")  # in the log only (no checkpoint yet)
+    assert worker.get("j4") is not None
+    os.unlink(tmp_path / "db.sqlite3-wal")
+    with pytest.raises(StoreUnavailable, match="write-ahead log .* was deleted or replaced"):
+        store.create("late", SCENE, "host")
+    with pytest.raises(StoreUnavailable, match="write-ahead log"):
+        store.check()
+    with pytest.raises(StoreUnavailable, match="write-ahead log"):
+        worker.claim(None, "w", time.time() + 60)
+    store.close()
+    worker.close()
+    again = SqliteJobStore(path)  # the restart: every job accepted before is there
+    assert [again.get(f"j{k}").status for k in range(5)] == ["queued"] * 5
+    assert again.get("late") is None
+
+
+@pytest.mark.parametrize("damage", ["garbage", "pages", "other database"])
+def test_a_file_overwritten_in_place_refuses_new_jobs_and_health(tmp_path, damage):
+    path = tmp_path / "db.sqlite3"
+    store = filled(path, 50)
+    store.check()
+    if damage == "garbage":
+        path.write_bytes(b"\x5a" * path.stat().st_size)  # same inode, same size
+    elif damage == "pages":
+        overwrite(path, 4096)  # every page after the first
+    else:
+        other = tmp_path / "other.sqlite3"
+        conn = sqlite3.connect(other)
+        conn.execute("CREATE TABLE unrelated (x)")
+        conn.commit()
+        conn.close()
+        path.write_bytes(other.read_bytes())
+    with pytest.raises(StoreUnavailable):
+        store.check()
+    with pytest.raises(StoreUnavailable):
+        store.create("new", SCENE, "host")
+    with pytest.raises(StoreUnavailable):
+        store.create_batch("b", {}, [("b-0", SCENE)], "host")
+
+
+def test_finished_jobs_past_their_retention_are_deleted(store):
+    for k in range(5):
+        store.create(f"j{k}", SCENE, "host")
+    members = [(f"b-{k}", SCENE) for k in range(2)]
+    store.create_batch("b", {"base": SCENE}, members, "host")
+    for k in range(4):
+        job_id = claim(store, worker=f"w{k}")
+        assert store.finish(job_id, "succeeded", None, None)
+        time.sleep(0.01)
+    assert store.purge(time.time() - 3600, keep=3) == 1  # the oldest finished one
+    assert store.get("j0") is None and store.get("j1") is not None
+    assert store.purge(time.time() + 1, keep=100) == 3  # every finished one: all too old
+    assert sorted(r.id for r in store.list(limit=10)) == ["b-0", "b-1", "j4"]  # unfinished stay
+    for k in range(3):
+        job_id = claim(store, worker=f"v{k}")
+        store.finish(job_id, "failed", None, "x")
+    assert store.purge(time.time() + 1, keep=100) == 3
+    assert store.get_batch("b") is None  # no member left
+
+
+def test_heartbeats_list_the_live_workers(store):
+    started = time.time()
+    store.heartbeat("node-b:worker:7", 2, 1, started)
+    store.heartbeat("api-a", 1, 0, started)
+    store.heartbeat("node-b:worker:7", 2, 2, started)
+    listed = store.workers(started - 1)
+    assert [(w.name, w.processes, w.busy) for w in listed] == [
+        ("api-a", 1, 0), ("node-b:worker:7", 2, 2)]
+    assert store.workers(time.time() + 1) == []  # none heard from since
+    store.forget_worker("api-a")
+    assert [w.name for w in store.workers(started - 1)] == ["node-b:worker:7"]

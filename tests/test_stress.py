@@ -216,12 +216,9 @@ def test_every_badly_scaled_robot_plans_to_finite_numbers(case):
 
 
 @pytest.mark.slow
-def test_a_killed_worker_fails_its_job_and_the_server_recovers(tmp_path):
-    import signal
-
+def test_a_killed_worker_requeues_its_job_and_the_server_recovers(tmp_path):
     import httpx
 
-    from app.supervisor import died
     from testbed.probes import kill_worker_case
     from testbed.service import LiveServer
 
@@ -229,7 +226,9 @@ def test_a_killed_worker_fails_its_job_and_the_server_recovers(tmp_path):
             httpx.Client(base_url=live.url, timeout=60) as http:
         out = kill_worker_case(live, http)
     assert out["workers killed"] >= 1
-    assert (out["job status"], out["job error"]) == ("failed", died(-signal.SIGKILL))
+    assert out["infrastructure failures"] == 1  # requeued, then run to the solver's verdict
+    assert out["job status"] in ("succeeded", "failed") and "dead letter" not in str(
+        out["job error"]) and "worker process died" not in str(out["job error"])
     assert out["healthz"] == 200 and out["next plan"] == "succeeded"
 
 

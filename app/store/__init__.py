@@ -4,20 +4,24 @@ PostgreSQL one (`app.store.postgres`, imported where `app.store.open` chooses it
 from app.store.base import (
     BUILDING,
     CANCELLED_ON_REQUEST,
+    DEAD_LETTER,
     FINAL,
     INTERRUPTED,
-    MAX_ATTEMPTS,
     STATUSES,
     BatchRecord,
+    DuplicateKey,
     JobRecord,
     JobStatus,
     JobStore,
     MemberRecord,
+    RetryPolicy,
     StoreDamaged,
     StoreUnavailable,
+    WorkerRecord,
 )
 from app.store.sqlite import SqliteJobStore
 
-__all__ = ["BUILDING", "CANCELLED_ON_REQUEST", "FINAL", "INTERRUPTED", "MAX_ATTEMPTS", "STATUSES",
-           "BatchRecord", "JobRecord", "JobStatus", "JobStore", "MemberRecord", "SqliteJobStore",
-           "StoreDamaged", "StoreUnavailable"]
+__all__ = ["BUILDING", "CANCELLED_ON_REQUEST", "DEAD_LETTER", "FINAL", "INTERRUPTED",
+           "STATUSES", "BatchRecord", "DuplicateKey", "JobRecord", "JobStatus", "JobStore",
+           "MemberRecord", "RetryPolicy", "SqliteJobStore", "StoreDamaged", "StoreUnavailable",
+           "WorkerRecord"]

@@ -4,12 +4,20 @@ A store must be safe to use from several threads and processes at once, and pick
 worker processes receive the store object and reopen it on their side.
 
 Workers take jobs by claiming them: one conditional update turns the oldest queued job
-into a running one that names its worker and holds a lease until a given time. Whoever
-supervises the worker renews the lease while the worker lives; a running job whose lease
-ran out has lost its worker (killed, or its machine lost) and whoever notices (`expire`:
-any server or worker sharing the store) requeues it once; a job that loses its worker a
-second time (`MAX_ATTEMPTS` claims) is marked interrupted, and one whose cancel was
-requested is cancelled.
+(whose retry time, if any, has come) into a running one that names its worker and holds a
+lease until a given time. Whoever supervises the worker renews the lease of each job it
+knows the worker runs (by job and worker, never by worker alone) while the worker lives.
+
+Two kinds of failure are counted apart. A solver failure (the solver did not converge,
+raised, ran out of its budget) is the job's verdict: `failed`, never retried by itself.
+An infrastructure failure (the worker process died, its node's main process died, the
+lease ran out because a node or its machine was lost, the server restarted under the
+job) is not the job's fault: the job is requeued (`requeue`) with a growing pause before
+it may be claimed again (`RetryPolicy`), up to `RetryPolicy.max_retries` times; one more
+and it ends `failed` as a *dead letter* (`dead_letter`, error "dead letter: ..."), with
+its `history` of claims and failures. A job whose cancel was requested is cancelled
+instead. A claim given back on purpose (`release`: a node stopping, SIGTERM) is no
+failure and not counted. A failed or cancelled job can be queued again by id (`retry`).
 
 A batch is a set of jobs created together (one transaction) with the specification they
 came from; its members are read back with the few figures of their plans a summary needs.
@@ -26,16 +34,35 @@ JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
 STATUSES: tuple[JobStatus, ...] = ("queued", "running", "succeeded", "failed", "cancelled")
 FINAL: frozenset[str] = frozenset({"succeeded", "failed", "cancelled"})
 INTERRUPTED = "interrupted"
-MAX_ATTEMPTS = 2
-"""Claims a job may have: a job whose lease ran out is requeued until it has had these."""
+DEAD_LETTER = "dead letter"
+"""The start of the error of a job that failed for infrastructure reasons too often."""
 CANCELLED_ON_REQUEST = "cancelled on request"
 BUILDING: dict[str, Any] = {"phase": "building", "iteration": 0, "objective": None,
                             "inf_pr": None, "inf_du": None, "elapsed": 0.0, "mesh_pass": 0}
 """The progress of a job from its claim until the solver's first iteration."""
 
 
+@dataclass(frozen=True)
+class RetryPolicy:
+    """How infrastructure failures are retried: the n-th requeue waits
+    min(`max_backoff`, `backoff` * 2**(n-1)) seconds before the job may be claimed again;
+    after `max_retries` requeues the next failure makes the job a dead letter."""
+
+    max_retries: int = 3
+    backoff: float = 1.0
+    max_backoff: float = 60.0
+
+    def delay(self, failures: int) -> float:
+        """The pause after the job's `failures`-th infrastructure failure [s]."""
+        return min(self.max_backoff, self.backoff * 2.0 ** max(0, failures - 1))
+
+
 class StoreUnavailable(Exception):
     """The store cannot be used (file deleted or replaced, disk error, damaged database)."""
+
+
+class DuplicateKey(Exception):
+    """Another job was created with the same idempotency key."""
 
 
 class StoreDamaged(StoreUnavailable):
@@ -59,6 +86,14 @@ class JobRecord:
     started: float | None
     finished: float | None
     worker: str | None = None
+    attempts: int = 0
+    """Claims the job has had."""
+    infra_failures: int = 0
+    """Infrastructure failures it has had (each one requeued it, or made it a dead letter)."""
+    dead_letter: bool = False
+    history: list[dict[str, Any]] | None = None
+    """Claims, releases, infrastructure failures, retries and the verdict, oldest first:
+    {"at": Unix seconds, "event": ..., "worker": ..., "reason": ...}."""
 
 
 @dataclass(frozen=True)
@@ -77,6 +112,18 @@ class MemberRecord:
 
 
 @dataclass(frozen=True)
+class WorkerRecord:
+    """A supervisor of solver processes (a server's or a worker node's) as its last
+    heartbeat left it. Times are Unix seconds."""
+
+    name: str
+    processes: int
+    busy: int
+    started: float
+    seen: float
+
+
+@dataclass(frozen=True)
 class BatchRecord:
     """One stored batch: its specification (a JSON object) and its members by index."""
 
@@ -92,11 +139,15 @@ class JobStore(ABC):
     so a late writer (an orphaned worker, a second server) can never overwrite a verdict.
     Every method raises StoreUnavailable when the store cannot be reached."""
 
+    policy: RetryPolicy = RetryPolicy()
+    """How this store's users retry infrastructure failures (set by `app.store.open`)."""
+
     @abstractmethod
     def create(self, job_id: str, scene: dict[str, Any], owner: str,
-               limit: int | None = None) -> JobRecord | None:
+               limit: int | None = None, key: str | None = None) -> JobRecord | None:
         """Store a new queued job; None (nothing stored) when `owner` already has `limit`
-        unfinished (queued or running) jobs."""
+        unfinished (queued or running) jobs. `key`: an idempotency key, unique among
+        jobs (IntegrityError when another job has it)."""
 
     @abstractmethod
     def get(self, job_id: str) -> JobRecord | None:
@@ -104,8 +155,8 @@ class JobStore(ABC):
 
     @abstractmethod
     def list(self, status: JobStatus | None = None, limit: int = 50,
-             offset: int = 0) -> list[JobRecord]:
-        """Jobs, newest first, optionally of one status."""
+             offset: int = 0, dead_letter: bool | None = None) -> list[JobRecord]:
+        """Jobs, newest first, optionally of one status, and dead letters or not."""
 
     @abstractmethod
     def count_by_status(self) -> dict[str, int]:
@@ -113,12 +164,35 @@ class JobStore(ABC):
 
     @abstractmethod
     def claim(self, owner: str | None, worker: str, lease_until: float) -> JobRecord | None:
-        """The oldest queued job (of `owner`; of anyone when None) turned running for
-        `worker`, with progress `BUILDING`; None when there is none."""
+        """The oldest queued job (of `owner`; of anyone when None) whose retry time has
+        come, turned running for `worker`, with progress `BUILDING`; None when there is
+        none."""
 
     @abstractmethod
-    def release(self, job_id: str, worker: str) -> bool:
-        """Give a claim back: running (by `worker`) -> queued, as if never claimed."""
+    def release(self, job_id: str, worker: str, reason: str = "released") -> bool:
+        """Give a claim back: running (by `worker`) -> queued, as if never claimed (a
+        cancel requested meanwhile cancels it instead)."""
+
+    @abstractmethod
+    def release_claimed(self, worker: str, reason: str) -> builtins.list[str]:
+        """`release` every running job of `worker`; their ids."""
+
+    @abstractmethod
+    def requeue(self, job_id: str, worker: str | None, reason: str) -> JobStatus | None:
+        """An infrastructure failure of a running job (held by `worker` when given):
+        cancelled when a cancel was requested, else queued again after the policy's pause,
+        or failed as a dead letter once it has had `max_retries` requeues. The new status,
+        None when the job was not running there."""
+
+    @abstractmethod
+    def requeue_claimed(self, worker: str, reason: str) -> dict[str, JobStatus]:
+        """`requeue` every running job of `worker`; {job id: new status}."""
+
+    @abstractmethod
+    def retry(self, job_id: str, owner: str, limit: int | None = None) -> bool:
+        """A failed or cancelled job queued again for `owner` (verdict, plan and failure
+        count cleared, history kept); False when it is not failed or cancelled, or when
+        `owner` already has `limit` unfinished jobs."""
 
     @abstractmethod
     def report_progress(self, job_id: str, progress: dict[str, Any],
@@ -143,28 +217,30 @@ class JobStore(ABC):
         """queued or running -> failed with an error; False if it was already final."""
 
     @abstractmethod
-    def fail_claimed(self, worker: str, error: str) -> builtins.list[str]:
-        """Mark the running jobs of `worker` failed with `error`; their ids."""
-
-    @abstractmethod
     def request_cancel(self, job_id: str) -> JobRecord | None:
         """Cancel: a queued job becomes cancelled at once, a running one is flagged for
         its worker to stop; a final job is left as it is. None when there is no such id."""
 
     @abstractmethod
-    def renew(self, workers: builtins.list[str], lease_until: float) -> dict[str, bool]:
-        """Extend the leases of the running jobs of `workers`; {job id: cancel requested}."""
+    def renew(self, claims: builtins.list[tuple[str, str]],
+              lease_until: float) -> dict[str, bool]:
+        """Extend the leases of the running jobs of (job id, worker) `claims`; {job id:
+        cancel requested} of those still running there."""
 
     @abstractmethod
     def expire(self, now: float) -> dict[str, JobStatus]:
-        """Settle the running jobs whose lease ended before `now`: cancelled when a cancel
-        was requested, else queued again (claim forgotten) while they have had fewer than
-        `MAX_ATTEMPTS` claims, else failed ("interrupted"). {job id: new status}."""
+        """`requeue` the running jobs whose lease ended before `now` (their worker or
+        node was lost); {job id: new status}."""
 
     @abstractmethod
-    def interrupt(self, owner: str) -> builtins.list[str]:
-        """Mark the running jobs of `owner` held by its own workers (named "owner/...")
-        failed with error "interrupted"; their ids."""
+    def recover(self, owner: str) -> dict[str, JobStatus]:
+        """`requeue` the running jobs of `owner` held by its own workers (named
+        "owner/..."): they ran when the server stopped; {job id: new status}."""
+
+    @abstractmethod
+    def cancel_batch(self, batch_id: str) -> bool:
+        """`request_cancel` every unfinished member of the batch; False when there is no
+        such batch."""
 
     @abstractmethod
     def create_batch(self, batch_id: str, spec: dict[str, Any],
@@ -173,6 +249,28 @@ class JobStore(ABC):
         """Store a batch and its members (job id, scene) as queued jobs, all or none;
         False (nothing stored) when `owner` would then hold more than `limit` unfinished
         jobs."""
+
+    @abstractmethod
+    def purge(self, before: float, keep: int) -> int:
+        """Delete the finished jobs that ended before `before` and those beyond the
+        newest `keep` finished ones (and batches left without members); how many jobs."""
+
+    @abstractmethod
+    def heartbeat(self, name: str, processes: int, busy: int, started: float) -> None:
+        """Record that supervisor `name` lives, with `busy` of its `processes` running a
+        job (and forget supervisors silent for an hour)."""
+
+    @abstractmethod
+    def forget_worker(self, name: str) -> None:
+        """Remove supervisor `name` (it stopped)."""
+
+    @abstractmethod
+    def workers(self, since: float) -> builtins.list[WorkerRecord]:
+        """The supervisors heard from since `since`, by name."""
+
+    @abstractmethod
+    def find_key(self, key: str) -> str | None:
+        """The id of the job created with idempotency key `key`, or None."""
 
     @abstractmethod
     def get_batch(self, batch_id: str) -> BatchRecord | None:

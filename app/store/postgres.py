@@ -17,8 +17,10 @@ machines of one deployment keep their clocks synchronised (NTP).
 from __future__ import annotations
 
 import builtins
+import contextlib
 import json
 import os
+import re
 import threading
 import time
 import zlib
@@ -32,15 +34,17 @@ from psycopg_pool import ConnectionPool, PoolTimeout
 
 from app.store.base import (
     CANCELLED_ON_REQUEST,
-    INTERRUPTED,
-    MAX_ATTEMPTS,
     BatchRecord,
+    DuplicateKey,
     JobRecord,
-    JobStatus,
     MemberRecord,
+    RetryPolicy,
     StoreUnavailable,
 )
 from app.store.sql import COLUMNS, SqlJobStore
+
+CHANNEL = "undertow_jobs"
+"""The channel notified (once per transaction) whenever a job becomes queued."""
 
 _MIGRATIONS: tuple[tuple[str, ...], ...] = (
     (  # 1: the jobs table
@@ -78,21 +82,38 @@ _MIGRATIONS: tuple[tuple[str, ...], ...] = (
             created double precision NOT NULL,
             spec    jsonb NOT NULL)""",
     ),
+    (  # 5: infrastructure failures counted apart, retried after a pause, dead letters,
+       # the claim's history, idempotency keys; a notification whenever a job is queued
+        "ALTER TABLE jobs ADD COLUMN infra_failures integer NOT NULL DEFAULT 0, "
+        "ADD COLUMN dead_letter boolean NOT NULL DEFAULT false, "
+        "ADD COLUMN not_before double precision, ADD COLUMN lease double precision, "
+        "ADD COLUMN history jsonb, ADD COLUMN idem_key text",
+        "CREATE UNIQUE INDEX IF NOT EXISTS jobs_idem_key ON jobs (idem_key) "
+        "WHERE idem_key IS NOT NULL",
+        f"""CREATE OR REPLACE FUNCTION undertow_job_queued() RETURNS trigger
+            LANGUAGE plpgsql AS $$ BEGIN PERFORM pg_notify('{CHANNEL}', ''); RETURN NULL;
+            END $$""",
+        "CREATE TRIGGER undertow_job_queued AFTER INSERT OR UPDATE OF status ON jobs "
+        "FOR EACH ROW WHEN (NEW.status = 'queued') EXECUTE FUNCTION undertow_job_queued()",
+    ),
+    (  # 6: the live solver workers, each supervisor's heartbeat
+        """CREATE TABLE IF NOT EXISTS workers (
+            name      TEXT PRIMARY KEY,
+            processes INTEGER NOT NULL,
+            busy      INTEGER NOT NULL,
+            started   double precision NOT NULL,
+            seen      double precision NOT NULL)""",
+    ),
 )
 SCHEMA_VERSION = len(_MIGRATIONS)
 _MIGRATION_LOCK = 0x756E6474  # advisory lock key held while migrating ("undt")
 
 _MEMBER_COLUMNS = ("id, member, status, error, (plan->'verification'->>'verified')::boolean, "
                    "(plan->>'objective')::double precision, started, finished")
-_REQUEUE = "NOT cancel_requested AND attempts < %(max)s"
-_EXPIRED = (  # the settlement of a running job whose lease ran out (see JobStore.expire)
-    "status = CASE WHEN cancel_requested THEN 'cancelled' WHEN attempts < %(max)s "
-    "THEN 'queued' ELSE 'failed' END, error = CASE WHEN cancel_requested THEN %(cancelled)s "
-    "WHEN attempts < %(max)s THEN NULL ELSE %(interrupted)s END, "
-    f"finished = CASE WHEN {_REQUEUE} THEN NULL ELSE %(now)s END, "
-    f"started = CASE WHEN {_REQUEUE} THEN NULL ELSE started END, "
-    f"progress = CASE WHEN {_REQUEUE} THEN NULL ELSE progress END, "
-    f"worker = CASE WHEN {_REQUEUE} THEN NULL ELSE worker END, lease_until = NULL")
+
+
+_NAMED = re.compile(r"(?<![:\w]):([a-z_]+)")
+"""A named parameter of the shared statements (`:name`, never a `::type` cast)."""
 
 
 def _jsonb(value: Any) -> Jsonb | None:
@@ -106,10 +127,11 @@ def _dumps(value: Any) -> str:
 
 def _job(row: tuple) -> JobRecord:
     (id_, status, scene, progress, plan, error, cancel, owner, created, started,
-     finished, worker) = row
+     finished, worker, attempts, infra, dead, events) = row
     return JobRecord(id=id_, status=status, scene=scene, progress=progress, plan=plan,
                      error=error, cancel_requested=cancel, owner=owner, created=created,
-                     started=started, finished=finished, worker=worker)
+                     started=started, finished=finished, worker=worker, attempts=attempts,
+                     infra_failures=infra, dead_letter=dead, history=events)
 
 
 def _member(row: tuple) -> MemberRecord:
@@ -139,9 +161,13 @@ class PostgresJobStore(SqlJobStore):
     `timeout` seconds, or fails on the server, raises StoreUnavailable."""
 
     claim_lock = "FOR UPDATE SKIP LOCKED"
+    expire_guard = ("AND EXTRACT(EPOCH FROM pg_postmaster_start_time()) + COALESCE(lease, 0) "
+                    "< :expired")
 
-    def __init__(self, url: str, pool_size: int = 4, timeout: float = 10.0):
+    def __init__(self, url: str, pool_size: int = 4, timeout: float = 10.0,
+                 policy: RetryPolicy | None = None):
         self.url, self.pool_size, self.timeout = url, pool_size, timeout
+        self.policy = policy or RetryPolicy()
         self._lock = threading.Lock()
         self._pool: ConnectionPool | None = None
         self._pid = os.getpid()
@@ -152,10 +178,12 @@ class PostgresJobStore(SqlJobStore):
             raise
 
     def __getstate__(self) -> dict[str, Any]:
-        return {"url": self.url, "pool_size": self.pool_size, "timeout": self.timeout}
+        return {"url": self.url, "pool_size": self.pool_size, "timeout": self.timeout,
+                "policy": self.policy}
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.url, self.pool_size, self.timeout = state["url"], state["pool_size"], state["timeout"]
+        self.policy = state["policy"]
         self._lock, self._pool, self._pid = threading.Lock(), None, os.getpid()
 
     def _where(self) -> str:
@@ -178,7 +206,7 @@ class PostgresJobStore(SqlJobStore):
                 self._pool = ConnectionPool(
                     self.url, min_size=1, max_size=self.pool_size, timeout=self.timeout,
                     kwargs={"autocommit": True, "connect_timeout": max(1, int(self.timeout))},
-                    open=True, name="undertow-jobs")
+                    check=ConnectionPool.check_connection, open=True, name="undertow-jobs")
                 self._pid = os.getpid()
             return self._pool
 
@@ -194,9 +222,9 @@ class PostgresJobStore(SqlJobStore):
 
     def _rows(self, sql: str, params: tuple | dict = ()) -> builtins.list[tuple]:
         """Every row of one statement (autocommit: a write is complete on return); the
-        shared statements' `?` parameters become psycopg's `%s`."""
-        if isinstance(params, tuple):
-            sql = sql.replace("?", "%s")
+        shared statements' `?` and `:name` parameters become psycopg's `%s`, `%(name)s`."""
+        named = not isinstance(params, tuple)
+        sql = _NAMED.sub(r"%(\1)s", sql) if named else sql.replace("?", "%s")
         with self._connection() as conn:
             cursor = conn.execute(sql, params)
             return cursor.fetchall() if cursor.description is not None else []
@@ -239,16 +267,27 @@ class PostgresJobStore(SqlJobStore):
         return self._rows("SELECT version FROM undertow_schema")[0][0]
 
     def create(self, job_id: str, scene: dict[str, Any], owner: str,
-               limit: int | None = None) -> JobRecord | None:
-        insert = ("INSERT INTO jobs (id, status, scene, owner, created) "
-                  f"VALUES (%s, 'queued', %s, %s, %s) RETURNING {COLUMNS}")
-        values = (job_id, _jsonb(scene), owner, time.time())
-        if limit is None:
-            return _job(self._rows(insert, values)[0])
+               limit: int | None = None, key: str | None = None) -> JobRecord | None:
+        insert = ("INSERT INTO jobs (id, status, scene, owner, created, idem_key) "
+                  f"VALUES (%s, 'queued', %s, %s, %s, %s) RETURNING {COLUMNS}")
+        values = (job_id, _jsonb(scene), owner, time.time(), key)
+        try:
+            if limit is None:
+                return _job(self._rows(insert, values)[0])
+            with self._connection() as conn, conn.transaction():
+                if self._held(conn, owner) >= limit:
+                    return None
+                return _job(_one(conn.execute(insert, values)))
+        except psycopg.errors.UniqueViolation as exc:
+            raise DuplicateKey(key) from exc
+
+    def retry(self, job_id: str, owner: str, limit: int | None = None) -> bool:
+        params = {"id": job_id, "owner": owner, "limit": limit, "now": time.time()}
+        sql = _NAMED.sub(r"%(\1)s", self._retry_statement(False))
         with self._connection() as conn, conn.transaction():
-            if self._held(conn, owner) >= limit:
-                return None
-            return _job(_one(conn.execute(insert, values)))
+            if limit is not None and self._held(conn, owner) >= limit:
+                return False
+            return conn.execute(sql, params).fetchone() is not None
 
     @staticmethod
     def _held(conn: psycopg.Connection, owner: str) -> int:
@@ -266,24 +305,25 @@ class PostgresJobStore(SqlJobStore):
             "WHERE id = %s AND status IN ('queued', 'running')", (time.time(), job_id))
         return self.get(job_id)
 
-    def renew(self, workers: builtins.list[str], lease_until: float) -> dict[str, bool]:
-        if not workers:
-            return {}
-        rows = self._rows(
-            "UPDATE jobs SET lease_until = %s WHERE status = 'running' AND worker = ANY(%s) "
-            "RETURNING id, cancel_requested", (lease_until, workers))
-        return {job_id: cancel for job_id, cancel in rows}
+    def cancel_batch(self, batch_id: str) -> bool:
+        with self._connection() as conn, conn.transaction():
+            if conn.execute("SELECT 1 FROM batches WHERE id = %s", (batch_id,)).fetchone() is None:
+                return False
+            conn.execute(
+                "UPDATE jobs SET cancel_requested = true, "
+                "status = CASE WHEN status = 'queued' THEN 'cancelled' ELSE status END, "
+                "error = CASE WHEN status = 'queued' THEN %s ELSE error END, "
+                "finished = CASE WHEN status = 'queued' THEN %s ELSE finished END "
+                "WHERE batch = %s AND status IN ('queued', 'running')",
+                (CANCELLED_ON_REQUEST, time.time(), batch_id))
+        return True
 
-    def expire(self, now: float) -> dict[str, JobStatus]:
-        rows = self._rows(
-            f"UPDATE jobs SET {_EXPIRED} WHERE status = 'running' AND lease_until < %(now)s "
-            "RETURNING id, status", {"max": MAX_ATTEMPTS, "cancelled": CANCELLED_ON_REQUEST,
-                                     "interrupted": INTERRUPTED, "now": now})
-        return dict(rows)
+    def _push(self, pairs: str) -> str:
+        return f"COALESCE(history, '[]'::jsonb) || jsonb_build_array(jsonb_build_object({pairs}))"
 
-    def interrupt(self, owner: str) -> builtins.list[str]:
-        return self._fail_running("owner = %s AND starts_with(worker, %s)",
-                                  (owner, owner + "/"), INTERRUPTED)
+    def listen(self) -> Listener:
+        """A connection of its own that hears whenever a job is queued."""
+        return Listener(self.url, self.timeout)
 
     def create_batch(self, batch_id: str, spec: dict[str, Any],
                      members: builtins.list[tuple[str, dict[str, Any]]], owner: str,
@@ -327,3 +367,32 @@ class PostgresJobStore(SqlJobStore):
             if self._pool is not None and self._pid == os.getpid():
                 self._pool.close()
             self._pool = None
+
+
+class Listener:
+    """LISTEN on the channel of queued jobs through a connection of its own: `fileno()`
+    to wait on with select, `drain()` to read what arrived. Any failure closes it (the
+    caller falls back to polling and opens a new one later)."""
+
+    def __init__(self, url: str, timeout: float):
+        self.conn = psycopg.connect(url, autocommit=True, connect_timeout=max(1, int(timeout)))
+        self.conn.execute(f"LISTEN {CHANNEL}")
+
+    def fileno(self) -> int:
+        return self.conn.fileno()
+
+    def drain(self) -> int:
+        """How many notifications arrived (0 or more); raises psycopg.Error when the
+        connection broke."""
+        pgconn = self.conn.pgconn
+        pgconn.consume_input()
+        count = 0
+        while pgconn.notifies() is not None:
+            count += 1
+        if pgconn.status != psycopg.pq.ConnStatus.OK:
+            raise psycopg.OperationalError("the listening connection broke")
+        return count
+
+    def close(self) -> None:
+        with contextlib.suppress(psycopg.Error):
+            self.conn.close()

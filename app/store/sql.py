@@ -1,25 +1,47 @@
 """The statements the SQL job stores share, written once.
 
-They are in SQLite's parameter style (`?`); a store runs them through its `_rows` (reads)
-and `_write` (writes) and converts its own JSON columns and rows (`_json`, `_from_json`,
-`_record`). What differs between the databases (creating jobs within a limit, leases,
-batches, migrations, integrity) stays with each store.
+They name their parameters (`:name`, SQLite's style; the PostgreSQL store rewrites them as
+psycopg's `%(name)s`); a store runs them through its `_rows` (reads) and `_write` (writes)
+and converts its own JSON columns and rows (`_json`, `_from_json`, `_record`), and appends
+to a job's history with its own JSON functions (`_push`). What differs between the
+databases (creating jobs within a limit, batches, migrations, integrity) stays with each
+store.
 """
 
 from __future__ import annotations
 
 import builtins
+import json
 import time
 from abc import abstractmethod
 from typing import Any
 
-from app.store.base import BUILDING, STATUSES, JobRecord, JobStatus, JobStore
+from app.store.base import (
+    BUILDING,
+    CANCELLED_ON_REQUEST,
+    DEAD_LETTER,
+    STATUSES,
+    JobRecord,
+    JobStatus,
+    JobStore,
+    WorkerRecord,
+)
 
 COLUMNS = ("id, status, scene, progress, plan, error, cancel_requested, owner, "
-           "created, started, finished, worker")
+           "created, started, finished, worker, attempts, infra_failures, dead_letter, "
+           "history")
 """The columns of a job, in the order `_record` reads them."""
-NO_WORKER_OR = "(CAST(? AS TEXT) IS NULL OR worker = ?)"
+NO_WORKER_OR = "(CAST(:worker AS TEXT) IS NULL OR worker = :worker)"
 """A condition that holds for any worker when the parameter is NULL, else for that one."""
+_NOW = "CAST(:now AS DOUBLE PRECISION)"
+_REQUEUE = "(NOT cancel_requested AND infra_failures < :max)"
+"""A running job that fails for an infrastructure reason goes back to the queue."""
+
+
+def event(kind: str, worker: str = "worker", reason: str | None = None) -> str:
+    """The key-value list of a history entry (`worker`, `reason`: SQL expressions)."""
+    pairs = f"'at', {_NOW}, 'event', '{kind}', 'worker', {worker}"
+    return pairs + (f", 'reason', {reason}" if reason else "")
 
 
 class SqlJobStore(JobStore):
@@ -27,6 +49,9 @@ class SqlJobStore(JobStore):
 
     claim_lock = ""
     """Appended to the claim's row choice ("FOR UPDATE SKIP LOCKED" where rows lock)."""
+    expire_guard = ""
+    """Appended to the condition of an expired lease (PostgreSQL: not within a lease of a
+    server restart, when nobody could renew)."""
 
     @abstractmethod
     def _rows(self, sql: str, params: tuple | dict = ()) -> builtins.list[tuple]:
@@ -48,13 +73,24 @@ class SqlJobStore(JobStore):
     def _record(self, row: tuple) -> JobRecord:
         """A row of COLUMNS as a job."""
 
+    @abstractmethod
+    def _push(self, pairs: str) -> str:
+        """The SQL of the job's history with one entry appended, an object of the
+        key-value list `pairs` (SQL expressions)."""
+
     def get(self, job_id: str) -> JobRecord | None:
         rows = self._rows(f"SELECT {COLUMNS} FROM jobs WHERE id = ?", (job_id,))
         return self._record(rows[0]) if rows else None
 
     def list(self, status: JobStatus | None = None, limit: int = 50,
-             offset: int = 0) -> builtins.list[JobRecord]:
-        where, params = ("WHERE status = ?", (status,)) if status else ("", ())
+             offset: int = 0, dead_letter: bool | None = None) -> builtins.list[JobRecord]:
+        conditions, params = [], []
+        if status:
+            conditions.append("status = ?")
+            params.append(status)
+        if dead_letter is not None:
+            conditions.append("dead_letter" if dead_letter else "NOT dead_letter")
+        where = f"WHERE {' AND '.join(conditions)}" if conditions else ""
         rows = self._rows(
             f"SELECT {COLUMNS} FROM jobs {where} ORDER BY created DESC, id LIMIT ? OFFSET ?",
             (*params, limit, offset))
@@ -66,42 +102,162 @@ class SqlJobStore(JobStore):
             counts[status] = count
         return counts
 
-    def claim(self, owner: str | None, worker: str, lease_until: float) -> JobRecord | None:
-        mine, params = ("AND owner = ?", (owner,)) if owner is not None else ("", ())
+    def purge(self, before: float, keep: int) -> int:
+        final = "status IN ('succeeded', 'failed', 'cancelled')"
         rows = self._write(
-            "UPDATE jobs SET status = 'running', started = ?, worker = ?, lease_until = ?, "
-            "progress = ?, attempts = attempts + 1 WHERE status = 'queued' AND id = "
-            f"(SELECT id FROM jobs WHERE status = 'queued' {mine} ORDER BY created, id "
+            f"DELETE FROM jobs WHERE {final} AND (finished < :before OR id IN (SELECT id "
+            f"FROM jobs WHERE {final} ORDER BY finished DESC, id LIMIT :all OFFSET :keep)) "
+            "RETURNING id", {"before": before, "keep": keep, "all": 2**62})
+        if rows:
+            self._write("DELETE FROM batches WHERE NOT EXISTS (SELECT 1 FROM jobs "
+                        "WHERE jobs.batch = batches.id) RETURNING id")
+        return len(rows)
+
+    def heartbeat(self, name: str, processes: int, busy: int, started: float) -> None:
+        now = time.time()
+        self._write("INSERT INTO workers (name, processes, busy, started, seen) VALUES "
+                    "(:name, :processes, :busy, :started, :now) ON CONFLICT (name) DO UPDATE "
+                    "SET processes = :processes, busy = :busy, seen = :now RETURNING name",
+                    {"name": name, "processes": processes, "busy": busy, "started": started,
+                     "now": now})
+        self._write("DELETE FROM workers WHERE seen < :old RETURNING name", {"old": now - 3600})
+
+    def forget_worker(self, name: str) -> None:
+        self._write("DELETE FROM workers WHERE name = ? RETURNING name", (name,))
+
+    def workers(self, since: float) -> builtins.list[WorkerRecord]:
+        rows = self._rows("SELECT name, processes, busy, started, seen FROM workers "
+                          "WHERE seen >= ? ORDER BY name", (since,))
+        return [WorkerRecord(*row) for row in rows]
+
+    def find_key(self, key: str) -> str | None:
+        rows = self._rows("SELECT id FROM jobs WHERE idem_key = ?", (key,))
+        return rows[0][0] if rows else None
+
+    def claim(self, owner: str | None, worker: str, lease_until: float) -> JobRecord | None:
+        now = time.time()
+        mine = "AND owner = :owner" if owner is not None else ""
+        rows = self._write(
+            "UPDATE jobs SET status = 'running', started = :now, worker = :worker, "
+            "lease_until = :until, lease = :lease, not_before = NULL, progress = :progress, "
+            "attempts = attempts + 1, "
+            f"history = {self._push(event('claimed', 'CAST(:worker AS TEXT)'))} "
+            "WHERE status = 'queued' AND id = (SELECT id FROM jobs WHERE status = 'queued' "
+            f"{mine} AND (not_before IS NULL OR not_before <= :now) ORDER BY created, id "
             f"LIMIT 1 {self.claim_lock}) RETURNING {COLUMNS}",
-            (time.time(), worker, lease_until, self._json(BUILDING), *params))
+            {"now": now, "worker": worker, "until": lease_until, "lease": lease_until - now,
+             "progress": self._json(BUILDING), "owner": owner})
         return self._record(rows[0]) if rows else None
 
-    def release(self, job_id: str, worker: str) -> bool:
+    def _release(self, condition: str, params: dict[str, Any]) -> builtins.list[str]:
         rows = self._write(
             "UPDATE jobs SET status = CASE WHEN cancel_requested THEN 'cancelled' "
-            "ELSE 'queued' END, finished = CASE WHEN cancel_requested THEN ? END, "
+            "ELSE 'queued' END, error = CASE WHEN cancel_requested THEN :cancelled END, "
+            "finished = CASE WHEN cancel_requested THEN :now END, "
             "started = NULL, worker = NULL, lease_until = NULL, progress = NULL, "
-            "attempts = attempts - 1 "
-            "WHERE id = ? AND worker = ? AND status = 'running' RETURNING id",
-            (time.time(), job_id, worker))
-        return bool(rows)
+            "attempts = attempts - 1, "
+            f"history = {self._push(event('released', reason='CAST(:reason AS TEXT)'))} "
+            f"WHERE status = 'running' AND {condition} RETURNING id",
+            {"now": time.time(), "cancelled": CANCELLED_ON_REQUEST, **params})
+        return [row[0] for row in rows]
+
+    def release(self, job_id: str, worker: str, reason: str = "released") -> bool:
+        return bool(self._release("id = :id AND worker = :worker",
+                                  {"id": job_id, "worker": worker, "reason": reason}))
+
+    def release_claimed(self, worker: str, reason: str) -> builtins.list[str]:
+        return self._release("worker = :worker", {"worker": worker, "reason": reason})
+
+    def _requeue(self, condition: str, params: dict[str, Any],
+                 reason: str) -> dict[str, JobStatus]:
+        """An infrastructure failure of the running jobs that meet `condition`."""
+        policy = self.policy
+        delays = " ".join(f"WHEN {n} THEN {policy.delay(n + 1)!r}"
+                          for n in range(policy.max_retries))
+        delay = f"CASE infra_failures {delays} ELSE 0.0 END" if delays else "0.0"
+        dead = (f"{DEAD_LETTER}: {reason}; it failed for infrastructure reasons "
+                f"{policy.max_retries + 1} times (UNDERTOW_MAX_RETRIES={policy.max_retries})")
+        rows = self._write(
+            "UPDATE jobs SET status = CASE WHEN cancel_requested THEN 'cancelled' "
+            "WHEN infra_failures < :max THEN 'queued' ELSE 'failed' END, "
+            "error = CASE WHEN cancel_requested THEN :cancelled "
+            "WHEN infra_failures < :max THEN NULL ELSE :dead END, "
+            "dead_letter = (NOT cancel_requested AND infra_failures >= :max), "
+            f"finished = CASE WHEN {_REQUEUE} THEN NULL ELSE :now END, "
+            f"started = CASE WHEN {_REQUEUE} THEN NULL ELSE started END, "
+            f"progress = CASE WHEN {_REQUEUE} THEN NULL ELSE progress END, "
+            f"worker = CASE WHEN {_REQUEUE} THEN NULL ELSE worker END, "
+            f"not_before = CASE WHEN {_REQUEUE} THEN {_NOW} + {delay} END, "
+            "lease_until = NULL, infra_failures = infra_failures + 1, "
+            "history = "
+            f"{self._push(event('infrastructure-failure', reason='CAST(:reason AS TEXT)'))} "
+            f"WHERE status = 'running' AND {condition} RETURNING id, status",
+            {"now": time.time(), "max": policy.max_retries, "cancelled": CANCELLED_ON_REQUEST,
+             "dead": dead, "reason": reason, **params})
+        return dict(rows)
+
+    def requeue(self, job_id: str, worker: str | None, reason: str) -> JobStatus | None:
+        done = self._requeue(f"id = :id AND {NO_WORKER_OR}",
+                             {"id": job_id, "worker": worker}, reason)
+        return done.get(job_id)
+
+    def requeue_claimed(self, worker: str, reason: str) -> dict[str, JobStatus]:
+        return self._requeue("worker = :worker", {"worker": worker}, reason)
+
+    def expire(self, now: float) -> dict[str, JobStatus]:
+        return self._requeue(f"lease_until < :expired {self.expire_guard}",
+                             {"expired": now}, "its lease ran out: its worker or node was lost")
+
+    def recover(self, owner: str) -> dict[str, JobStatus]:
+        return self._requeue(
+            "owner = :owner AND substr(worker, 1, length(CAST(:prefix AS TEXT))) = :prefix",
+            {"owner": owner, "prefix": owner + "/"},
+            "the server stopped while it ran")
+
+    def _retry_statement(self, limited: bool) -> str:
+        held = ("AND (SELECT COUNT(*) FROM jobs WHERE owner = :owner AND status IN "
+                "('queued', 'running')) < :limit" if limited else "")
+        return (
+            "UPDATE jobs SET status = 'queued', owner = :owner, error = NULL, plan = NULL, "
+            "solution = NULL, progress = NULL, started = NULL, finished = NULL, "
+            "worker = NULL, lease_until = NULL, not_before = NULL, "
+            "cancel_requested = (1 = 0), dead_letter = (1 = 0), infra_failures = 0, "
+            f"history = {self._push(event('retried', 'CAST(NULL AS TEXT)'))} "
+            f"WHERE id = :id AND status IN ('failed', 'cancelled') {held} RETURNING id")
+
+    def retry(self, job_id: str, owner: str, limit: int | None = None) -> bool:
+        params = {"id": job_id, "owner": owner, "limit": limit, "now": time.time()}
+        return bool(self._write(self._retry_statement(limit is not None), params))
+
+    def renew(self, claims: builtins.list[tuple[str, str]],
+              lease_until: float) -> dict[str, bool]:
+        if not claims:
+            return {}
+        pairs = ", ".join(["(?, ?)"] * len(claims))
+        rows = self._write(
+            "UPDATE jobs SET lease_until = ? WHERE status = 'running' AND (id, worker) IN "
+            f"(VALUES {pairs}) RETURNING id, cancel_requested",
+            (lease_until, *(v for claim in claims for v in claim)))
+        return {job_id: bool(cancel) for job_id, cancel in rows}
 
     def report_progress(self, job_id: str, progress: dict[str, Any],
                         worker: str | None = None) -> bool:
         rows = self._write(
-            "UPDATE jobs SET progress = ? WHERE id = ? AND status = 'running' "
+            "UPDATE jobs SET progress = :progress WHERE id = :id AND status = 'running' "
             f"AND {NO_WORKER_OR} RETURNING cancel_requested",
-            (self._json(progress), job_id, worker, worker))
+            {"progress": self._json(progress), "id": job_id, "worker": worker})
         return bool(rows) and not rows[0][0]
 
     def finish(self, job_id: str, status: JobStatus, plan: dict[str, Any] | None,
                error: str | None, solution: dict[str, Any] | None = None,
                worker: str | None = None) -> bool:
         rows = self._write(
-            "UPDATE jobs SET status = ?, plan = ?, error = ?, finished = ?, solution = ? "
-            f"WHERE id = ? AND status = 'running' AND {NO_WORKER_OR} RETURNING id",
-            (status, self._json(plan), error, time.time(), self._json(solution), job_id,
-             worker, worker))
+            "UPDATE jobs SET status = :status, plan = :plan, error = :error, finished = :now, "
+            f"solution = :solution, lease_until = NULL, "
+            f"history = {self._push(event('finished', reason='CAST(:status AS TEXT)'))} "
+            f"WHERE id = :id AND status = 'running' AND {NO_WORKER_OR} RETURNING id",
+            {"status": status, "plan": self._json(plan), "error": error, "now": time.time(),
+             "solution": self._json(solution), "id": job_id, "worker": worker})
         return bool(rows)
 
     def solution(self, job_id: str) -> dict[str, Any] | None:
@@ -115,13 +271,9 @@ class SqlJobStore(JobStore):
             (error, time.time(), job_id))
         return bool(rows)
 
-    def _fail_running(self, condition: str, params: tuple, error: str) -> builtins.list[str]:
-        """Mark the running jobs that meet `condition` failed with `error`; their ids."""
-        rows = self._write(
-            "UPDATE jobs SET status = 'failed', error = ?, finished = ? "
-            f"WHERE status = 'running' AND {condition} RETURNING id",
-            (error, time.time(), *params))
-        return [row[0] for row in rows]
 
-    def fail_claimed(self, worker: str, error: str) -> builtins.list[str]:
-        return self._fail_running("worker = ?", (worker,), error)
+def history(value: Any) -> builtins.list[dict[str, Any]] | None:
+    """A history column's value (JSON text or already decoded) as a list."""
+    if value is None:
+        return None
+    return json.loads(value) if isinstance(value, str) else value

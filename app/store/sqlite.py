@@ -28,16 +28,15 @@ from typing import Any
 
 from app.store.base import (
     CANCELLED_ON_REQUEST,
-    INTERRUPTED,
-    MAX_ATTEMPTS,
     BatchRecord,
+    DuplicateKey,
     JobRecord,
-    JobStatus,
     MemberRecord,
+    RetryPolicy,
     StoreDamaged,
     StoreUnavailable,
 )
-from app.store.sql import COLUMNS, SqlJobStore
+from app.store.sql import COLUMNS, SqlJobStore, history
 
 log = logging.getLogger("undertow.store")
 
@@ -77,20 +76,30 @@ _MIGRATIONS: tuple[tuple[str, ...], ...] = (
             created REAL NOT NULL,
             spec    TEXT NOT NULL)""",
     ),
+    (  # 5: infrastructure failures counted apart, retried after a pause, dead letters,
+       # the claim's history, idempotency keys
+        "ALTER TABLE jobs ADD COLUMN infra_failures INTEGER NOT NULL DEFAULT 0",
+        "ALTER TABLE jobs ADD COLUMN dead_letter INTEGER NOT NULL DEFAULT 0",
+        "ALTER TABLE jobs ADD COLUMN not_before REAL",
+        "ALTER TABLE jobs ADD COLUMN lease REAL",
+        "ALTER TABLE jobs ADD COLUMN history TEXT",
+        "ALTER TABLE jobs ADD COLUMN idem_key TEXT",
+        "CREATE UNIQUE INDEX IF NOT EXISTS jobs_idem_key ON jobs (idem_key) "
+        "WHERE idem_key IS NOT NULL",
+    ),
+    (  # 6: the live solver workers, each supervisor's heartbeat
+        """CREATE TABLE IF NOT EXISTS workers (
+            name      TEXT PRIMARY KEY,
+            processes INTEGER NOT NULL,
+            busy      INTEGER NOT NULL,
+            started   REAL NOT NULL,
+            seen      REAL NOT NULL)""",
+    ),
 )
 SCHEMA_VERSION = len(_MIGRATIONS)
 
 _MEMBER_COLUMNS = ("id, member, status, error, json_extract(plan, '$.verification.verified'), "
                    "json_extract(plan, '$.objective'), started, finished")
-_EXPIRED = (  # the settlement of a running job whose lease ran out (see JobStore.expire)
-    "status = CASE WHEN cancel_requested THEN 'cancelled' WHEN attempts < :max THEN 'queued' "
-    "ELSE 'failed' END, error = CASE WHEN cancel_requested THEN :cancelled "
-    "WHEN attempts < :max THEN NULL ELSE :interrupted END, "
-    "finished = CASE WHEN NOT cancel_requested AND attempts < :max THEN NULL ELSE :now END, "
-    "started = CASE WHEN NOT cancel_requested AND attempts < :max THEN NULL ELSE started END, "
-    "progress = CASE WHEN NOT cancel_requested AND attempts < :max THEN NULL ELSE progress END, "
-    "worker = CASE WHEN NOT cancel_requested AND attempts < :max THEN NULL ELSE worker END, "
-    "lease_until = NULL")
 
 
 def _loads(text: str | None) -> Any:
@@ -99,11 +108,12 @@ def _loads(text: str | None) -> Any:
 
 def _job(row: tuple) -> JobRecord:
     (id_, status, scene, progress, plan, error, cancel, owner, created, started,
-     finished, worker) = row
+     finished, worker, attempts, infra, dead, events) = row
     return JobRecord(id=id_, status=status, scene=_loads(scene), progress=_loads(progress),
                      plan=_loads(plan), error=error, cancel_requested=bool(cancel),
                      owner=owner, created=created, started=started, finished=finished,
-                     worker=worker)
+                     worker=worker, attempts=attempts, infra_failures=infra,
+                     dead_letter=bool(dead), history=history(events))
 
 
 def _member(row: tuple) -> MemberRecord:
@@ -132,26 +142,40 @@ class SqliteJobStore(SqlJobStore):
     Raises StoreDamaged when the file fails its integrity check."""
 
     def __init__(self, path: str | os.PathLike, busy_timeout: float = 30.0,
-                 checkpoint_interval: float = 60.0):
+                 checkpoint_interval: float = 60.0, policy: RetryPolicy | None = None):
         self.path = str(path)
+        self.policy = policy or RetryPolicy()
+        self._started = False
         self.busy_timeout, self.checkpoint_interval = busy_timeout, checkpoint_interval
         Path(self.path).parent.mkdir(parents=True, exist_ok=True)
         sqlite3.connect(self.path).close()  # creates an empty file if there is none
         self._identity = _identity(self.path)
         self._local = threading.local()
+        self._wal_state()
         self._checkpointed = time.monotonic()
         self._verify()
         self._migrate()
+        self._started = True
 
     def __getstate__(self) -> dict[str, Any]:
         return {"path": self.path, "busy_timeout": self.busy_timeout,
-                "checkpoint_interval": self.checkpoint_interval, "identity": self._identity}
+                "checkpoint_interval": self.checkpoint_interval, "identity": self._identity,
+                "policy": self.policy}
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.path, self.busy_timeout = state["path"], state["busy_timeout"]
         self.checkpoint_interval, self._identity = state["checkpoint_interval"], state["identity"]
+        self.policy, self._started = state["policy"], True
         self._local = threading.local()
+        self._wal_state()
         self._checkpointed = time.monotonic()
+
+    def _wal_state(self) -> None:
+        self._wal: tuple[int, tuple[int, int]] | None = None  # (pid, identity) first seen
+        self._wal_lost = False
+        self._wal_lock = threading.Lock()
+        self._connections: list[sqlite3.Connection] = []
+        self._header_fd: tuple[int, int] | None = None  # (pid, descriptor), never closed
 
     def _verify(self) -> None:
         """StoreDamaged unless the file is a database that passes PRAGMA quick_check."""
@@ -191,6 +215,7 @@ class SqliteJobStore(SqlJobStore):
         if _identity(self.path) != self._identity:
             raise StoreUnavailable(f"the job store file {self.path} was deleted or replaced "
                                    "while the service ran; restart the service")
+        self._check_header()
         uri = Path(self.path).absolute().as_uri() + "?mode=rw"
         conn = sqlite3.connect(uri, uri=True, timeout=self.busy_timeout,
                                isolation_level=None, check_same_thread=False)
@@ -198,45 +223,126 @@ class SqliteJobStore(SqlJobStore):
         conn.execute("PRAGMA synchronous=NORMAL")
         return conn
 
+    def _check_header(self) -> None:
+        """StoreUnavailable unless the file still starts with SQLite's header (it was not
+        overwritten in place since the store was opened). The header is read through a
+        descriptor this process keeps open: closing any descriptor of the file would drop
+        the process's POSIX locks on it, and with them SQLite's knowledge that this
+        process still uses the write-ahead log."""
+        if not self._started:
+            return
+        try:
+            with self._wal_lock:
+                if self._header_fd is None or self._header_fd[0] != os.getpid():
+                    self._header_fd = (os.getpid(), os.open(self.path, os.O_RDONLY))
+                header = os.pread(self._header_fd[1], 16, 0)
+        except OSError as exc:
+            raise StoreUnavailable(f"the job store {self.path} cannot be read: {exc}") from exc
+        if header != b"SQLite format 3\0":
+            raise StoreUnavailable(f"the job store file {self.path} was overwritten while the "
+                                   "service ran (it no longer starts with SQLite's header); "
+                                   "restart the service")
+
     def _connection(self) -> sqlite3.Connection:
         """This thread's connection (a new one after a fork); every use checks that the
-        path still names the file opened first."""
+        path still names the file opened first, and that PATH-wal is still the
+        write-ahead log this process first saw (SQLite deletes it only when the last
+        connection closes, and this process keeps its connections open)."""
         local = self._local
         if getattr(local, "pid", None) != os.getpid():
+            self._check_wal()
             local.conn, local.pid = self._open(), os.getpid()
+            with self._wal_lock:
+                self._connections.append(local.conn)
         elif _identity(self.path) != self._identity:
             self._open()  # raises StoreUnavailable
+        else:
+            self._check_wal()
         return local.conn
 
-    def _rows(self, sql: str, params: tuple | dict = ()) -> list[tuple]:
-        """Every row of one statement (fetched at once, so a write is complete)."""
+    def _check_wal(self) -> None:
+        wal = _identity(self.wal_path)
+        with self._wal_lock:
+            if self._wal is None or self._wal[0] != os.getpid():
+                if wal is not None:
+                    self._wal = (os.getpid(), wal)
+                return
+            if wal == self._wal[1]:
+                return
+            first = not self._wal_lost
+            self._wal_lost = True
+        if first:
+            self._salvage()
+        raise StoreUnavailable(
+            f"the job store's write-ahead log {self.wal_path} was deleted or replaced "
+            "while the service ran; new jobs are refused until the service is restarted "
+            "(what the log held was moved into the database file)")
+
+    @property
+    def wal_path(self) -> str:
+        return self.path + "-wal"
+
+    def _salvage(self) -> None:
+        """Move what the deleted write-ahead log (still open in this process's
+        connections) holds into the database file, so that the jobs accepted before it
+        was deleted survive."""
+        for conn in list(self._connections):
+            try:
+                busy, _, _ = conn.execute("PRAGMA wal_checkpoint(FULL)").fetchone()
+            except sqlite3.Error as exc:
+                log.error("the job store's write-ahead log could not be saved: %s", exc)
+                continue
+            if not busy:
+                log.error("the job store's write-ahead log %s was deleted; what it held was "
+                          "moved into %s", self.wal_path, self.path)
+                return
+        log.error("the job store's write-ahead log %s was deleted and could not be moved "
+                  "into %s entirely", self.wal_path, self.path)
+
+    def _rows(self, sql: str, params: tuple | dict = (), fresh: bool = False) -> list[tuple]:
+        """Every row of one statement (fetched at once, so a write is complete); `fresh`:
+        through a new connection, whose pages come from the file and not from a cache."""
         try:
-            return self._connection().execute(sql, params).fetchall()
+            if fresh:
+                self._connection()  # the checks of the files
+                with contextlib.closing(self._open()) as conn:
+                    return conn.execute(sql, params).fetchall()
+            rows = self._connection().execute(sql, params).fetchall()
+            if self._wal is None:
+                self._check_wal()  # the log this process writes to, once there is one
+            return rows
         except sqlite3.IntegrityError:
             raise
         except sqlite3.Error as exc:
             raise StoreUnavailable(f"the job store {self.path} failed: {exc}") from exc
 
     @contextlib.contextmanager
-    def _transaction(self):
-        """This thread's connection inside BEGIN IMMEDIATE ... COMMIT (ROLLBACK on error)."""
-        conn = self._connection()
+    def _transaction(self, fresh: bool = False):
+        """This thread's connection (`fresh`: a new one) inside BEGIN IMMEDIATE ... COMMIT
+        (ROLLBACK on error)."""
         try:
-            conn.execute("BEGIN IMMEDIATE")
+            conn = self._connection()
+            if fresh:
+                conn = self._open()
             try:
-                yield conn
-            except BaseException:
-                conn.execute("ROLLBACK")
-                raise
-            conn.execute("COMMIT")
+                conn.execute("BEGIN IMMEDIATE")
+                try:
+                    yield conn
+                except BaseException:
+                    conn.execute("ROLLBACK")
+                    raise
+                conn.execute("COMMIT")
+            finally:
+                if fresh:
+                    conn.close()
         except sqlite3.IntegrityError:
             raise
         except sqlite3.Error as exc:
             raise StoreUnavailable(f"the job store {self.path} failed: {exc}") from exc
 
-    def _write(self, sql: str, params: tuple | dict = ()) -> list[tuple]:
+    def _write(self, sql: str, params: tuple | dict = (), fresh: bool = False) -> list[tuple]:
         """Rows of a writing statement (its RETURNING clause); checkpoints when due."""
-        rows = self._rows(sql, params)
+        rows = self._rows(sql, params, fresh)
         if time.monotonic() - self._checkpointed >= self.checkpoint_interval:
             self.checkpoint()
         return rows
@@ -256,17 +362,17 @@ class SqliteJobStore(SqlJobStore):
         return self._rows("PRAGMA journal_mode")[0][0]
 
     def create(self, job_id: str, scene: dict[str, Any], owner: str,
-               limit: int | None = None) -> JobRecord | None:
-        values = (job_id, _dumps(scene), owner, time.time())
-        if limit is None:
-            rows = self._write("INSERT INTO jobs (id, status, scene, owner, created) "
-                               f"VALUES (?, 'queued', ?, ?, ?) RETURNING {COLUMNS}", values)
-        else:
+               limit: int | None = None, key: str | None = None) -> JobRecord | None:
+        values = (job_id, _dumps(scene), owner, time.time(), key)
+        held = ("" if limit is None else "WHERE (SELECT COUNT(*) FROM jobs WHERE owner = ? "
+                "AND status IN ('queued', 'running')) < ?")
+        try:
             rows = self._write(
-                "INSERT INTO jobs (id, status, scene, owner, created) "
-                "SELECT ?, 'queued', ?, ?, ? WHERE (SELECT COUNT(*) FROM jobs "
-                "WHERE owner = ? AND status IN ('queued', 'running')) < ? "
-                f"RETURNING {COLUMNS}", (*values, owner, limit))
+                "INSERT INTO jobs (id, status, scene, owner, created, idem_key) "
+                f"SELECT ?, 'queued', ?, ?, ?, ? {held} RETURNING {COLUMNS}",
+                values if limit is None else (*values, owner, limit), fresh=True)
+        except sqlite3.IntegrityError as exc:
+            raise DuplicateKey(key) from exc
         return _job(rows[0]) if rows else None
 
     def request_cancel(self, job_id: str) -> JobRecord | None:
@@ -277,31 +383,25 @@ class SqliteJobStore(SqlJobStore):
                     (job_id,))
         return self.get(job_id)
 
-    def renew(self, workers: builtins.list[str], lease_until: float) -> dict[str, bool]:
-        if not workers:
-            return {}
-        marks = ", ".join("?" * len(workers))
-        rows = self._write(
-            f"UPDATE jobs SET lease_until = ? WHERE status = 'running' AND worker IN ({marks}) "
-            "RETURNING id, cancel_requested", (lease_until, *workers))
-        return {job_id: bool(cancel) for job_id, cancel in rows}
+    def cancel_batch(self, batch_id: str) -> bool:
+        if not self._rows("SELECT 1 FROM batches WHERE id = ?", (batch_id,)):
+            return False
+        with self._transaction() as conn:
+            conn.execute("UPDATE jobs SET status = 'cancelled', cancel_requested = 1, "
+                         "finished = ?, error = ? WHERE batch = ? AND status = 'queued'",
+                         (time.time(), CANCELLED_ON_REQUEST, batch_id))
+            conn.execute("UPDATE jobs SET cancel_requested = 1 WHERE batch = ? "
+                         "AND status = 'running'", (batch_id,))
+        return True
 
-    def expire(self, now: float) -> dict[str, JobStatus]:
-        rows = self._write(
-            f"UPDATE jobs SET {_EXPIRED} WHERE status = 'running' AND lease_until < :now "
-            "RETURNING id, status", {"max": MAX_ATTEMPTS, "cancelled": CANCELLED_ON_REQUEST,
-                                     "interrupted": INTERRUPTED, "now": now})
-        return dict(rows)
-
-    def interrupt(self, owner: str) -> builtins.list[str]:
-        return self._fail_running("owner = ? AND substr(worker, 1, ?) = ?",
-                                  (owner, len(owner) + 1, owner + "/"), INTERRUPTED)
+    def _push(self, pairs: str) -> str:
+        return f"json_insert(COALESCE(history, '[]'), '$[#]', json_object({pairs}))"
 
     def create_batch(self, batch_id: str, spec: dict[str, Any],
                      members: builtins.list[tuple[str, dict[str, Any]]], owner: str,
                      limit: int | None = None) -> bool:
         now = time.time()
-        with self._transaction() as conn:
+        with self._transaction(fresh=True) as conn:
             if limit is not None:
                 (held,) = conn.execute(
                     "SELECT COUNT(*) FROM jobs WHERE owner = ? AND status IN "
@@ -329,11 +429,16 @@ class SqliteJobStore(SqlJobStore):
                            members=[_member(row) for row in members])
 
     def check(self) -> None:
-        """Read the schema, the newest job and its index through a new connection, whose
-        pages come from the file and not from a cache."""
+        """Check the files (database, write-ahead log, header) and read the schema, the
+        newest job, the last row of the table and the count of its index through a new
+        connection, whose pages come from the file and not from a cache."""
+        self._connection()
         try:
             with contextlib.closing(self._open()) as conn:
                 conn.execute("SELECT id FROM jobs ORDER BY created DESC LIMIT 1").fetchall()
+                conn.execute("SELECT id, status FROM jobs WHERE rowid = "
+                             "(SELECT max(rowid) FROM jobs)").fetchall()
+                conn.execute("SELECT status, COUNT(*) FROM jobs GROUP BY status").fetchall()
         except sqlite3.Error as exc:
             raise StoreUnavailable(f"the job store {self.path} failed: {exc}") from exc
 
@@ -349,4 +454,9 @@ class SqliteJobStore(SqlJobStore):
         conn = getattr(self._local, "conn", None)
         if conn is not None and self._local.pid == os.getpid():
             conn.close()
+            with self._wal_lock:
+                if conn in self._connections:
+                    self._connections.remove(conn)
+                if not self._connections:  # the log may go with the last connection
+                    self._wal = None
         self._local = threading.local()

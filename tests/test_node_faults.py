@@ -1,0 +1,180 @@
+"""Everyday deaths on a PostgreSQL deployment, one API-only server and two worker nodes
+on loopback (the fake solver, 20 ms per iteration), each with plans running and queued:
+kill -9 of one node's main process alone, of one solver process, SIGTERM of a node, a
+`pg_ctl restart -m fast`, the database stopped. Every accepted plan must end succeeded,
+none failed for an infrastructure reason, none left running; the lease is long (60 s), so
+a recovery that waited for it would fail the tests' time bounds."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import time
+
+import httpx
+import pytest
+from service_fixtures import two_link_scene
+
+from app.store.postgres import PostgresJobStore
+from testbed import postgres as pg
+from testbed.cluster import FAKE_SOLVER, WorkerNode, api_server
+from testbed.probes import worker_pids
+from testbed.service import wait_final
+
+LEASE = 60.0
+SETTINGS = {"UNDERTOW_SOLVE_FUNCTION": FAKE_SOLVER, "UNDERTOW_LEASE": str(LEASE),
+            "UNDERTOW_MAX_QUEUED": "64", "UNDERTOW_RETRY_BACKOFF": "0.2"}
+RUNNING_ITERATIONS = 100  # 2 s
+
+
+def wait_for(predicate, timeout: float, what: str):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(0.05)
+    raise AssertionError(f"{what} did not happen within {timeout} s")
+
+
+@pytest.fixture
+def server():
+    """A PostgreSQL server of this test's own (some tests restart or stop it)."""
+    reason = pg.missing()
+    if reason is not None:
+        pytest.skip(reason)
+    with pg.PostgresServer() as s:
+        yield s
+
+
+@pytest.fixture
+def cluster(tmp_path, server):
+    """(http client of the API server, node 1, node 2, the store, the database URL)."""
+    url = server.create_database("faults")
+    store = PostgresJobStore(url, timeout=2.0)
+    with contextlib.ExitStack() as stack:
+        api = stack.enter_context(api_server(tmp_path, url, "api", **SETTINGS))
+        nodes = [stack.enter_context(WorkerNode(tmp_path, name, UNDERTOW_DB_URL=url,
+                                                **SETTINGS))
+                 for name in ("node-1", "node-2")]
+        http = stack.enter_context(httpx.Client(base_url=api.url, timeout=30))
+        yield http, *nodes, store, url
+    store.close()
+
+
+def submit(http: httpx.Client, count: int, iterations: int = RUNNING_ITERATIONS) -> list[str]:
+    ids = []
+    for _ in range(count):
+        r = http.post("/v1/plans", json=two_link_scene(iterations=iterations))
+        assert r.status_code == 202, r.text
+        ids.append(r.json()["id"])
+    return ids
+
+
+def solving_on(store: PostgresJobStore, node: WorkerNode) -> str | None:
+    node.check()
+    for record in store.list(status="running", limit=100):
+        if node.owns(record.worker) and (record.progress or {}).get("phase") == "solving":
+            return record.id
+    return None
+
+
+def all_succeed(http: httpx.Client, ids: list[str], timeout: float = 60.0) -> list[dict]:
+    jobs = [wait_final(http, job_id, timeout=timeout) for job_id in ids]
+    assert [(j["status"], j["error"]) for j in jobs] == [("succeeded", None)] * len(ids)
+    return jobs
+
+
+def test_kill_9_of_a_nodes_main_process_requeues_its_job_at_once(cluster):
+    http, node_1, node_2, store, _ = cluster
+    ids = submit(http, 6)
+    lost = wait_for(lambda: solving_on(store, node_1), 60, "node 1 solving a plan")
+    solvers = worker_pids(node_1.proc.pid)
+    os.kill(node_1.proc.pid, signal.SIGKILL)  # the main process only, not its group
+    node_1.proc.wait(10)
+    requeued = wait_for(lambda: store.get(lost).status != "running" or None, 5.0,
+                        "the orphaned solver giving its job back")  # not the 60 s lease
+    assert requeued
+    jobs = {j["id"]: j for j in all_succeed(http, ids)}
+    assert jobs[lost]["infra_failures"] == 1 and not jobs[lost]["dead_letter"]
+    assert node_2.owns(store.get(lost).worker)
+    assert [e["event"] for e in jobs[lost]["history"]][:2] == [
+        "claimed", "infrastructure-failure"]
+    assert "main process died" in jobs[lost]["history"][1]["reason"]
+    for pid in solvers:  # no orphan keeps solving
+        wait_for(lambda p=pid: not os.path.exists(f"/proc/{p}"), 5.0, f"solver {pid} exiting")
+
+
+def test_a_killed_solver_process_requeues_its_job(cluster):
+    http, node_1, node_2, store, _ = cluster
+    ids = submit(http, 4)
+    lost = wait_for(lambda: solving_on(store, node_1), 60, "node 1 solving a plan")
+    [solver] = worker_pids(node_1.proc.pid)
+    os.kill(solver, signal.SIGKILL)  # as the OOM killer would
+    jobs = {j["id"]: j for j in all_succeed(http, ids)}
+    assert jobs[lost]["infra_failures"] == 1
+    assert "killed by signal SIGKILL" in jobs[lost]["history"][1]["reason"]
+    node_1.check()  # the node lives on with a new solver process
+
+
+def test_sigterm_of_a_node_releases_its_running_job_to_the_other_node(cluster):
+    http, node_1, node_2, store, _ = cluster
+    ids = submit(http, 4)
+    lost = wait_for(lambda: solving_on(store, node_1), 60, "node 1 solving a plan")
+    node_1.proc.send_signal(signal.SIGTERM)  # docker stop
+    assert node_1.proc.wait(30) == 0
+    record = store.get(lost)
+    assert record.status != "running" or node_2.owns(record.worker)  # released at once
+    jobs = {j["id"]: j for j in all_succeed(http, ids)}
+    assert (jobs[lost]["infra_failures"], jobs[lost]["attempts"]) == (0, 1)
+    assert "released" in [e["event"] for e in jobs[lost]["history"]]
+
+
+def test_a_postgres_restart_mid_solve_loses_nothing_and_costs_no_attempt(cluster, server):
+    http, node_1, node_2, store, _ = cluster
+    ids = submit(http, 8)
+    wait_for(lambda: solving_on(store, node_1) and solving_on(store, node_2), 60,
+             "both nodes solving")
+    server.restart("fast")
+    restarted = time.monotonic()
+    ids += submit(http, 2)  # the API server takes plans again at once
+    jobs = all_succeed(http, ids, timeout=90)
+    assert time.monotonic() - restarted < 45  # well within the 60 s lease
+    assert [j["infra_failures"] for j in jobs] == [0] * len(ids)
+    counts = store.count_by_status()
+    assert (counts["queued"], counts["running"]) == (0, 0)
+    node_1.check()
+    node_2.check()
+
+
+def test_a_stopped_database_is_loud_and_nothing_accepted_is_lost(cluster, server):
+    http, node_1, node_2, store, _ = cluster
+    ids = submit(http, 3, iterations=3)
+    all_succeed(http, ids)
+    server.halt()
+    try:
+        started = time.monotonic()
+        r = http.post("/v1/plans", json=two_link_scene())
+        assert r.status_code == 503, r.text
+        assert r.headers["content-type"] == "application/problem+json"
+        assert r.json()["type"] == "urn:undertow:problem:unavailable"
+        assert http.get("/healthz").status_code == 503
+        assert time.monotonic() - started < 30
+    finally:
+        server.resume()
+    wait_for(lambda: http.get("/healthz").status_code == 200, 30, "health back at 200")
+    all_succeed(http, submit(http, 2, iterations=3))
+
+
+def test_an_idle_node_claims_a_queued_plan_within_milliseconds(cluster):
+    http, node_1, node_2, store, _ = cluster
+    all_succeed(http, submit(http, 2, iterations=1))  # both nodes up and idle
+    waits = []
+    for _ in range(5):
+        [job_id] = submit(http, 1, iterations=1)
+        wait_final(http, job_id, timeout=30)
+        record = store.get(job_id)
+        waits.append(record.started - record.created)
+        time.sleep(0.1)
+    assert sorted(waits)[2] < 0.2, waits  # the median: a notification, not the 1 s poll
