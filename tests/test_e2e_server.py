@@ -25,7 +25,7 @@ QUICK = {"robot": TWO_LINK,
 LONG = {"robot": TWO_LINK,
         "task": {"duration": 2.0, "initial": {"q": [0.0, 0.0], "dq": [0.0, 0.0]},
                  "final": {"q": [None, None], "dq": [0.0, 0.0]},
-                 "tip_target": {"x": 5.0, "y": 5.0}, "torque_limit": 0.5},
+                 "tip_target": {"x": 0.6, "y": 0.6}, "torque_limit": 0.02},
         "transcription": {"intervals": 120}, "solver": {"max_iter": 100000, "max_wall_time": 60}}
 
 
