@@ -15,8 +15,11 @@ from app.settings import Settings
 from planner.dynamics import Dynamics
 from planner.examples import seed_arm
 from planner.ocp import continuation, plan, portfolio
+from planner.ocp.instance import initial_point, instance
+from planner.ocp.mesh import Mesh
 from planner.ocp.monitor import STALL_FLOOR, STALL_WINDOW, IterationMonitor
-from planner.ocp.planner import _artefact
+from planner.ocp.planner import _artefact, _interpolant
+from planner.ocp.solve import Budget, solve
 from planner.scene import Scene
 from planner.suite import singular_configuration
 
@@ -147,3 +150,25 @@ def test_the_service_shares_the_cores_among_its_solver_workers(monkeypatch: pyte
     assert Settings(workers=2).plan_processes(2) == 4
     assert Settings(workers=16).plan_processes(16) == 1
     assert Settings(solver_processes=2).plan_processes(16) == 2
+
+
+def test_the_relaxed_nlps_virtual_torques_are_the_passive_joints_generalised_forces(
+        crossing: Scene):
+    # solved, the relaxed NLP's torque rows after the active ones hold what the passive
+    # rows of M ddq + h ask for at the collocation points, computed here independently
+    robot, T = crossing.robot, 2.0
+    inst = instance(crossing, robot, Mesh.uniform(10), T, continuation.VIRTUAL_WEIGHTS[0])
+    x0 = initial_point(inst, continuation.relaxed_guess(crossing, robot, T), T, robot)
+    solution = solve(inst, x0, Budget.of(200, 60.0), None, 0)
+    assert solution.success
+    interp = _interpolant(inst, robot, T, solution.x)
+    points = np.asarray(inst.problem.transcription.knot_positions)
+    t = (inst.mesh.breaks[:-1, None] * T + np.diff(inst.mesh.breaks)[:, None] * T * points).ravel()
+    dyn = Dynamics(robot)
+    q, dq, ddq, tau = interp.q(t), interp.dq(t), interp.dq(t, derivative=1), interp.tau(t)
+    na = len(robot.active)
+    assert np.abs(tau[:, na:]).max() > 1e-2  # the virtual torques are at work
+    for k in range(len(t)):
+        forces = dyn.mass_matrix(q[k]) @ ddq[k] + dyn.bias(q[k], dq[k])
+        np.testing.assert_allclose(tau[k, na:], forces[robot.passive], atol=1e-6)
+        np.testing.assert_allclose(tau[k, :na], forces[robot.active], atol=1e-6)
