@@ -17,23 +17,13 @@ from service_fixtures import two_link_scene
 
 from app.store.postgres import PostgresJobStore
 from testbed.cluster import FAKE_SOLVER, WorkerNode, api_server
-from testbed.service import LiveServer, free_port, wait_final
+from testbed.service import LiveServer, free_port, wait_final, wait_for
 
 LEASE = 3.0  # [s] short, so that a lost node's job is requeued quickly
 PLANS = 40
 SETTINGS = {"UNDERTOW_SOLVE_FUNCTION": FAKE_SOLVER, "UNDERTOW_LEASE": str(LEASE),
             "UNDERTOW_MAX_QUEUED": "64"}
 
-
-def wait_for(predicate, timeout: float, what: str):
-    """The first true value of `predicate()` within `timeout` seconds."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = predicate()
-        if value:
-            return value
-        time.sleep(0.05)
-    raise AssertionError(f"{what} did not happen within {timeout} s")
 
 
 def solving_on(store: PostgresJobStore, node: WorkerNode) -> str | None:

@@ -20,22 +20,13 @@ from app.store.postgres import PostgresJobStore
 from testbed import postgres as pg
 from testbed.cluster import FAKE_SOLVER, WorkerNode, api_server
 from testbed.probes import worker_pids
-from testbed.service import wait_final
+from testbed.service import wait_final, wait_for
 
 LEASE = 60.0
 SETTINGS = {"UNDERTOW_SOLVE_FUNCTION": FAKE_SOLVER, "UNDERTOW_LEASE": str(LEASE),
             "UNDERTOW_MAX_QUEUED": "64", "UNDERTOW_RETRY_BACKOFF": "0.2"}
 RUNNING_ITERATIONS = 100  # 2 s
 
-
-def wait_for(predicate, timeout: float, what: str):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = predicate()
-        if value:
-            return value
-        time.sleep(0.05)
-    raise AssertionError(f"{what} did not happen within {timeout} s")
 
 
 @pytest.fixture
