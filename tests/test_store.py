@@ -291,6 +291,19 @@ def test_requeue_claimed_requeues_only_the_workers_running_jobs(store):
     assert store.get("b").status == "running" and store.get("c").status == "queued"
 
 
+def test_a_listing_of_summaries_reads_no_scene_plan_or_history(store):
+    for k in range(3):
+        store.create(f"j{k}", SCENE, "host")
+    assert claim(store) == "j0"
+    assert store.finish("j0", "succeeded", {"t": [0.0, 1.0]}, None)
+    full, lean = store.list(limit=10), store.list(limit=10, summaries=True)
+    assert full[-1].plan == {"t": [0.0, 1.0]} and full[-1].scene == SCENE and full[-1].history
+    assert [(r.id, r.status, r.progress, r.error, r.attempts, r.created, r.finished)
+            for r in lean] == [(r.id, r.status, r.progress, r.error, r.attempts, r.created,
+                                r.finished) for r in full]
+    assert all(r.plan is None and r.scene == {} and r.history is None for r in lean)
+
+
 def test_list_is_newest_first_and_filters_by_status(store):
     for k in range(5):
         store.create(f"j{k}", SCENE, "host")

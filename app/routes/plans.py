@@ -112,7 +112,7 @@ async def list_plans(store: StoreDep,
                          "true: only dead letters (failed for infrastructure reasons more "
                          "often than UNDERTOW_MAX_RETRIES allows); false: none of them"))] = None
                      ) -> JobList:
-    records = await run_in_threadpool(store.list, status, limit + 1, offset, dead_letter)
+    records = await run_in_threadpool(store.list, status, limit + 1, offset, dead_letter, True)
     items = [JobSummary.of(r) for r in records[:limit]]
     return JobList(items=items, limit=limit, offset=offset,
                    next_offset=offset + limit if len(records) > limit else None)

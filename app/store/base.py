@@ -155,8 +155,11 @@ class JobStore(ABC):
 
     @abstractmethod
     def list(self, status: JobStatus | None = None, limit: int = 50,
-             offset: int = 0, dead_letter: bool | None = None) -> list[JobRecord]:
-        """Jobs, newest first, optionally of one status, and dead letters or not."""
+             offset: int = 0, dead_letter: bool | None = None,
+             summaries: bool = False) -> list[JobRecord]:
+        """Jobs, newest first, optionally of one status, and dead letters or not;
+        summaries: without their scenes, plans and histories (empty scene, None), which
+        are neither read from the database nor decoded."""
 
     @abstractmethod
     def count_by_status(self) -> dict[str, int]:

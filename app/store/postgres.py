@@ -128,7 +128,7 @@ def _dumps(value: Any) -> str:
 def _job(row: tuple) -> JobRecord:
     (id_, status, scene, progress, plan, error, cancel, owner, created, started,
      finished, worker, attempts, infra, dead, events) = row
-    return JobRecord(id=id_, status=status, scene=scene, progress=progress, plan=plan,
+    return JobRecord(id=id_, status=status, scene=scene or {}, progress=progress, plan=plan,
                      error=error, cancel_requested=cancel, owner=owner, created=created,
                      started=started, finished=finished, worker=worker, attempts=attempts,
                      infra_failures=infra, dead_letter=dead, history=events)

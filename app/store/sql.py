@@ -31,6 +31,10 @@ COLUMNS = ("id, status, scene, progress, plan, error, cancel_requested, owner, "
            "created, started, finished, worker, attempts, infra_failures, dead_letter, "
            "history")
 """The columns of a job, in the order `_record` reads them."""
+SUMMARY_COLUMNS = COLUMNS.replace("scene,", "NULL,").replace("plan,", "NULL,") \
+    .replace("history", "NULL")
+"""The same without scene, plan and history (read as an empty scene, None and None): what a
+listing shows."""
 NO_WORKER_OR = "(CAST(:worker AS TEXT) IS NULL OR worker = :worker)"
 """A condition that holds for any worker when the parameter is NULL, else for that one."""
 _NOW = "CAST(:now AS DOUBLE PRECISION)"
@@ -83,7 +87,8 @@ class SqlJobStore(JobStore):
         return self._record(rows[0]) if rows else None
 
     def list(self, status: JobStatus | None = None, limit: int = 50,
-             offset: int = 0, dead_letter: bool | None = None) -> builtins.list[JobRecord]:
+             offset: int = 0, dead_letter: bool | None = None,
+             summaries: bool = False) -> builtins.list[JobRecord]:
         conditions, params = [], []
         if status:
             conditions.append("status = ?")
@@ -91,8 +96,9 @@ class SqlJobStore(JobStore):
         if dead_letter is not None:
             conditions.append("dead_letter" if dead_letter else "NOT dead_letter")
         where = f"WHERE {' AND '.join(conditions)}" if conditions else ""
+        columns = SUMMARY_COLUMNS if summaries else COLUMNS
         rows = self._rows(
-            f"SELECT {COLUMNS} FROM jobs {where} ORDER BY created DESC, id LIMIT ? OFFSET ?",
+            f"SELECT {columns} FROM jobs {where} ORDER BY created DESC, id LIMIT ? OFFSET ?",
             (*params, limit, offset))
         return [self._record(row) for row in rows]
 

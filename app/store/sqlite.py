@@ -109,7 +109,7 @@ def _loads(text: str | None) -> Any:
 def _job(row: tuple) -> JobRecord:
     (id_, status, scene, progress, plan, error, cancel, owner, created, started,
      finished, worker, attempts, infra, dead, events) = row
-    return JobRecord(id=id_, status=status, scene=_loads(scene), progress=_loads(progress),
+    return JobRecord(id=id_, status=status, scene=_loads(scene) or {}, progress=_loads(progress),
                      plan=_loads(plan), error=error, cancel_requested=bool(cancel),
                      owner=owner, created=created, started=started, finished=finished,
                      worker=worker, attempts=attempts, infra_failures=infra,
