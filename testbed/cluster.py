@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 from typing import Self
 
+from app.store import JobStore
 from testbed.service import ROOT, LiveServer
 
 UNDERTOW = Path(sys.executable).with_name("undertow")
@@ -79,3 +80,12 @@ class WorkerNode:
 
     def __exit__(self, *exc) -> None:
         self.stop()
+
+
+def solving_on(store: JobStore, node: WorkerNode) -> str | None:
+    """A job the node is solving (past its first iteration), or None."""
+    node.check()
+    for record in store.list(status="running", limit=100):
+        if node.owns(record.worker) and (record.progress or {}).get("phase") == "solving":
+            return record.id
+    return None

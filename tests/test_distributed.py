@@ -16,23 +16,13 @@ import pytest
 from service_fixtures import two_link_scene
 
 from app.store.postgres import PostgresJobStore
-from testbed.cluster import FAKE_SOLVER, WorkerNode, api_server
+from testbed.cluster import FAKE_SOLVER, WorkerNode, api_server, solving_on
 from testbed.service import LiveServer, free_port, wait_final, wait_for
 
 LEASE = 3.0  # [s] short, so that a lost node's job is requeued quickly
 PLANS = 40
 SETTINGS = {"UNDERTOW_SOLVE_FUNCTION": FAKE_SOLVER, "UNDERTOW_LEASE": str(LEASE),
             "UNDERTOW_MAX_QUEUED": "64"}
-
-
-
-def solving_on(store: PostgresJobStore, node: WorkerNode) -> str | None:
-    """A job the node is solving (past its first iteration), or None."""
-    node.check()
-    for record in store.list(status="running", limit=100):
-        if node.owns(record.worker) and (record.progress or {}).get("phase") == "solving":
-            return record.id
-    return None
 
 
 @pytest.fixture

@@ -18,7 +18,7 @@ from service_fixtures import two_link_scene
 
 from app.store.postgres import PostgresJobStore
 from testbed import postgres as pg
-from testbed.cluster import FAKE_SOLVER, WorkerNode, api_server
+from testbed.cluster import FAKE_SOLVER, WorkerNode, api_server, solving_on
 from testbed.probes import worker_pids
 from testbed.service import wait_final, wait_for
 
@@ -26,7 +26,6 @@ LEASE = 60.0
 SETTINGS = {"UNDERTOW_SOLVE_FUNCTION": FAKE_SOLVER, "UNDERTOW_LEASE": str(LEASE),
             "UNDERTOW_MAX_QUEUED": "64", "UNDERTOW_RETRY_BACKOFF": "0.2"}
 RUNNING_ITERATIONS = 100  # 2 s
-
 
 
 @pytest.fixture
@@ -61,14 +60,6 @@ def submit(http: httpx.Client, count: int, iterations: int = RUNNING_ITERATIONS)
         assert r.status_code == 202, r.text
         ids.append(r.json()["id"])
     return ids
-
-
-def solving_on(store: PostgresJobStore, node: WorkerNode) -> str | None:
-    node.check()
-    for record in store.list(status="running", limit=100):
-        if node.owns(record.worker) and (record.progress or {}).get("phase") == "solving":
-            return record.id
-    return None
 
 
 def all_succeed(http: httpx.Client, ids: list[str], timeout: float = 60.0) -> list[dict]:

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from planner.model import Robot
-from planner.ocp.guess import Guess, hermite_motion, interpolant_guess, inverse_torques
+from planner.ocp.guess import Guess, hermite_guess, interpolant_guess
 from planner.ocp.transcription import Interpolant
 from planner.scene import Scene
 
@@ -22,6 +22,8 @@ VIRTUAL_WEIGHTS = (1e1, 1e2, 1e3, 1e4, 1e5)
 """Effort weights of the virtual torques, one relaxed solve each, in order."""
 NEGLIGIBLE = 1e-6
 """[N m] virtual torques below this everywhere end the continuation early."""
+
+
 def applies(scene: Scene) -> bool:
     """Whether the task has passive joints and an implicit transcription (the relaxed NLP
     adds its virtual torques to the implicit dynamics rows)."""
@@ -33,14 +35,7 @@ def applies(scene: Scene) -> bool:
 def relaxed_guess(scene: Scene, robot: Robot, T: float) -> Guess:
     """The interpolation's motion with the torques of all its rows: the active joints',
     then the passive joints' virtual ones (K x n)."""
-    motion = hermite_motion(scene, robot, T)
-    order = [*robot.active, *robot.passive]
-
-    def guess(x: np.ndarray) -> dict[str, np.ndarray]:
-        out = motion(x)
-        return {**out, "tau": inverse_torques(robot, out["q"], out["dq"], out["ddq"], order)}
-
-    return guess
+    return hermite_guess(scene, robot, T, [*robot.active, *robot.passive])
 
 
 def active_guess(interp: Interpolant, T: float, active: int) -> Guess:

@@ -18,7 +18,7 @@ from planner.schema import JointState
 Guess = Callable[[np.ndarray], dict[str, np.ndarray]]
 
 
-def inverse_torques(robot: Robot, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray,
+def _torques(robot: Robot, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray,
                     rows: list[int]) -> np.ndarray:
     """Rows `rows` of M ddq + h [N m] along a motion (K, n) -> (K, len(rows))."""
     s = Structure.of(robot)
@@ -26,14 +26,15 @@ def inverse_torques(robot: Robot, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray
     return np.array(Q)[rows, :].T
 
 
-def hermite_guess(scene: Scene, robot: Robot, T: float) -> Guess:
-    """`hermite_motion` and the torques that the active rows of the dynamics ask for along it."""
+def hermite_guess(scene: Scene, robot: Robot, T: float, rows: list[int] | None = None) -> Guess:
+    """`hermite_motion` and the torques that rows `rows` of the dynamics (default: the
+    active joints') ask for along it."""
     motion = hermite_motion(scene, robot, T)
+    rows = robot.active if rows is None else rows
 
     def guess(x: np.ndarray) -> dict[str, np.ndarray]:
         out = motion(x)
-        return {**out, "tau": inverse_torques(robot, out["q"], out["dq"], out["ddq"],
-                                              robot.active)}
+        return {**out, "tau": _torques(robot, out["q"], out["dq"], out["ddq"], rows)}
 
     return guess
 

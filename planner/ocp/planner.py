@@ -108,22 +108,19 @@ class Start:
 class Attempt:
     """The solves of one start, in order (`passes`): those that prepare a guess (on a
     coarse mesh, or of the relaxed NLPs) and those on its mesh and the refinements of that
-    (`outcomes`, the plans it offers); `artefact`: the refinement left an optimum that the
-    mesh made up."""
+    (`outcomes`, the plans it offers)."""
 
     start: Start
     passes: list[Outcome]
     outcomes: list[Outcome]
-    artefact: bool = False
 
     def solves(self) -> list[Outcome]:
         return self.passes
 
-    def add(self, outcome: Outcome, offered: bool = True) -> None:
-        """Record a solve (offered: its plan is one the attempt may return)."""
+    def add(self, outcome: Outcome) -> None:
+        """Record a solve of a plan the attempt may return."""
         self.passes.append(outcome)
-        if offered:
-            self.outcomes.append(outcome)
+        self.outcomes.append(outcome)
 
 
 def plan(scene: Scene, progress: Handler | None = None, warm_start: Plan | None = None) -> Plan:
@@ -190,7 +187,7 @@ def _attempt(scene: Scene, starts: Iterator[Start], attempts: list[Attempt], bud
         preliminary, first = _first_solves(scene, start, budget, progress, _passes(attempts))
         attempt = Attempt(start, [*preliminary, first], [first])
         attempts.append(attempt)
-        attempt.artefact = _refine(scene, attempt, budget, progress, _passes(attempts))
+        _refine(scene, attempt, budget, progress, _passes(attempts))
         last = attempt.outcomes[-1]
         settled = last.accurate(tolerance) or not scene.transcription.refinement.enabled
         if last.solution.success and settled or budget.spent \
@@ -321,7 +318,7 @@ def _starts(scene: Scene, robot: Robot, T: float, warm_start: Plan | None,
     half the intervals. stall: the scene's own start is stopped when it stalls (where no
     companion process solves the continuation meanwhile)."""
     tr = scene.transcription
-    mesh = Mesh(np.asarray(tr.breaks)) if tr.breaks else Mesh.uniform(tr.intervals)
+    mesh = _first_mesh(scene)
     guess, used = _guess(scene, robot, T, warm_start)
     earlier = warm_start.solution if warm_start is not None else None
     if warm_start is not None and earlier is not None:
@@ -352,11 +349,15 @@ def _starts(scene: Scene, robot: Robot, T: float, warm_start: Plan | None,
                     "interpolation", T, robot)
 
 
+def _first_mesh(scene: Scene) -> Mesh:
+    """The scene's own first mesh: its breaks, else equal intervals."""
+    tr = scene.transcription
+    return Mesh(np.asarray(tr.breaks)) if tr.breaks else Mesh.uniform(tr.intervals)
+
+
 def _continuation_start(scene: Scene, robot: Robot, T: float) -> Start:
     """The continuation start (`planner.ocp.continuation`) on the scene's first mesh."""
-    tr = scene.transcription
-    mesh = Mesh(np.asarray(tr.breaks)) if tr.breaks else Mesh.uniform(tr.intervals)
-    return Start("continuation", mesh, continuation.relaxed_guess(scene, robot, T),
+    return Start("continuation", _first_mesh(scene), continuation.relaxed_guess(scene, robot, T),
                  "relaxed dynamics", T, robot, relaxed=True)
 
 
@@ -366,26 +367,24 @@ def _inverse_dynamics_applies(robot: Robot) -> bool:
 
 
 def _refine(scene: Scene, attempt: Attempt, budget: Budget,
-            progress: Handler | None, first_pass: int) -> bool:
+            progress: Handler | None, first_pass: int) -> None:
     """Refine the mesh of the attempt's last outcome while it converged but is not
-    accurate; True when it stopped at an artefact of the mesh (`_artefact`)."""
+    accurate, and stop at an artefact of the mesh (`_artefact`): the next start follows."""
     refinement, tolerance = scene.transcription.refinement, scene.solver.resimulation_tolerance
     outcomes = attempt.outcomes
     while refinement.enabled and len(outcomes) <= refinement.max_passes and not budget.spent:
         last = outcomes[-1]
-        if len(outcomes) > 1 and _artefact(outcomes[-2], last):
-            return True
-        if not last.solution.success or last.accurate(tolerance):
-            return False
+        if len(outcomes) > 1 and _artefact(outcomes[-2], last) \
+                or not last.solution.success or last.accurate(tolerance):
+            return
         mesh = refined(last.inst.mesh, last.errors, last.inst.problem.transcription.order,
                        tolerance, refinement.max_intervals)
         if mesh is None:
-            return False
+            return
         inst = instance(scene, last.robot, mesh, last.T)
         attempt.add(_solve_on(scene, inst, last.robot, last.T,
                               interpolant_guess(last.interp, last.T), budget, progress,
                               first_pass + len(attempt.passes) - 1, last.record.strategy))
-    return False
 
 
 ARTEFACT_GROWTH = 2.0
