@@ -17,6 +17,8 @@ BENCHES = {
     "examples": ("bench.examples", "the built-in plan examples, now and at an earlier commit"),
     "plan_list": ("bench.plan_list", "listing 100 plan jobs with large plans, decoding the "
                                      "plans or not"),
+    "impossible": ("bench.impossible", "tasks that cannot be done: how many end infeasible, "
+                                       "how soon"),
     "moved_goals": ("bench.moved_goals", "the built-in plan examples with their goals moved by "
                                          "up to 0.05 rad: how many verify, how fast"),
     "faults": ("bench.faults", "process and store faults against a live server: does an "
