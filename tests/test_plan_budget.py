@@ -38,14 +38,16 @@ def test_the_reserve_is_the_checks_estimate_at_most_a_share_of_the_budget():
 
 
 def test_the_solves_stop_a_reserve_before_the_deadline():
-    """A 4-link task with a coupling margin that does not converge in 2 s: its last
-    iteration comes at least the reserve (a quarter of the budget here) before the end."""
-    wall = 2.0
+    """A 4-link task with a coupling margin whose iterations are slowed to at least
+    PACE s each, so that it cannot converge in 2 s on any machine: its last iteration comes
+    at least the reserve (a quarter of the budget here) before the end."""
+    wall, pace = 2.0, 0.08
     scene = chain_scene(4, extra="margin", intervals=100, solver={"max_wall_time": wall})
     last: list[float] = []
 
     def progress(report: Progress) -> bool:
         last[:] = [report.elapsed]
+        time.sleep(pace)
         return True
 
     start = time.perf_counter()
