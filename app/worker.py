@@ -50,7 +50,15 @@ from app.store import (
     JobStore,
     StoreUnavailable,
 )
-from planner.service import NlpSolution, Plan, Progress, Scene, unverified_reason
+from planner.service import (
+    NEAREST,
+    NlpSolution,
+    Plan,
+    Progress,
+    Scene,
+    nearest,
+    unverified_reason,
+)
 
 log = logging.getLogger("undertow.worker")
 
@@ -64,6 +72,8 @@ STORE_RETRY = 0.05  # [s] first pause before retrying a store that failed; doubl
 STORE_RETRY_MAX = 2.0  # [s] longest pause between two tries
 ORPHAN_TRIES = 20.0  # [s] an orphaned worker tries this long to give its job back
 LISTEN_RETRY = 5.0  # [s] between two tries to LISTEN again after the connection broke
+MEMORY = 1000
+"""How many of the latest succeeded plans solver.warm_start "nearest" looks through."""
 PARENT_DIED = "the node's main process died (killed?) while the job ran"
 T = TypeVar("T")
 WAKE, STOP, READY = "wake", "stop", "ready"
@@ -205,9 +215,10 @@ def run_job(store: JobStore, job_id: str, scene: Scene, solve: SolveFunction,
     _current = (store, job_id, worker)
     reporter = _Reporter(store, job_id, start + budget, worker)
     try:
-        earlier = persist(lambda: _earlier(store, scene.solver.warm_start),
-                          f"job {job_id}: warm start")
-        plan = solve(scene, progress=reporter, **({"warm_start": earlier} if earlier else {}))
+        warm = persist(lambda: _warm_start(store, scene), f"job {job_id}: warm start")
+        plan = solve(scene, progress=reporter, **({"warm_start": warm[0]} if warm else {}))
+        if warm is not None:
+            plan = _started_from(plan, *warm[1:])
     except MemoryError:
         return _failed(store, job_id, out_of_memory(memory_mb), start, worker, exhausted=True)
     except Exception as exc:  # noqa: BLE001 - any error fails the job, the worker lives
@@ -229,10 +240,33 @@ def run_job(store: JobStore, job_id: str, scene: Scene, solve: SolveFunction,
     return Outcome(job_id, status, time.monotonic() - start)
 
 
-def _earlier(store: JobStore, job_id: str | None) -> Plan | None:
+def _start_from(store: JobStore, scene: Scene) -> tuple[str, float | None] | None:
+    """The id of the earlier job the scene starts from (solver.warm_start: its own, or
+    with "nearest" the nearest of the MEMORY latest succeeded ones within reach, with its
+    distance [rad]); None for a cold start."""
+    wanted = scene.solver.warm_start
+    if wanted != NEAREST:
+        return (wanted, None) if wanted else None
+    return nearest(scene, store.succeeded_scenes(MEMORY))
+
+
+def _warm_start(store: JobStore, scene: Scene) -> tuple[Plan, str, float | None] | None:
+    """The earlier plan the scene starts from, its job's id and distance (`_start_from`);
+    None for a cold start, or when that job has no plan (any more)."""
+    start_from = _start_from(store, scene)
+    earlier = _earlier(store, start_from[0]) if start_from is not None else None
+    return None if earlier is None or start_from is None else (earlier, *start_from)
+
+
+def _started_from(plan: Plan, job_id: str, distance: float | None) -> Plan:
+    """The plan with the job it started from in its solver report."""
+    report = plan.solver.model_copy(update={"warm_start": job_id,
+                                            "warm_start_distance": distance})
+    return plan.model_copy(update={"solver": report})
+
+
+def _earlier(store: JobStore, job_id: str) -> Plan | None:
     """The plan of an earlier job with the NLP solution it came from, to warm-start from."""
-    if not job_id:
-        return None
     record = store.get(job_id)
     if record is None or record.plan is None:
         return None

@@ -19,6 +19,8 @@ BENCHES = {
                                      "plans or not"),
     "impossible": ("bench.impossible", "tasks that cannot be done: how many end infeasible, "
                                        "how soon"),
+    "memory": ("bench.memory", "plans started from a neighbour's plan against the same plans "
+                               "from scratch: time, and how often the optimum is the same"),
     "moved_goals": ("bench.moved_goals", "the built-in plan examples with their goals moved by "
                                          "up to 0.05 rad: how many verify, how fast"),
     "faults": ("bench.faults", "process and store faults against a live server: does an "

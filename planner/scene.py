@@ -236,11 +236,13 @@ class SolverSettings(BaseModel):
                                                  "structure, cached on disk)")
     warm_start: str | None = Field(
         default=None, max_length=64,
-        description="the service's id of an earlier plan job to start from: the same problem "
-                    "on a mesh at least as fine starts from its NLP solution, primal and dual "
-                    "(a goal moved a little converges in a few iterations); otherwise its "
-                    "trajectory is the initial guess. The library's plan() takes the earlier "
-                    "Plan itself (warm_start=)")
+        description="the service's id of an earlier plan job to start from, or \"nearest\": "
+                    "the nearest of the service's latest succeeded plans of the same joints "
+                    "(docs/planner.md, \"Memory of motion\"; a cold start when none is "
+                    "near). The same problem on a mesh at least as fine starts from its NLP "
+                    "solution, primal and dual (a goal moved a little converges in a few "
+                    "iterations); otherwise its trajectory is the initial guess. The "
+                    "library's plan() takes the earlier Plan itself (warm_start=)")
     retries: int = Field(default=4, ge=0, le=4,
                          description="further attempts after one that gives no accurate plan: "
                                      "a restart from its last iterate, the inverse dynamics "

@@ -6,7 +6,8 @@ its Ipopt iterate `NlpSolution` for a warm start, the `Progress` a solve reports
 reason a finished plan is not verified (`verdict_reason`, or `unverified_reason` of its
 verification), the plan sampled at any times (`Plan.sample`, `PlanSample`), and what a
 transcription costs: its time nodes (the server's node limit) and its knots (the memory
-estimate). Everything else of the optimal-control package stays internal to the library
+estimate), and the stored plan a scene should start from (`nearest`, memory of motion).
+Everything else of the optimal-control package stays internal to the library
 and may change without the service noticing. `tests/test_service_interface.py` holds
 app/ to this module.
 """
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 from typing import get_args
 
+from planner.memory import NEAREST, nearest
 from planner.ocp import methods
 from planner.ocp.planner import plan
 from planner.ocp.result import MAX_SAMPLE_TIMES, NlpSolution, Plan, PlanSample, Progress
@@ -50,6 +52,6 @@ def verdict_reason(result: Plan) -> str | None:
     return unverified_reason(result.verification)
 
 
-__all__ = ["MAX_SAMPLE_TIMES", "METHODS", "DurationRange", "NlpSolution", "Plan", "PlanSample",
-           "Progress", "Scene", "Transcription", "knot_count", "node_count", "plan",
-           "transcription", "unverified_reason", "verdict_reason"]
+__all__ = ["MAX_SAMPLE_TIMES", "METHODS", "NEAREST", "DurationRange", "NlpSolution", "Plan",
+           "PlanSample", "Progress", "Scene", "Transcription", "knot_count", "nearest",
+           "node_count", "plan", "transcription", "unverified_reason", "verdict_reason"]

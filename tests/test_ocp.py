@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -297,10 +299,18 @@ def test_a_moved_goal_starts_from_the_earlier_plans_primal_and_dual_solution():
     finer = moved.model_copy(update={"transcription": moved.transcription.model_copy(
         update={"intervals": 60})})
     other = plan(finer, warm_start=earlier)  # another mesh: the earlier plan as a guess
-    assert other.solver.strategy == "direct" and other.solver.initial_guess == "warm start"
+    assert other.solver.strategy == "earlier plan as the guess"
+    assert other.solver.initial_guess == "warm start"
     with pytest.raises(ValueError, match="warm_start: the earlier plan is of an arm with 4 "
                                          "joints, 2 of them active; this one has 2, 2"):
         plan(scene(N=20), warm_start=earlier)
+    broken = earlier.solution.model_copy(update={"x": [math.nan] * len(earlier.solution.x)})
+    fallback = plan(moved, warm_start=earlier.model_copy(update={"solution": broken}))
+    # a warm start that fails is followed by the scene's own starts, as a cold plan makes
+    assert fallback.mesh_passes[0].strategy == "warm start"
+    assert (fallback.solver.strategy, fallback.solver.initial_guess) == (
+        cold.solver.strategy, cold.solver.initial_guess) == ("direct", "interpolation")
+    assert fallback.objective == pytest.approx(cold.objective, rel=1e-8)
 
 
 def test_plan_goes_through_waveless_singularities_keeping_the_wavy_det_sign():

@@ -18,7 +18,7 @@ from app.schema_examples import body_examples
 from app.schemas import Job, JobList, JobSummary
 from app.store import FINAL, DuplicateKey, JobRecord, JobStatus, JobStore
 from planner import feasibility
-from planner.service import Scene
+from planner.service import NEAREST, Scene
 
 router = APIRouter(prefix="/v1/plans", tags=["plans"])
 _LINKS = {name: {"operationId": op, "parameters": {"job_id": "$response.body#/id"}}
@@ -27,7 +27,10 @@ _LINKS = {name: {"operationId": op, "parameters": {"job_id": "$response.body#/id
 
 def check_warm_start(store: JobStore, job_id: str,
                      loc: tuple[str, ...] = ("body",)) -> None:
-    """422 at solver.warm_start (under `loc`) unless it names a job that has a plan."""
+    """422 at solver.warm_start (under `loc`) unless it names a job that has a plan, or is
+    "nearest" (whatever the store holds when the job runs)."""
+    if job_id == NEAREST:
+        return
     record = store.get(job_id)
     if record is None or record.plan is None:
         what = "there is no plan job" if record is None else "no plan yet in the job"

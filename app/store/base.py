@@ -276,6 +276,11 @@ class JobStore(ABC):
         """The id of the job created with idempotency key `key`, or None."""
 
     @abstractmethod
+    def succeeded_scenes(self, limit: int) -> builtins.list[tuple[str, dict[str, Any]]]:
+        """The ids and scenes of the `limit` succeeded jobs that finished last, newest
+        first: where a plan with solver.warm_start "nearest" looks for its start."""
+
+    @abstractmethod
     def get_batch(self, batch_id: str) -> BatchRecord | None:
         """The batch with its members in index order, or None when there is no such id."""
 

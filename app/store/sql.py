@@ -140,6 +140,11 @@ class SqlJobStore(JobStore):
         rows = self._rows("SELECT id FROM jobs WHERE idem_key = ?", (key,))
         return rows[0][0] if rows else None
 
+    def succeeded_scenes(self, limit: int) -> builtins.list[tuple[str, dict[str, Any]]]:
+        rows = self._rows("SELECT id, scene FROM jobs WHERE status = 'succeeded' "
+                          "ORDER BY finished DESC, id LIMIT ?", (limit,))
+        return [(job_id, self._from_json(scene)) for job_id, scene in rows]
+
     def claim(self, owner: str | None, worker: str, lease_until: float) -> JobRecord | None:
         now = time.time()
         mine = "AND owner = :owner" if owner is not None else ""

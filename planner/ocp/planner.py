@@ -149,8 +149,9 @@ def _plan(scene: Scene, progress: Handler | None, warm_start: Plan | None,
     attempts: list[Attempt] = []
     alone = warm_start is not None or not continuation.applies(scene) \
         or scene.solver.retries == 0 or portfolio.solver_processes() < 2
-    starts = itertools.islice(_starts(scene, robot, T, warm_start, attempts, stall=alone),
-                              1 + scene.solver.retries)
+    starts = itertools.chain(_warm_starts(scene, robot, T, warm_start),
+                             itertools.islice(_starts(scene, robot, T, attempts, stall=alone),
+                                              1 + scene.solver.retries))
     if alone:
         _attempt(scene, starts, attempts, budget, progress)
         return _result(scene, attempts, budget)
@@ -207,7 +208,7 @@ def _free_time(scene: Scene, budget: Budget, progress: Handler | None) -> Plan:
     `infeasibility.with_shortest` runs after a fixed duration held infeasible)."""
     attempts: list[Attempt] = []
     robot, T = _design_robot(scene), _duration_guess(scene)
-    starts = itertools.islice(_starts(scene, robot, T, None, attempts), 2)
+    starts = itertools.islice(_starts(scene, robot, T, attempts), 2)
     _attempt(scene, starts, attempts, budget, progress)
     return _result(scene, attempts, budget)
 
@@ -304,14 +305,34 @@ def _continuation(scene: Scene, start: Start, budget: Budget, progress: Handler 
     return outcomes
 
 
-def _starts(scene: Scene, robot: Robot, T: float, warm_start: Plan | None,
-            attempts: list[Attempt], stall: bool = True) -> Iterator[Start]:
-    """The attempts of a plan, in order, each tried while the ones before it have not
+def _warm_starts(scene: Scene, robot: Robot, T: float,
+                 warm_start: Plan | None) -> Iterator[Start]:
+    """The attempt an earlier plan gives, tried before the scene's own (`_starts`), which
+    follow it unchanged when it fails: its NLP solution, primal and dual, where it solved
+    the same problem on a mesh at least as fine as the scene's (its refined mesh is kept);
+    else its trajectory as the initial guess on the scene's own mesh, stopped when it
+    stalls."""
+    if warm_start is None:
+        return
+    guess = _earlier_guess(robot, warm_start)
+    earlier, mesh = warm_start.solution, _first_mesh(scene)
+    if earlier is not None:
+        solved_on = Mesh(np.asarray(earlier.breaks))
+        same = ProblemKey.of(scene, solved_on.intervals).fingerprint() == earlier.fingerprint
+        if same and solved_on.intervals >= mesh.intervals:
+            yield Start("warm start", solved_on, guess, "warm start", warm_start.duration,
+                        robot, earlier)
+            return
+    yield Start("earlier plan as the guess", mesh, guess, "warm start", T, robot,
+                may_stall=True)
+
+
+def _starts(scene: Scene, robot: Robot, T: float, attempts: list[Attempt],
+            stall: bool = True) -> Iterator[Start]:
+    """The scene's own attempts, in order, each tried while the ones before it have not
     given a converged plan (with mesh refinement on: an accurate one; docs/planner.md,
-    "Retries"): an earlier plan's own NLP solution where it solved the same problem on a
-    mesh at least as fine as the scene's (its refined mesh is kept); the scene's own start
-    (with refinement on, a uniform mesh of over COARSE_INTERVALS intervals solved on that
-    many first, unless an earlier plan is the guess); the continuation from relaxed
+    "Retries"): the scene's own start (with refinement on, a uniform mesh of over
+    COARSE_INTERVALS intervals solved on that many first); the continuation from relaxed
     dynamics (`planner.ocp.continuation`), where it applies; a restart from the last
     iterate of the scene's start where that neither converged nor stalled;
     the classical inverse dynamics as the initial guess; a first mesh of twice, then of
@@ -319,15 +340,8 @@ def _starts(scene: Scene, robot: Robot, T: float, warm_start: Plan | None,
     companion process solves the continuation meanwhile)."""
     tr = scene.transcription
     mesh = _first_mesh(scene)
-    guess, used = _guess(scene, robot, T, warm_start)
-    earlier = warm_start.solution if warm_start is not None else None
-    if warm_start is not None and earlier is not None:
-        solved_on = Mesh(np.asarray(earlier.breaks))
-        same = ProblemKey.of(scene, solved_on.intervals).fingerprint() == earlier.fingerprint
-        if same and solved_on.intervals >= mesh.intervals:
-            yield Start("warm start", solved_on, guess, used, warm_start.duration, robot, earlier)
-    if tr.refinement.enabled and warm_start is None and tr.breaks is None \
-            and tr.intervals > COARSE_INTERVALS:
+    guess, used = _guess(scene, robot, T)
+    if tr.refinement.enabled and tr.breaks is None and tr.intervals > COARSE_INTERVALS:
         yield Start("coarse to fine", mesh, guess, used, T, robot,
                     coarse=Mesh.uniform(COARSE_INTERVALS), may_stall=stall)
     else:
@@ -475,16 +489,20 @@ def _outcome(scene: Scene, inst: Instance, robot: Robot, T: float, solution: Sol
                    (None, status), record)
 
 
-def _guess(scene: Scene, robot: Robot, T: float, warm_start: Plan | None) -> tuple[Guess, str]:
-    """The initial guess (an earlier plan, else the scene's `solver.initial_guess`) and
-    what it was: an inverse dynamics that cannot be computed leaves the interpolation."""
-    if warm_start is not None:
-        shape = (len(warm_start.q[0]), len(warm_start.tau[0]))
-        if shape != (robot.n, len(robot.active)):
-            raise InputError(f"warm_start: the earlier plan is of an arm with {shape[0]} joints, "
-                             f"{shape[1]} of them active; this one has {robot.n}, "
-                             f"{len(robot.active)}")
-        return plan_guess(warm_start), "warm start"
+def _earlier_guess(robot: Robot, earlier: Plan) -> Guess:
+    """An earlier plan's trajectory as the initial guess; InputError when it is of
+    another arm."""
+    shape = (len(earlier.q[0]), len(earlier.tau[0]))
+    if shape != (robot.n, len(robot.active)):
+        raise InputError(f"warm_start: the earlier plan is of an arm with {shape[0]} joints, "
+                         f"{shape[1]} of them active; this one has {robot.n}, "
+                         f"{len(robot.active)}")
+    return plan_guess(earlier)
+
+
+def _guess(scene: Scene, robot: Robot, T: float) -> tuple[Guess, str]:
+    """The scene's initial guess (`solver.initial_guess`) and what it was: an inverse
+    dynamics that cannot be computed leaves the interpolation."""
     if scene.solver.initial_guess == "inverse-dynamics":
         try:
             return inverse_dynamics_guess(scene, robot, T), "inverse-dynamics"

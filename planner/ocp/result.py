@@ -74,6 +74,15 @@ class SolverReport(_Out):
                     "an inverse dynamics that could not be computed says why, and the "
                     "interpolation was used instead ('not recorded' in plans stored before "
                     "the field existed)")
+    warm_start: str | None = Field(
+        default=None,
+        description="the service's id of the plan job it was given to start from "
+                    "(solver.warm_start, or the nearest one found for \"nearest\"); None "
+                    "for a cold start")
+    warm_start_distance: float | None = Field(
+        default=None,
+        description="[rad] with solver.warm_start \"nearest\": how far that plan's scene is "
+                    "from this one (planner.memory.distance)")
     strategy: str = Field(
         default="not recorded",
         description="what produced the plan: 'direct' (one solve), 'refined' (mesh "
