@@ -19,6 +19,8 @@ BENCHES = {
                                      "plans or not"),
     "impossible": ("bench.impossible", "tasks that cannot be done: how many end infeasible, "
                                        "how soon"),
+    "iteration_cost": ("bench.iteration_cost", "CPU per iteration on the seed arm at N = 50 and "
+                                               "100: Ipopt interpreted and compiled, fatrop"),
     "memory": ("bench.memory", "plans started from a neighbour's plan against the same plans "
                                "from scratch: time, and how often the optimum is the same"),
     "moved_goals": ("bench.moved_goals", "the built-in plan examples with their goals moved by "

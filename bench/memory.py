@@ -2,15 +2,16 @@
 
 Bases: the built-in plan examples and the first task of every hard-suite category
 (`planner.hard_suite`, its own seed). Each base is planned cold; a verified base gets
-`--variants` neighbours at each goal distance of MOVES: every given final angle moved by a
+`--variants` neighbours at each goal distance d of MOVES: every given final angle moved by a
 uniform draw from [-d, d], one of them by exactly ±d, a tip target by d times the arm's
-reach (NumPy generator seeded by the base's index, the variant and d), so that `planner.memory.distance` to the base is d. A neighbour known
-infeasible before a solve is left out. Each neighbour is planned cold (`plan(scene)`) and
-from the base (`plan(scene, warm_start=base)`, what `solver.warm_start` "nearest" does in the
-service), in this process, one after the other. Reported per distance: verified plans, median
-wall and CPU time to a verified plan (unverified counted as never) of both, and how often the
-warm plan ends at the cold plan's optimum (objectives within `SAME` relative), at a lower or
-at a higher objective.
+reach (NumPy generator seeded by the base's index, the variant and d), so that
+`planner.memory.distance` to the base is d. A neighbour known infeasible before a solve is
+left out. Each neighbour is planned cold (`plan(scene)`) and from the base
+(`plan(scene, warm_start=base)`, what `solver.warm_start` "nearest" does in the service), in
+this process, one after the other. Reported per distance: verified plans, median wall and
+CPU time to a verified plan (unverified counted as never) of both, and how often the warm
+plan ends at the cold plan's optimum (objectives within `SAME` relative), at a lower or at a
+higher objective.
 
     python -m bench memory [--variants 2] [--moves 0.02,0.05,0.1,0.2,0.3]
 """
@@ -80,9 +81,9 @@ def _verified(result: Plan) -> bool:
 
 def _optimum(warm: Plan, cold: Plan) -> str:
     """Where the warm plan ended against the cold one: same, lower, higher, or '–'."""
-    if not (_verified(warm) and _verified(cold)):
-        return "–"
     a, b = warm.objective, cold.objective
+    if not (_verified(warm) and _verified(cold)) or a is None or b is None:
+        return "–"
     if abs(a - b) <= SAME * max(1.0, abs(b)):
         return "same"
     return "lower" if a < b else "higher"

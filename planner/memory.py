@@ -2,16 +2,17 @@
 "nearest"`).
 
 An earlier plan can seed a scene when it has the same *shape*: the same number of joints,
-the same passive ones, waves on the same joints, the same final-state entries left free, and a
-tip target or none.
-Its trajectory is then an initial guess of the right size, and where its NLP is the same
-problem (`planner.ocp.problem.ProblemKey`), its solution starts the solver primal and dual.
+the same passive ones, waves on the same joints, the same final-state entries left free, and
+a tip target in both or neither. Its trajectory is then an initial guess of the right size,
+and where its NLP is the same problem (`planner.ocp.problem.ProblemKey`), its solution
+starts the solver primal and dual.
 
 Among the plans of the same shape the nearest is the one at the least `distance`, a length
 in radians: the largest change of a boundary angle, a boundary rate over the time a quarter
-of the motion takes, the tip target over the arm's reach, the relative change of the duration and of every robot number, and a
-whole radian for every part of the task stated differently (objective, limits, bounds,
-targets). Beyond `REACH` no plan is near enough: a cold start is the better bet.
+of the motion takes, the tip target over the arm's reach, the relative change of the
+duration and of every robot number, and a whole radian for every part of the task stated
+differently (objective, limits, bounds, targets). Beyond `REACH` no plan is near enough: a
+cold start is the better bet.
 """
 
 from __future__ import annotations

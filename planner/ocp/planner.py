@@ -147,9 +147,9 @@ def _plan(scene: Scene, progress: Handler | None, warm_start: Plan | None,
     """`plan` of a scene that passed the checks before a solve, within `budget`."""
     robot, T = _design_robot(scene), _duration_guess(scene)
     attempts: list[Attempt] = []
-    alone = warm_start is not None or not continuation.applies(scene) \
-        or scene.solver.retries == 0 or portfolio.solver_processes() < 2
-    starts = itertools.chain(_warm_starts(scene, robot, T, warm_start),
+    alone = not continuation.applies(scene) or scene.solver.retries == 0 \
+        or portfolio.solver_processes() < 2
+    starts = itertools.chain(_warm_starts(scene, robot, T, warm_start, stall=alone),
                              itertools.islice(_starts(scene, robot, T, attempts, stall=alone),
                                               1 + scene.solver.retries))
     if alone:
@@ -305,13 +305,13 @@ def _continuation(scene: Scene, start: Start, budget: Budget, progress: Handler 
     return outcomes
 
 
-def _warm_starts(scene: Scene, robot: Robot, T: float,
-                 warm_start: Plan | None) -> Iterator[Start]:
+def _warm_starts(scene: Scene, robot: Robot, T: float, warm_start: Plan | None,
+                 stall: bool = True) -> Iterator[Start]:
     """The attempt an earlier plan gives, tried before the scene's own (`_starts`), which
     follow it unchanged when it fails: its NLP solution, primal and dual, where it solved
     the same problem on a mesh at least as fine as the scene's (its refined mesh is kept);
     else its trajectory as the initial guess on the scene's own mesh, stopped when it
-    stalls."""
+    stalls (stall: as the scene's own start)."""
     if warm_start is None:
         return
     guess = _earlier_guess(robot, warm_start)
@@ -324,7 +324,7 @@ def _warm_starts(scene: Scene, robot: Robot, T: float,
                         robot, earlier)
             return
     yield Start("earlier plan as the guess", mesh, guess, "warm start", T, robot,
-                may_stall=True)
+                may_stall=stall)
 
 
 def _starts(scene: Scene, robot: Robot, T: float, attempts: list[Attempt],

@@ -1,0 +1,91 @@
+"""What one iteration costs on the seed's 4-link arm, and where the time goes.
+
+Scene "seed-4" (bench/scenes.py: the seed arm in a horizontal plane across waveless coupling
+singularities, Legendre degree 3), one solve per plan of exactly `--iterations` iterations
+from the planner's initial guess (refinement and retries off; the NLP built and cached
+first, so no build is timed). Solvers: Ipopt with the stages' derivative kernels
+interpreted (the default), Ipopt with them compiled to C (`solver.jit`, the library built
+before timing), and fatrop with the stage structure declared (`solver.name: "fatrop"`;
+it differentiates the expanded NLP itself). Reported per N and solver, medians of
+`--repeats` solves: CPU time per iteration, the part in NLP function evaluations (CasADi's
+`t_proc_nlp_*` and the iteration callback) and the solver's own part (the rest: the KKT
+factorizations, solves and vector work), and function calls per iteration.
+
+    python -m bench iteration_cost [--N 50 100] [--iterations 60] [--repeats 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+from bench import harness
+from bench.scenes import make_scene
+from planner import compiled
+from planner.ocp import plan
+
+DOC = harness.DOCS / "benchmarks.md"
+SECTION = "Cost of an iteration on the seed arm"
+SOLVERS: tuple[tuple[str, dict[str, object]], ...] = (
+    ("Ipopt, interpreted", {}), ("Ipopt, compiled (jit)", {"jit": True}),
+    ("fatrop", {"name": "fatrop"}))
+
+
+def _measure(N: int, iterations: int, solver: dict) -> dict:
+    """One solve of `iterations` iterations: CPU per iteration [ms], its split, calls."""
+    scene = make_scene("seed-4", N=N, one_solve=True,
+                       solver={**solver, "max_iter": iterations, "tol": 1e-14})
+    _, timed = harness.build_instrumented(scene)
+    plan(scene)
+    stats = timed.stats()
+    done = max(int(stats.get("iter_count", iterations)), 1)
+    functions = sum(v for k, v in stats.items()
+                    if k.startswith("t_proc_nlp") or k == "t_proc_callback_fun")
+    calls = sum(v for k, v in stats.items() if k.startswith("n_call_nlp"))
+    return {"iterations": done, "cpu_per_iteration": 1e3 * timed.cpu / done,
+            "functions_per_iteration": 1e3 * functions / done,
+            "solver_per_iteration": 1e3 * (timed.cpu - functions) / done,
+            "calls_per_iteration": calls / done}
+
+
+def run(Ns: list[int], iterations: int, repeats: int) -> list[dict]:
+    rows = []
+    for N in Ns:
+        for name, solver in SOLVERS:
+            _measure(N, iterations, solver)  # builds (and compiles) the NLP
+            if solver.get("jit"):
+                compiled.wait()
+            runs = [_measure(N, iterations, solver) for _ in range(repeats)]
+            row = {"N": N, "solver": name, "iterations": runs[0]["iterations"],
+                   **{k: harness.median(r[k] for r in runs)
+                      for k in ("cpu_per_iteration", "functions_per_iteration",
+                                "solver_per_iteration", "calls_per_iteration")}}
+            rows.append(row)
+            print(row, flush=True)
+    return rows
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench iteration_cost", description=__doc__)
+    parser.add_argument("--N", type=int, nargs="+", default=[50, 100])
+    parser.add_argument("--iterations", type=int, default=60)
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args(argv)
+    started, note = time.perf_counter(), harness.machine_note()
+    rows = run(args.N, args.iterations, args.repeats)
+    harness.write_csv(harness.RESULTS / "iteration_cost.csv", rows)
+    text = "\n\n".join([
+        f"The seed arm in a horizontal plane (\"seed-4\", Legendre 3), one solve of "
+        f"{args.iterations} iterations from the planner's initial guess, the NLP built first; "
+        f"medians of {args.repeats} solves, CPU time of this process. Functions: CasADi's "
+        "NLP function evaluations and the iteration callback; solver: the rest (KKT "
+        "factorizations and solves, vector work).",
+        harness.table(rows, [("N", "N"), ("solver", "solver"), ("iterations", "iterations"),
+                             ("cpu_per_iteration", "CPU per iteration [ms]"),
+                             ("functions_per_iteration", "functions [ms]"),
+                             ("solver_per_iteration", "solver [ms]"),
+                             ("calls_per_iteration", "function calls per iteration")]),
+        f"Rows: `bench/results/iteration_cost.csv`. "
+        f"{harness.manifest('iteration_cost', argv, started, note)}"])
+    harness.write_section(DOC, SECTION, text)
+    return 0
