@@ -54,7 +54,7 @@ def create_app(settings: Settings | None = None, solve: SolveFunction | None = N
             log.critical("%s", exc)
             raise
         app.state.metrics.watch(store)
-        os.environ[PLAN_PROCESSES] = str(settings.plan_processes(settings.workers))
+        os.environ[PLAN_PROCESSES] = str(settings.plan_processes())
         runner = JobRunner(store, solve or load_function(settings.solve_function),
                            owner=settings.instance, workers=settings.workers,
                            max_queued=settings.max_queued, retry_after=settings.retry_after,

@@ -35,8 +35,8 @@ class Settings(BaseSettings):
         "`undertow worker` processes run)"))
     solver_processes: int | None = Field(default=None, ge=1, le=8, description=(
         "processes one plan may use (a plan's continuation start runs in a second one "
-        "beside its other starts; docs/planner.md, \"Both cores\"); unset: the machine's "
-        "cores shared among the solver workers, cores // workers, at least 1"))
+        "beside its other starts, on a core no other plan holds; docs/planner.md, \"Both "
+        "cores\"); unset: the machine's cores"))
     lease: float = Field(default=60.0, ge=1.0, le=3600.0, description=(
         "seconds a worker's claim on a job holds without renewal (renewed every 0.25 s); a "
         "job whose worker stays silent that long has had an infrastructure failure and is "
@@ -96,12 +96,12 @@ class Settings(BaseSettings):
     log_level: str = Field(default="INFO")
 
 
-    def plan_processes(self, workers: int) -> int:
-        """Processes each of `workers` concurrent plans may use (UNDERTOW_SOLVER_PROCESSES,
-        else the cores shared among them)."""
+    def plan_processes(self) -> int:
+        """Processes one plan may use (UNDERTOW_SOLVER_PROCESSES, else the machine's
+        cores: a plan forks its companion only onto a core that no other plan holds)."""
         if self.solver_processes is not None:
             return self.solver_processes
-        return max(1, (os.cpu_count() or 1) // max(workers, 1))
+        return max(1, len(os.sched_getaffinity(0)))
 
     @field_validator("db_url")
     @classmethod

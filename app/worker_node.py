@@ -66,7 +66,7 @@ def run(settings: Settings, processes: int, stop: threading.Event | None = None,
     configure(settings.log_level)
     store = open_store(settings)
     name = f"{settings.instance}:worker:{os.getpid()}"
-    os.environ[PLAN_PROCESSES] = str(settings.plan_processes(processes))
+    os.environ[PLAN_PROCESSES] = str(settings.plan_processes())
     node_metrics: NodeMetrics | None = None
 
     def done(outcome: Outcome) -> None:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import tempfile
 import zlib
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -27,6 +28,9 @@ from testbed.robots import random_robot
 # One solver process per plan: the tests run two at a time already (pytest -n 2), and which
 # process of a portfolio wins depends on timing; tests/test_portfolio.py sets its own.
 os.environ.setdefault("UNDERTOW_SOLVER_PROCESSES", "1")
+# Core tokens of this test process's own (planner.ocp.cores): the tests that fork a
+# companion find a free core whatever else runs on the machine.
+os.environ.setdefault("UNDERTOW_CORE_DIR", tempfile.mkdtemp(prefix="undertow-cores-"))
 
 
 def seed_arm(gravity: float = 9.81, waves: bool = True,

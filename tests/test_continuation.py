@@ -144,12 +144,11 @@ def test_a_companion_stops_once_the_process_that_forked_it_is_gone(
     assert guard(None) is False  # type: ignore[arg-type]
 
 
-def test_the_service_shares_the_cores_among_its_solver_workers(monkeypatch: pytest.MonkeyPatch):
-    monkeypatch.setattr(os, "cpu_count", lambda: 8)
+def test_a_service_plan_may_use_every_core_unless_told(monkeypatch: pytest.MonkeyPatch):
+    monkeypatch.setattr(os, "sched_getaffinity", lambda _: set(range(8)))
     monkeypatch.delenv(portfolio.ENVIRONMENT)
-    assert Settings(workers=2).plan_processes(2) == 4
-    assert Settings(workers=16).plan_processes(16) == 1
-    assert Settings(solver_processes=2).plan_processes(16) == 2
+    assert Settings(workers=2).plan_processes() == 8  # the core tokens share them
+    assert Settings(solver_processes=1).plan_processes() == 1
 
 
 def test_the_relaxed_nlps_virtual_torques_are_the_passive_joints_generalised_forces(

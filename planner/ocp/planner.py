@@ -23,7 +23,7 @@ from planner import feasibility
 from planner.dynamics import Dynamics
 from planner.errors import InputError
 from planner.model import Robot, Wave
-from planner.ocp import continuation, infeasibility, portfolio
+from planner.ocp import continuation, cores, infeasibility, portfolio
 from planner.ocp.accuracy import interval_errors
 from planner.ocp.feedback import REPLAY_SAMPLES
 from planner.ocp.guess import (
@@ -144,11 +144,23 @@ def plan(scene: Scene, progress: Handler | None = None, warm_start: Plan | None 
 
 def _plan(scene: Scene, progress: Handler | None, warm_start: Plan | None,
           budget: Budget) -> Plan:
-    """`plan` of a scene that passed the checks before a solve, within `budget`."""
+    """`plan` of a scene that passed the checks before a solve, within `budget`: with a
+    companion where one helps and a core is free for it (`planner.ocp.cores`), else alone."""
+    wanted = continuation.applies(scene) and scene.solver.retries > 0 \
+        and portfolio.solver_processes() >= 2
+    own = cores.take()
+    spare = cores.take() if wanted and own is not None else None
+    try:
+        return _planned_on(scene, progress, warm_start, budget, alone=spare is None)
+    finally:
+        cores.release(own, spare)
+
+
+def _planned_on(scene: Scene, progress: Handler | None, warm_start: Plan | None,
+                budget: Budget, alone: bool) -> Plan:
+    """`_plan` in this process alone, or beside a companion that solves the continuation."""
     robot, T = _design_robot(scene), _duration_guess(scene)
     attempts: list[Attempt] = []
-    alone = not continuation.applies(scene) or scene.solver.retries == 0 \
-        or portfolio.solver_processes() < 2
     starts = itertools.chain(_warm_starts(scene, robot, T, warm_start, stall=alone),
                              itertools.islice(_starts(scene, robot, T, attempts, stall=alone),
                                               1 + scene.solver.retries))
