@@ -7,8 +7,10 @@ compiles, the NLP, so every replan finds its structure cached), then each of `--
 random goals (every joint of the final state moved by a uniform draw from ±0.05 rad, seed
 `--seed`) is planned with `plan(scene, warm_start=base)` and with `plan(scene)`. Service: a
 live server (`make serve`'s command, its own store) plans the base scene, then each moved
-goal is POSTed with `solver.warm_start` naming the base job and `?wait=`; the time is from
-sending the request to having the verified plan in hand. Time to a verified plan counts the
+goal is POSTed with `solver.warm_start` naming the base job and `?wait=`; then, on a fresh
+server that planned the base, with `solver.warm_start: "nearest"` (memory of motion: the
+nearest of the base and the goals planned before). The time is from sending the request to
+having the verified plan in hand. Time to a verified plan counts the
 whole plan: solves, mesh passes, interval check, replay, feedback and coupling along the plan.
 
     python -m bench replan [--moves 20] [--seed 7] [--no-jit] [--no-service]
@@ -70,29 +72,38 @@ def library(requests: list[dict], base: dict) -> list[dict]:
 
 
 def service(requests: list[dict], base: dict) -> list[dict]:
-    """Warm plans of each moved goal through a live server: request to verified plan."""
+    """Warm plans of each moved goal through a live server (a fresh one for each kind),
+    from the base job named and from the nearest plan the server holds (the base and the
+    moved goals planned before): request to verified plan."""
     from testbed.service import LiveServer
 
     rows = []
-    with tempfile.TemporaryDirectory() as work, \
-            LiveServer(Path(work) / "jobs.sqlite3", UNDERTOW_WORKERS="1") as server, \
-            httpx.Client(base_url=server.url, timeout=120) as http:
-        first = http.post("/v1/plans?wait=30", json=base).json()
-        if first["status"] != "succeeded":
-            raise RuntimeError(f"base plan: {first['status']}")
-        for request in requests:
-            warm = {**request, "solver": {**request["solver"], "warm_start": first["id"]}}
-            started = time.perf_counter()
-            job = http.post("/v1/plans?wait=30", json=warm).json()
-            elapsed = time.perf_counter() - started
-            plan = job.get("plan") or {}
-            solver = plan.get("solver", {})
-            rows.append({"kind": "service, warm",
-                         "verified": job["status"] == "succeeded"
-                         and plan.get("verification", {}).get("verified", False),
-                         "iterations": solver.get("iterations"), "time": elapsed,
-                         "strategy": solver.get("strategy"), "objective": plan.get("objective")})
+    for kind in ("service, warm", "service, nearest"):
+        with tempfile.TemporaryDirectory() as work, \
+                LiveServer(Path(work) / "jobs.sqlite3", UNDERTOW_WORKERS="1") as server, \
+                httpx.Client(base_url=server.url, timeout=120) as http:
+            first = http.post("/v1/plans?wait=30", json=base).json()
+            if first["status"] != "succeeded":
+                raise RuntimeError(f"base plan: {first['status']}")
+            for request in requests:
+                start = first["id"] if kind == "service, warm" else "nearest"
+                rows.append(_posted(http, kind, {**request, "solver": {
+                    **request["solver"], "warm_start": start}}))
     return rows
+
+
+def _posted(http: httpx.Client, kind: str, request: dict) -> dict:
+    """POST one plan with ?wait=30: its row, timed from sending to the answer."""
+    started = time.perf_counter()
+    job = http.post("/v1/plans?wait=30", json=request).json()
+    elapsed = time.perf_counter() - started
+    plan = job.get("plan") or {}
+    solver = plan.get("solver", {})
+    return {"kind": kind,
+            "verified": job["status"] == "succeeded"
+            and plan.get("verification", {}).get("verified", False),
+            "iterations": solver.get("iterations"), "time": elapsed,
+            "strategy": solver.get("strategy"), "objective": plan.get("objective")}
 
 
 def summary(rows: list[dict]) -> list[dict]:

@@ -4,8 +4,8 @@ A library is named by a digest of what decides its code; it is built on first us
 in a temporary folder) and renamed into place atomically, so processes sharing the cache
 folder never load a partial one. $UNDERTOW_CACHE_DIR names the folder (default
 ~/.cache/undertow). A caller that need not wait has the library built in the background,
-by a process of its own (`python -m planner.compiled`), and goes on with the interpreted
-functions meanwhile.
+by a process of its own at the lowest priority (`python -m planner.compiled`), and goes on
+with the interpreted functions meanwhile.
 """
 
 from __future__ import annotations
@@ -119,7 +119,9 @@ def wait(timeout: float = 600.0) -> None:
 
 def main(argv: list[str]) -> None:
     """Child process: folder name flags work file...: build the library of the saved
-    functions, then remove their folder."""
+    functions, then remove their folder. It runs at the lowest priority (nice 19), on the
+    time solves leave idle."""
+    os.nice(19)
     folder, name, flags, work, *files = argv
     try:
         _build(Path(folder), name, [ca.Function.load(f) for f in files], flags)
