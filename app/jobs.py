@@ -11,7 +11,9 @@ verdict) ends the wait.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
+import threading
 import time
 from collections.abc import Callable
 from typing import Any
@@ -53,8 +55,11 @@ class JobRunner:
                  retention: tuple[float, int] | None = None):
         self.store, self.owner = store, owner
         self.capacity, self.retry_after = workers + max_queued, retry_after
+        self._on_done = on_done
+        self._waiters: dict[str, list[tuple[asyncio.AbstractEventLoop, asyncio.Event]]] = {}
+        self._waiters_lock = threading.Lock()
         self.supervisor = Supervisor(store, solve, owner, workers, memory_mb, grace,
-                                     log_level, on_done, lease=lease, retention=retention)
+                                     log_level, self._ended, lease=lease, retention=retention)
 
     def start(self) -> list[str]:
         """Recover after a restart: running jobs of this owner held by its own workers
@@ -93,13 +98,40 @@ class JobRunner:
         self.supervisor.wake()
 
     async def wait(self, job_id: str, timeout: float) -> None:
-        """Return when the job has ended or after `timeout` seconds."""
+        """Return when the job has ended or after `timeout` seconds: at once when one of
+        this server's workers ends it, else at the store read that sees it ended (every
+        WAIT_POLL seconds: a cancel, another server's worker)."""
         deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            record = await to_thread.run_sync(self.store.get, job_id)
-            if record is None or record.status in FINAL:
-                return
-            await asyncio.sleep(min(WAIT_POLL, max(0.0, deadline - time.monotonic())))
+        ended = asyncio.Event()
+        entry = (asyncio.get_running_loop(), ended)
+        with self._waiters_lock:
+            self._waiters.setdefault(job_id, []).append(entry)
+        try:
+            while time.monotonic() < deadline:
+                record = await to_thread.run_sync(self.store.get, job_id)
+                if record is None or record.status in FINAL:
+                    return
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(ended.wait(), min(
+                        WAIT_POLL, max(0.0, deadline - time.monotonic())))
+                ended.clear()
+        finally:
+            with self._waiters_lock:
+                waiting = self._waiters.get(job_id, [])
+                waiting.remove(entry)
+                if not waiting:
+                    self._waiters.pop(job_id, None)
+
+    def _ended(self, outcome: Outcome) -> None:
+        """A job ended by one of this server's workers (in the supervising thread): wake
+        its waiters, then call `on_done`."""
+        with self._waiters_lock:
+            waiting = list(self._waiters.get(outcome.job_id, []))
+        for loop, event in waiting:
+            with contextlib.suppress(RuntimeError):  # its loop has closed
+                loop.call_soon_threadsafe(event.set)
+        if self._on_done is not None:
+            self._on_done(outcome)
 
     def problem(self) -> str | None:
         """Why this server cannot take or run jobs (store or workers), or None."""

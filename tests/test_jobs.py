@@ -9,6 +9,7 @@ import time
 
 import pytest
 
+from app import jobs
 from app.jobs import JobRunner, QueueFull
 from app.store import BUILDING, FINAL, RetryPolicy, SqliteJobStore, StoreUnavailable
 from app.supervisor import CANCELLED_STOPPED, TICK, died, over_budget
@@ -189,6 +190,20 @@ def test_wait_returns_when_the_job_ends(runner):
 
     assert asyncio.run(go()) < 5
     assert runner.store.get("waited").status == "succeeded"
+
+
+def test_a_job_its_own_worker_ends_wakes_its_waiter_without_the_store_poll(
+        runner, monkeypatch: pytest.MonkeyPatch):
+    monkeypatch.setattr(jobs, "WAIT_POLL", 60.0)  # only the worker's outcome can end it soon
+
+    async def go() -> float:
+        runner.submit(scene(iterations=5), "woken")
+        start = time.monotonic()
+        await runner.wait("woken", timeout=30)
+        return time.monotonic() - start
+
+    assert asyncio.run(go()) < 20
+    assert runner.store.get("woken").status == "succeeded" and runner._waiters == {}
 
 
 def test_a_dead_worker_requeues_only_its_job_until_it_is_a_dead_letter(runner):
