@@ -215,7 +215,12 @@ PLAN_ARM: dict[str, Any] = {"links": [
 
 
 def _plan_examples() -> list[Example]:
-    """Optimal-control plans (kind "plan", scenes for planner.ocp.plan).
+    """Optimal-control plans (kind "plan", scenes for planner.ocp.plan), the headline first.
+
+    The seed arm in a horizontal plane: without gravity a passive joint turns only by the
+    coupling to the active ones (the passive base keeps the angular momentum at zero), and
+    the waveless det M_pa changes sign on the way; the hard suite's kind of task
+    (planner/hard_suite.py, "seed-g0-cross"), verified in about 60 iterations.
 
     The seed arm's: with q0 = q2 = 0 the waveless M_01 and M_21 go as cos(q1), so det M_pa
     changes sign where link 1 is horizontal; gravity holds the passive links near rest and
@@ -236,6 +241,15 @@ def _plan_examples() -> list[Example]:
         "transcription": {"method": "legendre", "intervals": 40, "degree": 3},
         "solver": {"max_iter": 1000, "max_wall_time": 60.0},
     }
+    horizontal = {
+        "robot": {**VERTICAL_SEED_ARM, "gravity": 0.0},
+        "task": {"duration": 2.0,
+                 "initial": {"q": [-0.48, 1.22, 0.02, -1.47], "dq": [0.0] * 4},
+                 "final": {"q": [0.18, 2.19, -1.03, -0.45], "dq": [0.0] * 4},
+                 "objective": {"effort": 1.0}},
+        "transcription": {"method": "legendre", "intervals": 50, "degree": 3},
+        "solver": {"max_iter": 1000, "max_wall_time": 60.0},
+    }
     hanging = {
         "robot": VERTICAL_SEED_ARM,
         "task": {"duration": 1.6, "initial": {"q": [0.0, 1.45, 0.0, -0.8], "dq": [0.0] * 4},
@@ -245,6 +259,16 @@ def _plan_examples() -> list[Example]:
         "solver": {"max_iter": 1000, "max_wall_time": 60.0},
     }
     return [
+        Example(name="seed-arm-horizontal-plan",
+                title="Seed arm, horizontal plane: across a waveless singularity",
+                description="The seed's 4-link arm in a horizontal plane (g = 0), passive "
+                            "links 0 and 2: with no gravity, the passive joints move only "
+                            "through the inertial coupling, and the motion between these rest "
+                            "states crosses a configuration where the waveless M_pa is "
+                            "singular, which the classical inverse dynamics cannot pass. The "
+                            "planner never inverts M_pa; the result lists the crossings and "
+                            "sigma_min(M_pa) with and without the waves along the plan.",
+                kind="plan", request=horizontal),
         Example(name="seed-arm-plan", title="Seed arm: rest to rest through a singularity",
                 description="The seed's 4-link arm in a vertical plane, its passive links 0 "
                             "and 2 hanging at rest: active link 1 swings across the "
@@ -262,10 +286,10 @@ def _plan_examples() -> list[Example]:
 def examples() -> list[Example]:
     """Every built-in example."""
     return [
+        *_plan_examples(),
         *_trio("two-link", "Two-link arm", two_link, TWO_LINK_PASSIVE, two_link_start()),
         *_trio("seed-arm", "Seed 4-link arm", seed_arm, SEED_PASSIVE, seed_start()),
         *_coupling_examples(),
-        *_plan_examples(),
     ]
 
 

@@ -20,7 +20,9 @@ from planner.examples import (
     two_link,
     two_link_start,
 )
+from planner.hard_suite import crosses
 from planner.inverse import InverseDynamicsRequest
+from planner.scene import Scene
 from planner.waves import WaveDesignRequest
 
 MODELS = {"inverse-dynamics": InverseDynamicsRequest, "wave-design": WaveDesignRequest,
@@ -32,7 +34,8 @@ def test_names_are_unique_and_found():
     assert len(names) == len(set(names))
     for name in names:
         assert example(name).name == name
-    with pytest.raises(KeyError, match="no example called 'nope'; known: two-link-waveless"):
+    with pytest.raises(KeyError, match="no example called 'nope'; known: "
+                                       "seed-arm-horizontal-plan, seed-arm-plan"):
         example("nope")
 
 
@@ -85,3 +88,12 @@ def test_seed_crossing_straddles_a_waveless_singularity():
     u = np.dot(np.subtract(point.q, a), np.subtract(b, a)) / np.sum(np.subtract(b, a) ** 2)
     assert np.allclose(point.q, np.add(a, u * np.subtract(b, a)), atol=1e-12)
     assert abs(at(seed_arm(True), point.q).sigma_min) > MARGIN
+
+
+def test_the_headline_example_is_the_seed_arm_in_a_horizontal_plane_across_a_singularity():
+    first = examples()[0]
+    scene = Scene.model_validate(first.request)
+    assert (first.name, first.kind, scene.robot.gravity) == ("seed-arm-horizontal-plan",
+                                                             "plan", 0.0)
+    assert crosses(scene.robot, scene.task.initial.q, [float(q) for q in scene.task.final.q
+                                                       if q is not None])

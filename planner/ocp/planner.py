@@ -158,12 +158,16 @@ def _plan(scene: Scene, progress: Handler | None, warm_start: Plan | None,
 
 def _planned_on(scene: Scene, progress: Handler | None, warm_start: Plan | None,
                 budget: Budget, alone: bool) -> Plan:
-    """`_plan` in this process alone, or beside a companion that solves the continuation."""
+    """`_plan` in this process alone, or beside a companion that solves the continuation
+    (forked once an earlier plan, if one was given, has failed to start it)."""
     robot, T = _design_robot(scene), _duration_guess(scene)
     attempts: list[Attempt] = []
-    starts = itertools.chain(_warm_starts(scene, robot, T, warm_start, stall=alone),
-                             itertools.islice(_starts(scene, robot, T, attempts, stall=alone),
-                                              1 + scene.solver.retries))
+    _attempt(scene, _warm_starts(scene, robot, T, warm_start, stall=alone), attempts, budget,
+             progress)
+    if attempts and _ended(scene, attempts, budget):
+        return _result(scene, attempts, budget)
+    starts = itertools.islice(_starts(scene, robot, T, attempts, stall=alone),
+                              1 + scene.solver.retries)
     if alone:
         _attempt(scene, starts, attempts, budget, progress)
         return _result(scene, attempts, budget)
@@ -195,17 +199,24 @@ def _attempt(scene: Scene, starts: Iterator[Start], attempts: list[Attempt], bud
              progress: Handler | None) -> None:
     """Solve and refine from each start in turn until one gives a settled converged plan
     (accurate, or refinement off), the budget is spent or the plan is stopped."""
-    tolerance = scene.solver.resimulation_tolerance
     for start in starts:
         preliminary, first = _first_solves(scene, start, budget, progress, _passes(attempts))
         attempt = Attempt(start, [*preliminary, first], [first])
         attempts.append(attempt)
         _refine(scene, attempt, budget, progress, _passes(attempts))
-        last = attempt.outcomes[-1]
-        settled = last.accurate(tolerance) or not scene.transcription.refinement.enabled
-        if last.solution.success and settled or budget.spent \
-                or last.solution.status == "User_Requested_Stop" or infeasibility.agreed(attempts):
+        if _ended(scene, attempts, budget):
             break
+
+
+def _ended(scene: Scene, attempts: list[Attempt], budget: Budget) -> bool:
+    """Whether no further start should be tried: the last attempt gave a settled converged
+    plan (accurate, or refinement off), the budget is spent, the plan was stopped, or two
+    attempts agree that the task is infeasible."""
+    last = attempts[-1].outcomes[-1]
+    settled = last.accurate(scene.solver.resimulation_tolerance) \
+        or not scene.transcription.refinement.enabled
+    return bool(last.solution.success and settled) or budget.spent \
+        or last.solution.status == "User_Requested_Stop" or infeasibility.agreed(attempts)
 
 
 def _planned(scene: Scene, start: Start, budget: Budget, progress: Handler) -> Plan:
