@@ -8,9 +8,10 @@ from fastapi import APIRouter, Request, Response
 from app.deps import LimiterDep, StoreDep
 from app.errors import ApiError
 from app.openapi import problems
+from app.routes.plans import current_plan
 from app.store import JobRecord
 from planner import plots
-from planner.service import Plan, Scene
+from planner.service import Scene
 
 router = APIRouter(prefix="/v1/plans", tags=["plans"])
 
@@ -35,8 +36,9 @@ def _draw(record: JobRecord | None, job_id: str, fmt: plots.Format) -> bytes:
         why = f" ({record.error})" if record.error else ""
         raise ApiError(409, "no-plan", "The job has no plan yet",
                        f"plan job {job_id!r} is {record.status}{why}; a plot needs its plan")
+    plan = current_plan(record, "a plot")
     scene = Scene.model_validate(record.scene)
-    return plots.plan_plot(Plan.model_validate(record.plan), scene.robot, fmt, scene.task)
+    return plots.plan_plot(plan, scene.robot, fmt, scene.task)
 
 
 def _media_type(accept: str, fmt: plots.Format) -> str:

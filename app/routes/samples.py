@@ -11,9 +11,10 @@ from fastapi import APIRouter, Query
 from app.deps import LimiterDep, StoreDep
 from app.errors import ApiError, field_error, invalid
 from app.openapi import problems
+from app.routes.plans import current_plan
 from app.store import JobRecord
 from planner.errors import InputError
-from planner.service import MAX_SAMPLE_TIMES, Plan, PlanSample, Scene
+from planner.service import MAX_SAMPLE_TIMES, PlanSample, Scene
 
 router = APIRouter(prefix="/v1/plans", tags=["plans"])
 
@@ -25,7 +26,7 @@ def _sample(record: JobRecord | None, job_id: str, times: list[float]) -> PlanSa
         why = f" ({record.error})" if record.error else ""
         raise ApiError(409, "no-plan", "The job has no plan yet",
                        f"plan job {job_id!r} is {record.status}{why}; sampling needs its plan")
-    plan = Plan.model_validate(record.plan)
+    plan = current_plan(record, "sampling")
     if plan.states is None or plan.torque is None:
         raise ApiError(409, "no-states", "The plan cannot be sampled",
                        f"plan job {job_id!r} was stored before plans kept their states")
