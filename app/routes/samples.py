@@ -1,5 +1,6 @@
 """GET /v1/plans/{id}/sample: a finished plan evaluated at any times within its duration,
-by the library (`Plan.sample`, reached through `planner.service`)."""
+by the library (`Plan.sample`, reached through `planner.service`), on a compute thread and
+within the synchronous computations' memory budget (`app.routes._compute`)."""
 
 from __future__ import annotations
 
@@ -8,11 +9,13 @@ from typing import Annotated
 from anyio import to_thread
 from fastapi import APIRouter, Query
 
-from app.deps import LimiterDep, StoreDep
+from app.deps import SettingsDep, StoreDep
 from app.errors import ApiError, field_error, invalid
 from app.openapi import problems
+from app.routes._compute import LanesDep, running
 from app.routes.plans import current_plan
 from app.store import JobRecord
+from app.sync_memory import PLAN_SAMPLE_MB
 from planner.errors import InputError
 from planner.service import MAX_SAMPLE_TIMES, PlanSample, Scene
 
@@ -36,11 +39,12 @@ def _sample(record: JobRecord | None, job_id: str, times: list[float]) -> PlanSa
         raise invalid([field_error(["query"], str(exc))]) from exc
 
 
-@router.get("/{job_id}/sample", responses=problems(404, 409),
+@router.get("/{job_id}/sample", responses=problems(404, 409, 503),
             summary="The plan at given times: angles, rates, delivered torque, tip, sigma_min")
-async def sample_plan(job_id: str, store: StoreDep, limiter: LimiterDep,
+async def sample_plan(job_id: str, store: StoreDep, settings: SettingsDep, lanes: LanesDep,
                       t: Annotated[list[float], Query(min_length=1, description=(
                           f"times [s] within [0, duration], repeated (?t=0.1&t=0.5); at "
                           f"most {MAX_SAMPLE_TIMES}"))]) -> PlanSample:
     record = await to_thread.run_sync(store.get, job_id)
-    return await to_thread.run_sync(_sample, record, job_id, t, limiter=limiter)
+    async with running(settings, lanes, PLAN_SAMPLE_MB):
+        return await to_thread.run_sync(_sample, record, job_id, t)
