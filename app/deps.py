@@ -1,10 +1,10 @@
-"""Dependencies injected into routes: settings, store, job runner, compute limiter, API key."""
+"""Dependencies injected into routes: settings, store, job runner, API key (the compute
+threads and memory budget: `app.routes._compute.LanesDep`)."""
 
 from __future__ import annotations
 
 from typing import Annotated
 
-from anyio import CapacityLimiter
 from fastapi import Depends, Request, Security
 from fastapi.security import APIKeyHeader
 
@@ -29,14 +29,9 @@ def get_runner(request: Request) -> JobRunner:
     return request.app.state.runner
 
 
-def get_limiter(request: Request) -> CapacityLimiter:
-    return request.app.state.limiter
-
-
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 StoreDep = Annotated[JobStore, Depends(get_store)]
 RunnerDep = Annotated[JobRunner, Depends(get_runner)]
-LimiterDep = Annotated[CapacityLimiter, Depends(get_limiter)]
 
 
 def require_api_key(settings: SettingsDep,

@@ -31,6 +31,7 @@ from app.routes import batches, dynamics, examples, health, plans, plots, sample
 from app.settings import PLAN_PROCESSES, Settings, get_settings
 from app.store import StoreUnavailable
 from app.store.open import open_store
+from app.sync_memory import MemoryBudget
 from app.worker import SolveFunction, load_function
 
 log = logging.getLogger("undertow.main")
@@ -66,6 +67,8 @@ def create_app(settings: Settings | None = None, solve: SolveFunction | None = N
         runner.start()
         app.state.store, app.state.runner = store, runner
         app.state.limiter = CapacityLimiter(settings.compute_threads)
+        app.state.sync_memory = MemoryBudget(settings.sync_memory_mb)
+        app.state.metrics.watch_memory(app.state.sync_memory)
         try:
             yield
         finally:

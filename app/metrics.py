@@ -1,4 +1,5 @@
-"""Prometheus metrics: requests by route and status, latencies, solve durations, jobs by state.
+"""Prometheus metrics: requests by route and status, latencies, solve durations, jobs by state,
+the memory the synchronous computations hold.
 
 Each app has its own registry. Worker processes report nothing themselves: the parent
 observes solve durations when a job ends, and reads jobs by state from the store when
@@ -9,13 +10,14 @@ from __future__ import annotations
 
 import time
 
-from prometheus_client import CollectorRegistry, Counter, Histogram
+from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
 from prometheus_client.core import GaugeMetricFamily
 from prometheus_client.registry import Collector
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from app.jobs import Outcome
 from app.store import JobStore
+from app.sync_memory import MemoryBudget
 
 _LATENCY_BUCKETS = (0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1, 2.5, 5, 10, 30)
 _SOLVE_BUCKETS = (0.1, 0.25, 0.5, 1, 2, 5, 10, 20, 30, 60, 120, 300, 600)
@@ -49,6 +51,9 @@ class Metrics:
         self.solves = Histogram("undertow_solve_duration_seconds",
                                 "Wall time of plan solves by final status", ["status"],
                                 buckets=_SOLVE_BUCKETS, registry=self.registry)
+        self.sync_memory = Gauge("undertow_sync_memory_reserved_megabytes",
+                                 "Memory the synchronous computations running now have "
+                                 "reserved of UNDERTOW_SYNC_MEMORY_MB", registry=self.registry)
         self._jobs: _JobsByState | None = None
 
     def watch(self, store: JobStore) -> None:
@@ -57,6 +62,10 @@ class Metrics:
             self.registry.unregister(self._jobs)
         self._jobs = _JobsByState(store)
         self.registry.register(self._jobs)
+
+    def watch_memory(self, budget: MemoryBudget) -> None:
+        """Report what `budget` holds at scrape time."""
+        self.sync_memory.set_function(lambda: budget.used)
 
     def job_done(self, outcome: Outcome) -> None:
         """Record a finished job (called in the server process)."""

@@ -23,7 +23,8 @@ _DESCRIPTIONS = {
     413: "the request body is too large",
     422: "invalid request: `errors` lists each offending field",
     429: "the job queue is full; retry after the Retry-After header's seconds",
-    503: "every compute thread stayed busy for UNDERTOW_COMPUTE_WAIT; retry after the "
+    503: "no compute thread, or no room in the synchronous computations' memory budget "
+         "(UNDERTOW_SYNC_MEMORY_MB), came free within UNDERTOW_COMPUTE_WAIT; retry after the "
          "Retry-After header's seconds",
 }
 

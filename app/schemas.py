@@ -7,7 +7,9 @@ from typing import Literal
 
 from pydantic import BaseModel, Field
 
+from app import stored_plan
 from app.store import FINAL, STATUSES, BatchRecord, JobRecord, JobStatus, MemberRecord
+from app.stored_plan import PlanSchema, StoredPlan
 from planner.service import Plan
 
 
@@ -72,13 +74,22 @@ class Job(JobSummary):
     """A plan job; `plan` is set once the solver returned (also for failed or cancelled
     jobs: then it is the solver's last iterate)."""
 
-    plan: Plan | None
+    plan: Plan | StoredPlan | None = Field(description=(
+        "the plan: a `Plan` when `plan_schema` is current; as stored, unvalidated, when it "
+        "is legacy"))
+    plan_schema: PlanSchema | None = Field(default=None, description=(
+        "current: `plan` follows today's Plan schema; legacy: it was stored by a version "
+        "of the service whose schema this one cannot read, and is served as stored "
+        "(non-finite numbers as null; no figure, sample or warm start from it); null "
+        "without a plan"))
     history: list[JobEvent] = Field(default_factory=list, description=(
         "claims, releases, infrastructure failures, retries and the verdict, oldest first"))
 
     @classmethod
     def of(cls, record: JobRecord) -> Job:
-        return cls(**_fields(record), plan=record.plan, history=record.history or [])
+        plan = None if record.plan is None else stored_plan.read(record.plan)
+        return cls(**_fields(record), plan=plan, plan_schema=stored_plan.schema_of(plan),
+                   history=record.history or [])
 
 
 def _fields(record: JobRecord) -> dict:

@@ -80,6 +80,10 @@ class Settings(BaseSettings):
     max_wave_frequency: int = Field(default=6, ge=1, description="largest frequency_max of one "
                                     "wave design (the screening grows as its power)")
     compute_threads: int = Field(default=4, ge=1, description="concurrent synchronous computations")
+    sync_memory_mb: int = Field(default=1024, ge=64, description=(
+        "memory the synchronous computations running at once may take together, by their "
+        "up-front estimates [MB]: one estimated above it is refused (422), one that does "
+        "not fit beside those running waits up to UNDERTOW_COMPUTE_WAIT, then 503"))
     quick_threads: int = Field(default=1, ge=1, description="threads kept for quick requests: "
                                "dynamics or coupling at no more than quick_points points")
     quick_points: int = Field(default=64, ge=0, description="points (states, configurations, "

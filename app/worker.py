@@ -50,6 +50,7 @@ from app.store import (
     JobStore,
     StoreUnavailable,
 )
+from app.stored_plan import current
 from planner.service import (
     NEAREST,
     NlpSolution,
@@ -266,12 +267,13 @@ def _started_from(plan: Plan, job_id: str, distance: float | None) -> Plan:
 
 
 def _earlier(store: JobStore, job_id: str) -> Plan | None:
-    """The plan of an earlier job with the NLP solution it came from, to warm-start from."""
+    """The plan of an earlier job with the NLP solution it came from, to warm-start from
+    (None when there is none, or only one of an older schema: `app.stored_plan`)."""
     record = store.get(job_id)
-    if record is None or record.plan is None:
+    plan = None if record is None or record.plan is None else current(record.plan)
+    if plan is None:
         return None
     solution = store.solution(job_id)
-    plan = Plan.model_validate(record.plan)
     if solution is None:
         return plan
     return plan.model_copy(update={"solution": NlpSolution.model_validate(solution)})

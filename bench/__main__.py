@@ -68,6 +68,8 @@ BENCHES = {
                                              "waves, wave design, coupling analysis"),
     "stress": ("bench.stress", "near-singular starts, badly scaled and random robots, the "
                                "service under faults"),
+    "sync_memory": ("bench.sync_memory", "the memory of one synchronous computation against "
+                                         "app/sync_memory.py's estimate"),
     "suite": ("bench.suite", "the task suite: verified plans and time to a verified plan, "
                              "against refinement off, retries off and a plain Opti script"),
     "verification": ("bench.verification", "what a plan's checks cost, now and at an earlier "

@@ -143,7 +143,7 @@ SERVICE = frozenset({
     "test_cli.py", "test_continuation.py", "test_delivered_torque.py", "test_distributed.py",
     "test_dockerfile.py", "test_e2e_server.py", "test_errors.py", "test_infeasible.py",
     "test_job_faults.py", "test_jobs.py", "test_limits.py", "test_node_faults.py",
-    "test_openapi.py",
+    "test_migrations.py", "test_openapi.py", "test_stored_plan.py", "test_sync_memory.py",
     "test_openapi_client.py", "test_plan_budget.py", "test_plots.py", "test_readme.py",
     "test_sampling.py", "test_scene_validation.py", "test_schemathesis.py", "test_server.py",
     "test_service_interface.py", "test_store.py", "test_stress.py", "test_viewer.py"})

@@ -8,6 +8,7 @@ from typing import Annotated
 from fastapi import APIRouter, Body, Header, Query, Response
 from starlette.concurrency import run_in_threadpool
 
+from app import stored_plan
 from app.capacity import capacity_errors
 from app.deps import RunnerDep, SettingsDep, StoreDep
 from app.errors import ApiError, FieldError, field_error, invalid
@@ -18,7 +19,7 @@ from app.schema_examples import body_examples
 from app.schemas import Job, JobList, JobSummary
 from app.store import FINAL, DuplicateKey, JobRecord, JobStatus, JobStore
 from planner import feasibility
-from planner.service import NEAREST, Scene
+from planner.service import NEAREST, Plan, Scene
 
 router = APIRouter(prefix="/v1/plans", tags=["plans"])
 _LINKS = {name: {"operationId": op, "parameters": {"job_id": "$response.body#/id"}}
@@ -27,8 +28,8 @@ _LINKS = {name: {"operationId": op, "parameters": {"job_id": "$response.body#/id
 
 def check_warm_start(store: JobStore, job_id: str,
                      loc: tuple[str, ...] = ("body",)) -> None:
-    """422 at solver.warm_start (under `loc`) unless it names a job that has a plan, or is
-    "nearest" (whatever the store holds when the job runs)."""
+    """422 at solver.warm_start (under `loc`) unless it names a job that has a plan of
+    today's schema, or is "nearest" (whatever the store holds when the job runs)."""
     if job_id == NEAREST:
         return
     record = store.get(job_id)
@@ -36,6 +37,23 @@ def check_warm_start(store: JobStore, job_id: str,
         what = "there is no plan job" if record is None else "no plan yet in the job"
         raise invalid([field_error([*loc, "solver", "warm_start"], f"{what} {job_id!r}",
                                    "value_error")])
+    if stored_plan.current(record.plan) is None:
+        raise invalid([field_error([*loc, "solver", "warm_start"],
+                                   f"the plan of job {job_id!r} was stored by a version of the "
+                                   "service whose schema this one cannot read "
+                                   "(plan_schema legacy)", "value_error")])
+
+
+def current_plan(record: JobRecord, use: str) -> Plan:
+    """The job's plan (it has one) under today's schema, or a 409 `legacy-plan` saying
+    that `use` ("a plot", "sampling") needs one."""
+    plan = stored_plan.current(record.plan or {})
+    if plan is None:
+        raise ApiError(409, "legacy-plan", "The plan is of another schema",
+                       f"plan job {record.id!r} holds a plan stored by a version of the service "
+                       f"whose schema this one cannot read (plan_schema legacy); {use} needs "
+                       "a plan of today's schema: submit the scene again")
+    return plan
 
 
 def infeasible_errors(scene: Scene) -> list[FieldError]:

@@ -1,16 +1,21 @@
-"""A plan job's figure (PNG or SVG), drawn by `planner.plots` off the event loop."""
+"""A plan job's figure (PNG or SVG), drawn by `planner.plots` off the event loop, on a
+compute thread and within the synchronous computations' memory budget
+(`app.routes._compute`)."""
 
 from __future__ import annotations
 
 from anyio import to_thread
 from fastapi import APIRouter, Request, Response
 
-from app.deps import LimiterDep, StoreDep
+from app.deps import SettingsDep, StoreDep
 from app.errors import ApiError
 from app.openapi import problems
+from app.routes._compute import LanesDep, running
+from app.routes.plans import current_plan
 from app.store import JobRecord
+from app.sync_memory import PLOT_MB
 from planner import plots
-from planner.service import Plan, Scene
+from planner.service import Scene
 
 router = APIRouter(prefix="/v1/plans", tags=["plans"])
 
@@ -25,7 +30,7 @@ def _image(fmt: plots.Format) -> dict:
                   "description": "snapshots of the arm, joint angles, torques and "
                                  "sigma_min(M_pa) with and without waves; waveless "
                                  "singular crossings marked"},
-            **problems(404, 409)}
+            **problems(404, 409, 503)}
 
 
 def _draw(record: JobRecord | None, job_id: str, fmt: plots.Format) -> bytes:
@@ -35,8 +40,9 @@ def _draw(record: JobRecord | None, job_id: str, fmt: plots.Format) -> bytes:
         why = f" ({record.error})" if record.error else ""
         raise ApiError(409, "no-plan", "The job has no plan yet",
                        f"plan job {job_id!r} is {record.status}{why}; a plot needs its plan")
+    plan = current_plan(record, "a plot")
     scene = Scene.model_validate(record.scene)
-    return plots.plan_plot(Plan.model_validate(record.plan), scene.robot, fmt, scene.task)
+    return plots.plan_plot(plan, scene.robot, fmt, scene.task)
 
 
 def _media_type(accept: str, fmt: plots.Format) -> str:
@@ -49,22 +55,23 @@ def _media_type(accept: str, fmt: plots.Format) -> str:
     return own
 
 
-async def _plot(request: Request, job_id: str, store: StoreDep, limiter: LimiterDep,
-                fmt: plots.Format) -> Response:
+async def _plot(request: Request, job_id: str, store: StoreDep, settings: SettingsDep,
+                lanes: LanesDep, fmt: plots.Format) -> Response:
     record = await to_thread.run_sync(store.get, job_id)
-    body = await to_thread.run_sync(_draw, record, job_id, fmt, limiter=limiter)
+    async with running(settings, lanes, PLOT_MB):
+        body = await to_thread.run_sync(_draw, record, job_id, fmt)
     return Response(body, media_type=_media_type(request.headers.get("accept", ""), fmt))
 
 
 @router.get("/{job_id}/plot.png", summary="The plan's figure as PNG", response_class=Response,
             responses=_image("png"))
-async def plan_plot_png(request: Request, job_id: str, store: StoreDep,
-                        limiter: LimiterDep) -> Response:
-    return await _plot(request, job_id, store, limiter, "png")
+async def plan_plot_png(request: Request, job_id: str, store: StoreDep, settings: SettingsDep,
+                        lanes: LanesDep) -> Response:
+    return await _plot(request, job_id, store, settings, lanes, "png")
 
 
 @router.get("/{job_id}/plot.svg", summary="The plan's figure as SVG", response_class=Response,
             responses=_image("svg"))
-async def plan_plot_svg(request: Request, job_id: str, store: StoreDep,
-                        limiter: LimiterDep) -> Response:
-    return await _plot(request, job_id, store, limiter, "svg")
+async def plan_plot_svg(request: Request, job_id: str, store: StoreDep, settings: SettingsDep,
+                        lanes: LanesDep) -> Response:
+    return await _plot(request, job_id, store, settings, lanes, "svg")

@@ -8,10 +8,10 @@ owner's advisory lock. Claims take the oldest queued job with `FOR UPDATE SKIP L
 so concurrent workers never wait for each other and never take the same job.
 
 The schema is versioned in the table `undertow_schema`; opening the store applies the
-migrations it has not had, numbered as the SQLite store's, under an advisory lock so that
-servers starting together migrate once. JSON objects are `jsonb`; times are Unix seconds
-(`double precision`) taken from the clock of the process that writes them, so the
-machines of one deployment keep their clocks synchronised (NTP).
+migrations it has not had (`app.store.migrations`, the SQLite store's too) under an
+advisory lock so that servers starting together migrate once. JSON objects are `jsonb`;
+times are Unix seconds (`double precision`) taken from the clock of the process that
+writes them, so the machines of one deployment keep their clocks synchronised (NTP).
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ import time
 import zlib
 from collections.abc import Iterator
 from contextlib import contextmanager
+from functools import partial
 from typing import Any
 
 import psycopg
@@ -41,71 +42,9 @@ from app.store.base import (
     RetryPolicy,
     StoreUnavailable,
 )
+from app.store.migrations import CHANNEL, migrate, version
 from app.store.sql import COLUMNS, SqlJobStore
 
-CHANNEL = "undertow_jobs"
-"""The channel notified (once per transaction) whenever a job becomes queued."""
-
-_MIGRATIONS: tuple[tuple[str, ...], ...] = (
-    (  # 1: the jobs table
-        """CREATE TABLE IF NOT EXISTS jobs (
-            id               text PRIMARY KEY,
-            status           text NOT NULL,
-            scene            jsonb NOT NULL,
-            progress         jsonb,
-            plan             jsonb,
-            error            text,
-            cancel_requested boolean NOT NULL DEFAULT false,
-            owner            text NOT NULL,
-            created          double precision NOT NULL,
-            started          double precision,
-            finished         double precision)""",
-        "CREATE INDEX IF NOT EXISTS jobs_status ON jobs (status)",
-        "CREATE INDEX IF NOT EXISTS jobs_created ON jobs (created)",
-    ),
-    (  # 2: claims name their worker and hold a lease
-        "ALTER TABLE jobs ADD COLUMN worker text",
-        "ALTER TABLE jobs ADD COLUMN lease_until double precision",
-        "CREATE INDEX IF NOT EXISTS jobs_owner_status ON jobs (owner, status, created)",
-    ),
-    (  # 3: the NLP solution behind a plan, for warm starts (kept out of the plan's JSON)
-        "ALTER TABLE jobs ADD COLUMN solution jsonb",
-    ),
-    (  # 4: claims are counted (a job whose lease ran out is requeued once); batches
-        "ALTER TABLE jobs ADD COLUMN attempts integer NOT NULL DEFAULT 0",
-        "ALTER TABLE jobs ADD COLUMN batch text",
-        "ALTER TABLE jobs ADD COLUMN member integer",
-        "CREATE INDEX IF NOT EXISTS jobs_batch ON jobs (batch, member)",
-        """CREATE TABLE IF NOT EXISTS batches (
-            id      text PRIMARY KEY,
-            owner   text NOT NULL,
-            created double precision NOT NULL,
-            spec    jsonb NOT NULL)""",
-    ),
-    (  # 5: infrastructure failures counted apart, retried after a pause, dead letters,
-       # the claim's history, idempotency keys; a notification whenever a job is queued
-        "ALTER TABLE jobs ADD COLUMN infra_failures integer NOT NULL DEFAULT 0, "
-        "ADD COLUMN dead_letter boolean NOT NULL DEFAULT false, "
-        "ADD COLUMN not_before double precision, ADD COLUMN lease double precision, "
-        "ADD COLUMN history jsonb, ADD COLUMN idem_key text",
-        "CREATE UNIQUE INDEX IF NOT EXISTS jobs_idem_key ON jobs (idem_key) "
-        "WHERE idem_key IS NOT NULL",
-        f"""CREATE OR REPLACE FUNCTION undertow_job_queued() RETURNS trigger
-            LANGUAGE plpgsql AS $$ BEGIN PERFORM pg_notify('{CHANNEL}', ''); RETURN NULL;
-            END $$""",
-        "CREATE TRIGGER undertow_job_queued AFTER INSERT OR UPDATE OF status ON jobs "
-        "FOR EACH ROW WHEN (NEW.status = 'queued') EXECUTE FUNCTION undertow_job_queued()",
-    ),
-    (  # 6: the live solver workers, each supervisor's heartbeat
-        """CREATE TABLE IF NOT EXISTS workers (
-            name      TEXT PRIMARY KEY,
-            processes INTEGER NOT NULL,
-            busy      INTEGER NOT NULL,
-            started   double precision NOT NULL,
-            seen      double precision NOT NULL)""",
-    ),
-)
-SCHEMA_VERSION = len(_MIGRATIONS)
 _MIGRATION_LOCK = 0x756E6474  # advisory lock key held while migrating ("undt")
 
 _MEMBER_COLUMNS = ("id, member, status, error, (plan->'verification'->>'verified')::boolean, "
@@ -147,6 +86,12 @@ def _one(cursor: psycopg.Cursor) -> tuple[Any, ...]:
     if row is None:
         raise RuntimeError("the statement returned no row")
     return row
+
+
+def _execute(conn: psycopg.Connection, sql: str) -> builtins.list[tuple]:
+    """Every row of one statement without parameters ([] when it returns none)."""
+    cursor = conn.execute(sql)
+    return cursor.fetchall() if cursor.description is not None else []
 
 
 def _lock_key(owner: str) -> int:
@@ -242,29 +187,20 @@ class PostgresJobStore(SqlJobStore):
         return _job(row)
 
     def _migrate(self) -> None:
-        """Apply the migrations this database has not had yet, in one transaction."""
+        """Apply the migrations (`app.store.migrations`) this database has not had yet, in
+        one transaction."""
         try:
             with self._connection() as conn, conn.transaction():
                 conn.execute("SELECT pg_advisory_xact_lock(%s)", (_MIGRATION_LOCK,))
-                conn.execute("CREATE TABLE IF NOT EXISTS undertow_schema (version integer "
-                             "NOT NULL)")
-                row = conn.execute("SELECT version FROM undertow_schema").fetchone()
-                version = 0 if row is None else row[0]
-                for statements in _MIGRATIONS[version:]:
-                    for statement in statements:
-                        conn.execute(statement)
-                if row is None:
-                    conn.execute("INSERT INTO undertow_schema VALUES (%s)", (SCHEMA_VERSION,))
-                elif version < SCHEMA_VERSION:
-                    conn.execute("UPDATE undertow_schema SET version = %s", (SCHEMA_VERSION,))
+                migrate(partial(_execute, conn), "postgres")
         except psycopg.Error as exc:
             raise StoreUnavailable(f"the job store ({self._where()}) could not be migrated: "
                                    f"{exc}") from exc
 
     @property
     def schema_version(self) -> int:
-        """The number of migrations the database has had."""
-        return self._rows("SELECT version FROM undertow_schema")[0][0]
+        """The version of the schema the database has (`app.store.migrations`)."""
+        return version(self._rows, "postgres")
 
     def create(self, job_id: str, scene: dict[str, Any], owner: str,
                limit: int | None = None, key: str | None = None) -> JobRecord | None:

@@ -4,8 +4,8 @@ They name their parameters (`:name`, SQLite's style; the PostgreSQL store rewrit
 psycopg's `%(name)s`); a store runs them through its `_rows` (reads) and `_write` (writes)
 and converts its own JSON columns and rows (`_json`, `_from_json`, `_record`), and appends
 to a job's history with its own JSON functions (`_push`). What differs between the
-databases (creating jobs within a limit, batches, migrations, integrity) stays with each
-store.
+databases (creating jobs within a limit, batches, integrity) stays with each store; the
+migrations of both are one list (`app.store.migrations`).
 """
 
 from __future__ import annotations

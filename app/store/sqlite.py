@@ -5,12 +5,13 @@ conditional statements, so they are atomic without explicit transactions; the bu
 timeout makes concurrent writers queue instead of failing.
 
 Opening the store checks its integrity (`PRAGMA quick_check`) and brings its schema up to
-date (`PRAGMA user_version` counts the migrations applied). Connections open the file
-read-write without creating it, and every statement first checks that the path still
-names the file opened: a store deleted or replaced under a running service is reported as
-unavailable instead of being silently recreated empty. The write-ahead log is moved into
-the database file at least every `checkpoint_interval` seconds of writes and entirely on
-shutdown, so the `-wal` file never holds more than that interval's jobs.
+date (`app.store.migrations`; `PRAGMA user_version` counts the migrations applied).
+Connections open the file read-write without creating it, and every statement first checks
+that the path still names the file opened: a store deleted or replaced under a running
+service is reported as unavailable instead of being silently recreated empty. The
+write-ahead log is moved into the database file at least every `checkpoint_interval`
+seconds of writes and entirely on shutdown, so the `-wal` file never holds more than that
+interval's jobs.
 """
 
 from __future__ import annotations
@@ -36,67 +37,10 @@ from app.store.base import (
     StoreDamaged,
     StoreUnavailable,
 )
+from app.store.migrations import migrate, version
 from app.store.sql import COLUMNS, SqlJobStore, history
 
 log = logging.getLogger("undertow.store")
-
-_MIGRATIONS: tuple[tuple[str, ...], ...] = (
-    (  # 1: the jobs table (stores made before versioning have it already)
-        """CREATE TABLE IF NOT EXISTS jobs (
-            id               TEXT PRIMARY KEY,
-            status           TEXT NOT NULL,
-            scene            TEXT NOT NULL,
-            progress         TEXT,
-            plan             TEXT,
-            error            TEXT,
-            cancel_requested INTEGER NOT NULL DEFAULT 0,
-            owner            TEXT NOT NULL,
-            created          REAL NOT NULL,
-            started          REAL,
-            finished         REAL)""",
-        "CREATE INDEX IF NOT EXISTS jobs_status ON jobs (status)",
-        "CREATE INDEX IF NOT EXISTS jobs_created ON jobs (created)",
-    ),
-    (  # 2: claims name their worker and hold a lease
-        "ALTER TABLE jobs ADD COLUMN worker TEXT",
-        "ALTER TABLE jobs ADD COLUMN lease_until REAL",
-        "CREATE INDEX IF NOT EXISTS jobs_owner_status ON jobs (owner, status, created)",
-    ),
-    (  # 3: the NLP solution behind a plan, for warm starts (kept out of the plan's JSON)
-        "ALTER TABLE jobs ADD COLUMN solution TEXT",
-    ),
-    (  # 4: claims are counted (a job whose lease ran out is requeued once); batches
-        "ALTER TABLE jobs ADD COLUMN attempts INTEGER NOT NULL DEFAULT 0",
-        "ALTER TABLE jobs ADD COLUMN batch TEXT",
-        "ALTER TABLE jobs ADD COLUMN member INTEGER",
-        "CREATE INDEX IF NOT EXISTS jobs_batch ON jobs (batch, member)",
-        """CREATE TABLE IF NOT EXISTS batches (
-            id      TEXT PRIMARY KEY,
-            owner   TEXT NOT NULL,
-            created REAL NOT NULL,
-            spec    TEXT NOT NULL)""",
-    ),
-    (  # 5: infrastructure failures counted apart, retried after a pause, dead letters,
-       # the claim's history, idempotency keys
-        "ALTER TABLE jobs ADD COLUMN infra_failures INTEGER NOT NULL DEFAULT 0",
-        "ALTER TABLE jobs ADD COLUMN dead_letter INTEGER NOT NULL DEFAULT 0",
-        "ALTER TABLE jobs ADD COLUMN not_before REAL",
-        "ALTER TABLE jobs ADD COLUMN lease REAL",
-        "ALTER TABLE jobs ADD COLUMN history TEXT",
-        "ALTER TABLE jobs ADD COLUMN idem_key TEXT",
-        "CREATE UNIQUE INDEX IF NOT EXISTS jobs_idem_key ON jobs (idem_key) "
-        "WHERE idem_key IS NOT NULL",
-    ),
-    (  # 6: the live solver workers, each supervisor's heartbeat
-        """CREATE TABLE IF NOT EXISTS workers (
-            name      TEXT PRIMARY KEY,
-            processes INTEGER NOT NULL,
-            busy      INTEGER NOT NULL,
-            started   REAL NOT NULL,
-            seen      REAL NOT NULL)""",
-    ),
-)
-SCHEMA_VERSION = len(_MIGRATIONS)
 
 _MEMBER_COLUMNS = ("id, member, status, error, json_extract(plan, '$.verification.verified'), "
                    "json_extract(plan, '$.objective'), started, finished")
@@ -194,21 +138,23 @@ class SqliteJobStore(SqlJobStore):
                 "to begin with an empty store")
 
     def _migrate(self) -> None:
-        """Apply the migrations this file has not had yet, in one transaction."""
+        """Apply the migrations (`app.store.migrations`) this file has not had yet, in one
+        transaction."""
         conn = self._connection()
         try:
             conn.execute("BEGIN IMMEDIATE")
-            version = conn.execute("PRAGMA user_version").fetchone()[0]
-            for statements in _MIGRATIONS[version:]:
-                for statement in statements:
-                    conn.execute(statement)
-            conn.execute(f"PRAGMA user_version = {max(version, SCHEMA_VERSION)}")
+            migrate(lambda sql: conn.execute(sql).fetchall(), "sqlite")
             conn.execute("COMMIT")
         except sqlite3.Error as exc:
             if conn.in_transaction:
                 conn.execute("ROLLBACK")
             raise StoreUnavailable(f"the job store {self.path} could not be migrated: "
                                    f"{exc}") from exc
+
+    @property
+    def schema_version(self) -> int:
+        """The version of the schema the file has (`app.store.migrations`)."""
+        return version(self._rows, "sqlite")
 
     def _open(self) -> sqlite3.Connection:
         """A new connection to the file opened first (never creating one)."""
