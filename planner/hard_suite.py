@@ -27,8 +27,14 @@ its category (`<category>-<index>`), one of:
 - `tip-target`: random 3- to 5-link arms whose final angles are free: the tip must reach
   the tip of a random goal configuration (reachable by construction), at rest;
 - `bounds`: the seed arm across a waveless singularity (moves up to 1 rad) with position
-  bounds (start and goal at least BOUND_MARGIN inside) and velocity bounds (at least 2.5
-  times the mean rate of a straight move: the cubic interpolation's peak is 1.5 times it);
+  and velocity bounds on about three quarters of its joints, drawn from witnesses (see
+  `witnessed`): the unbounded plan of the move (the task without bounds, on
+  WITNESS_INTERVALS intervals) has its peak rate cut by SPEED_CUT and its excursion
+  beyond BOUND_MARGIN around start and goal by EXCURSION_CUT, and a verified plan within
+  those bounds (the witness) proves them feasible; the unbounded plan leaves them, so they
+  bind. Bounds drawn around start and goal alone (0.1 to 0.3 rad beyond them, rates 2.5
+  times the straight move's mean) could not be kept: plans of a crossing verified only
+  with those rate bounds 4 to 8 times as wide (docs/benchmarks.md, "The hard suite");
 - `co-design`: the seed arm with its wave amplitudes and phases co-designed (amplitude at
   most 0.06 m, frequencies 4) and a coupling margin of 0.005, across a waveless
   singularity (moves up to 1 rad): with the seed's designed waves (a design the co-design
@@ -40,8 +46,11 @@ round of CYCLE to the next.
 
 Every task is feasible by construction as far as can be checked before a solve (see
 `check`): start and goal within their bounds, sigma_min(M_pa) at the start and the goal at
-least the margin, the tip target within reach. Everything else is the scene's default
-(Legendre degree 3 on 50 intervals, Ipopt, 60 s).
+least the margin, the tip target within reach; a bounds task has, besides, a witness (a
+verified plan within its bounds). Witnesses cost solves: those of the tasks of SEED and
+HELD_OUT within COUNT are stored (`planner.hard_suite_witnesses`, written by `python -m
+planner.hard_suite`), any other is solved when its task is drawn (seconds to minutes).
+Everything else is the scene's default (Legendre degree 3 on 50 intervals, Ipopt, 60 s).
 
     hard_tasks(count, seed) -> list of (name, Scene)
 
@@ -50,8 +59,16 @@ SEED is the suite's own seed, HELD_OUT two seeds for tasks the planner was not t
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import math
-from typing import Any
+import os
+import pprint
+import textwrap
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -61,6 +78,9 @@ from planner.examples import SEED_WAVES, seed_arm
 from planner.model import Robot, Wave
 from planner.scene import DurationRange, Scene
 from planner.suite import random_robot, singular_configuration
+
+if TYPE_CHECKING:
+    from planner.ocp.result import Plan
 
 SEED = 20261125
 HELD_OUT = (31415926, 27182818)
@@ -81,7 +101,15 @@ FREE_TIME = (1.0, 4.0)  # [s] duration range of a free-time task
 TIME_OPTIMAL = (0.5, 4.0)  # [s] duration range of a time-optimal task (its min or less)
 ROOM = 1.5  # limit / the slowest straight move's peak torque, and the fastest's / limit
 BOUND_MARGIN = 0.1  # [rad] least distance of start and goal from a position bound
-SPEED_FACTOR = 2.5  # velocity bound / mean rate of the move
+SPEED_CUT = (0.1, 0.3)  # share of the unbounded plan's peak rate a velocity bound cuts off
+EXCURSION_CUT = (0.2, 0.5)  # share of its excursion beyond BOUND_MARGIN a position bound cuts
+CUT_SCALES = (1.0, 0.5, 0.0)
+"""The cuts tried in turn, scaled: until a witness is verified within them; at 0 the bounds
+are the unbounded plan's own envelope (rounded outwards), which it witnesses itself."""
+WITNESS_TRIES = 5  # moves drawn for a bounds task until the unbounded plan of one verifies
+WITNESS_INTERVALS = 30  # the witnesses' first mesh (refined as any plan's)
+WITNESS_WALL_TIME = 300.0  # [s] a witness's max_wall_time: its iterations, not the
+# machine's speed, decide what it finds (the scene's 60 s would, near the cap)
 MARGIN = 0.005  # [kg m^2] coupling margin of a co-design task (the seed-arm example's)
 AMPLITUDE_MAX = 0.06  # [m] co-designed amplitudes, as the seed's designed waves
 TRIES = 500
@@ -200,8 +228,10 @@ def _co_design_ok(robot: Robot, start, goal, margin: float) -> bool:
                 and np.all(np.sign(witness.det) == np.sign(first)))
 
 
-def _task(category: str, rng: np.random.Generator, gravity: float) -> Scene:
-    """A task of `category`; `gravity` for the categories that alternate it."""
+def _task(category: str, rng: np.random.Generator, gravity: float,
+          key: tuple[int, int] | None = None) -> Scene:
+    """A task of `category`; `gravity` for the categories that alternate it; `key` (seed,
+    index) names a bounds task's stored witness."""
     if category in ("seed-g0-cross", "seed-g9.81-cross"):
         robot = _seed_robot(0.0 if category == "seed-g0-cross" else GRAVITY)
         return _scene(robot, *_crossing(rng, robot, MOVE))
@@ -242,23 +272,19 @@ def _task(category: str, rng: np.random.Generator, gravity: float) -> Scene:
                       final={"q": [None] * robot.n, "dq": _rest(robot.n)})
     if category == "bounds":
         robot = _seed_robot(gravity)
-        start, goal = _crossing(rng, robot, 1.0)
-        start, goal = np.round(start, 6), np.round(goal, 6)
-        room = rng.uniform(BOUND_MARGIN, 0.3, robot.n)
-        lower = np.minimum(start, goal) - room
-        upper = np.maximum(start, goal) + room
-        speed = np.maximum(SPEED_FACTOR * np.abs(goal - start) / DURATION, 0.5)
-        bounded = rng.random(robot.n) < 0.75
-        bounded[int(rng.integers(robot.n))] = True
-
-        def side(values: np.ndarray, digits: int, up: bool) -> list[float | None]:
-            rounded = np.round(values, digits) + (1 if up else -1) * 10.0 ** -digits
-            return [float(v) if b else None for v, b in zip(rounded, bounded, strict=True)]
-        return _scene(robot, start, goal,
-                      position_bounds={"lower": side(lower, 3, False),
-                                       "upper": side(upper, 3, True)},
-                      velocity_bounds={"lower": side(-speed, 3, False),
-                                       "upper": side(speed, 3, True)})
+        for _ in range(WITNESS_TRIES):
+            start, goal = _crossing(rng, robot, 1.0)
+            start, goal = np.round(start, 6), np.round(goal, 6)
+            bounded = rng.random(robot.n) < 0.75
+            bounded[int(rng.integers(robot.n))] = True
+            cuts = (float(rng.uniform(*SPEED_CUT)), float(rng.uniform(*EXCURSION_CUT)))
+            found = witnessed(robot, start, goal, bounded, cuts, key)
+            if found.free is not None:
+                position, velocity = bounds_of(start, goal, found.free, bounded,
+                                               *(found.scale * c for c in cuts))
+                return _scene(robot, start, goal, position_bounds=position,
+                              velocity_bounds=velocity)
+        raise RuntimeError("no crossing whose unbounded plan verifies")
     if category == "co-design":
         robot = _seed_robot(gravity)
         for _ in range(TRIES):
@@ -269,6 +295,158 @@ def _task(category: str, rng: np.random.Generator, gravity: float) -> Scene:
                               co_design={"amplitude_max": AMPLITUDE_MAX, "frequency": freq})
         raise RuntimeError("no co-design crossing found")
     raise ValueError(f"unknown category {category!r}")
+
+
+# --------------------------------------------------------------------------- witnesses
+
+
+@dataclass(frozen=True)
+class Envelope:
+    """A plan's range of angles [rad] and largest |rate| [rad/s], per joint: on its dense
+    samples and at every interval's exact extrema, as its verification checks bounds."""
+
+    q_min: tuple[float, ...]
+    q_max: tuple[float, ...]
+    rate_max: tuple[float, ...]
+
+    @classmethod
+    def of(cls, plan: Plan) -> Envelope:
+        assert plan.states is not None  # a plan of this planner has them
+        q_of, dq_of = plan.states.polynomials()
+        t = np.asarray(plan.dense.t)
+        q_ext, dq_ext = q_of.extrema(), dq_of.extrema()
+        q = np.vstack([q_of(t), q_ext.low, q_ext.high])
+        rate = np.abs(np.vstack([dq_of(t), dq_ext.low, dq_ext.high]))
+        return cls(tuple(q.min(0).tolist()), tuple(q.max(0).tolist()),
+                   tuple(rate.max(0).tolist()))
+
+
+@dataclass(frozen=True)
+class Witnessed:
+    """What the solves of a bounds task found: the envelope of the unbounded plan of its
+    move (`free`; None: that plan did not verify, and the task draws another move), the
+    scale of the cuts whose bounds a verified plan keeps (one of CUT_SCALES) and that
+    plan's envelope (`witness`; the unbounded plan's own at scale 0), and the Ipopt
+    iterations of all those solves."""
+
+    start: tuple[float, ...]
+    goal: tuple[float, ...]
+    free: Envelope | None
+    scale: float
+    witness: Envelope | None
+    iterations: int
+
+
+def bounds_of(start, goal, free: Envelope, bounded, speed_cut: float,
+              excursion_cut: float) -> tuple[dict, dict]:
+    """Position and velocity bounds (the scene's fields; None on joints not `bounded`) from
+    the envelope of an unbounded plan: its peak rate cut by the share `speed_cut`, its
+    excursion beyond BOUND_MARGIN around start and goal by the share `excursion_cut`
+    (a bound no closer to start and goal than BOUND_MARGIN), rounded outwards to 1e-3."""
+    start, goal = np.asarray(start, float), np.asarray(goal, float)
+    q_min, q_max, rate = (np.asarray(v, float) for v in (free.q_min, free.q_max, free.rate_max))
+    below = np.minimum(start, goal) - BOUND_MARGIN
+    above = np.maximum(start, goal) + BOUND_MARGIN
+    lower = np.minimum(below, q_min + excursion_cut * np.maximum(below - q_min, 0.0))
+    upper = np.maximum(above, q_max - excursion_cut * np.maximum(q_max - above, 0.0))
+    speed = np.maximum((1.0 - speed_cut) * rate, 1e-3)
+
+    def side(values: np.ndarray, up: bool) -> list[float | None]:
+        rounded = (np.ceil if up else np.floor)(values * 1e3) / 1e3
+        return [round(float(v), 3) if b else None for v, b in zip(rounded, bounded, strict=True)]
+    return ({"lower": side(lower, False), "upper": side(upper, True)},
+            {"lower": side(-speed, False), "upper": side(speed, True)})
+
+
+@contextlib.contextmanager
+def _one_process() -> Iterator[None]:
+    """Plans in this process alone: with a companion, which process wins depends on
+    timing (docs/planner.md, "Both cores")."""
+    from planner.ocp.portfolio import ENVIRONMENT
+
+    saved = os.environ.get(ENVIRONMENT)
+    os.environ[ENVIRONMENT] = "1"
+    try:
+        yield
+    finally:
+        if saved is None:
+            os.environ.pop(ENVIRONMENT, None)
+        else:
+            os.environ[ENVIRONMENT] = saved
+
+
+def _witness(scene: Scene) -> tuple[Envelope | None, int]:
+    """The envelope of the scene's plan on WITNESS_INTERVALS intervals in one process
+    within WITNESS_WALL_TIME (None unless verified), and its Ipopt iterations."""
+    from planner.ocp import plan
+
+    data = scene.model_dump(mode="json")
+    data["transcription"]["intervals"] = WITNESS_INTERVALS
+    data["solver"]["max_wall_time"] = WITNESS_WALL_TIME
+    with _one_process():
+        found = plan(Scene.model_validate(data))
+    ok = found.solver.success and bool(found.verification.verified)
+    return (Envelope.of(found) if ok else None), found.solver.iterations
+
+
+_use_stored = True
+_found: dict[tuple, Witnessed] = {}  # solved in this process, by move, joints and cuts
+_solved: dict[tuple[int, int], list[Witnessed]] = {}  # the same by (seed, index), in order
+
+
+def _stored(key: tuple[int, int] | None, start: np.ndarray, goal: np.ndarray) -> Witnessed | None:
+    """The stored witness of task `key` for this move, if any."""
+    if key is None or not _use_stored:
+        return None
+    from planner.hard_suite_witnesses import WITNESSES
+
+    for record in WITNESSES.get(key, []):
+        if np.allclose(record["start"], start, rtol=0.0, atol=1e-9) \
+                and np.allclose(record["goal"], goal, rtol=0.0, atol=1e-9):
+            return Witnessed(**{**record, "start": tuple(record["start"]),
+                                "goal": tuple(record["goal"]),
+                                "free": _envelope(record["free"]),
+                                "witness": _envelope(record["witness"])})
+    return None
+
+
+def _envelope(data: dict | None) -> Envelope | None:
+    return None if data is None else Envelope(**{k: tuple(v) for k, v in data.items()})
+
+
+def witnessed(robot: Robot, start: np.ndarray, goal: np.ndarray, bounded: np.ndarray,
+              cuts: tuple[float, float], key: tuple[int, int] | None = None) -> Witnessed:
+    """The witness of a bounds task: the unbounded plan of the move, then plans within the
+    bounds of its envelope cut by `cuts` (speed, excursion) times each of CUT_SCALES
+    until one verifies (`bounds_of`); stored for the tasks of `key` (seed, index) in
+    `planner.hard_suite_witnesses`, else solved (and kept for this process)."""
+    stored = _stored(key, start, goal)
+    if stored is not None:
+        return stored
+    memo = (robot.gravity, tuple(start), tuple(goal), tuple(bounded), cuts)
+    if memo not in _found:
+        _found[memo] = _solve_witness(robot, start, goal, bounded, cuts)
+    if key is not None and _found[memo] not in _solved.setdefault(key, []):
+        _solved[key].append(_found[memo])
+    return _found[memo]
+
+
+def _solve_witness(robot: Robot, start: np.ndarray, goal: np.ndarray, bounded: np.ndarray,
+                   cuts: tuple[float, float]) -> Witnessed:
+    ends = tuple(np.asarray(start).tolist()), tuple(np.asarray(goal).tolist())
+    free, iterations = _witness(_scene(robot, start, goal))
+    if free is None:
+        return Witnessed(*ends, None, 0.0, None, iterations)
+    for scale in CUT_SCALES:
+        if scale == 0.0:
+            return Witnessed(*ends, free, 0.0, free, iterations)
+        position, velocity = bounds_of(start, goal, free, bounded, *(scale * c for c in cuts))
+        witness, spent = _witness(_scene(robot, start, goal, position_bounds=position,
+                                         velocity_bounds=velocity))
+        iterations += spent
+        if witness is not None:
+            return Witnessed(*ends, free, scale, witness, iterations)
+    raise AssertionError("CUT_SCALES ends with 0")
 
 
 def category(name: str) -> str:
@@ -284,7 +462,7 @@ def hard_tasks(count: int = COUNT, seed: int = SEED) -> list[tuple[str, Scene]]:
         kind = CYCLE[index % len(CYCLE)]
         gravity = GRAVITY if (index // len(CYCLE)) % 2 else 0.0  # alternating by round
         out.append((f"{kind}-{index:02d}",
-                    _task(kind, np.random.default_rng([seed, index]), gravity)))
+                    _task(kind, np.random.default_rng([seed, index]), gravity, (seed, index))))
     return out
 
 
@@ -347,3 +525,53 @@ def crossing_zeros(scene: Scene) -> np.ndarray:
                         np.linspace(0.0, 1.0, 201))
     return np.empty(0) if zeros is None else zeros
 
+
+
+# --------------------------------------------------------------------------- stored witnesses
+
+WITNESS_FILE = Path(__file__).with_name("hard_suite_witnesses.py")
+_HEADER = '''"""What the witness solves of the hard suite's bounds tasks found, for the tasks of
+planner.hard_suite.SEED and HELD_OUT within COUNT: per (seed, index), per move drawn,
+`planner.hard_suite.Witnessed` as a dict. Written by `python -m planner.hard_suite`; not
+edited by hand."""
+
+from typing import Any
+
+'''
+
+
+def write_witnesses(seeds: tuple[int, ...] = (SEED, *HELD_OUT), count: int = COUNT) -> None:
+    """Solve the witnesses of the bounds tasks of `seeds` within `count` afresh and store
+    them in WITNESS_FILE."""
+    global _use_stored
+    _use_stored = False
+    try:
+        for seed in seeds:
+            for name, _ in hard_tasks(count, seed):
+                if category(name) == "bounds":
+                    index = int(name.rsplit("-", 1)[1])
+                    for found in _solved[(seed, index)]:
+                        print(seed, name, f"scale {found.scale:g}, "
+                              f"{found.iterations} iterations", flush=True)
+    finally:
+        _use_stored = True
+    records = {key: [dataclasses.asdict(found) for found in _solved[key]]
+               for key in sorted(_solved)}
+    WITNESS_FILE.write_text(_module(records))
+
+
+def _module(records: dict[tuple[int, int], list[dict[str, Any]]]) -> str:
+    """WITNESS_FILE's text holding `records`."""
+    lines = [_HEADER + "WITNESSES: dict[tuple[int, int], list[dict[str, Any]]] = {"]
+    for key, found in records.items():
+        lines.append(f"    {key!r}: [")
+        lines += [textwrap.indent(pprint.pformat(r, width=91, sort_dicts=False), " " * 8) + ","
+                  for r in found]
+        lines.append("    ],")
+    return "\n".join([*lines, "}", ""])
+
+
+if __name__ == "__main__":
+    from planner import hard_suite
+
+    hard_suite.write_witnesses()

@@ -1,5 +1,7 @@
 """The hard suite (planner.hard_suite): reproducible, every category, feasible by
-construction as far as can be checked without a solve. No solves here."""
+construction as far as can be checked without a solve, and a bounds task's bounds held by
+a stored witness and left by the unbounded plan. One solve: a stored witness solved again
+(about 2 s)."""
 
 from __future__ import annotations
 
@@ -8,6 +10,7 @@ import math
 import numpy as np
 import pytest
 
+from planner import hard_suite
 from planner.coupling_block import along
 from planner.dynamics import Dynamics
 from planner.examples import seed_arm
@@ -19,6 +22,7 @@ from planner.hard_suite import (
     MOVE,
     ROOM,
     SEED,
+    SPEED_CUT,
     SWING,
     category,
     check,
@@ -29,6 +33,7 @@ from planner.hard_suite import (
     hard_tasks,
     segment,
 )
+from planner.ocp.verify import BOUND_TOL
 from planner.scene import DurationRange
 
 
@@ -120,6 +125,74 @@ def test_bounds_hold_at_start_and_goal_with_margin(suite):
         assert any(v is not None for v in task.position_bounds.lower), name
         for lo, hi in zip(task.velocity_bounds.lower, task.velocity_bounds.upper, strict=True):
             assert (lo is None or lo < 0.0) and (hi is None or hi > 0.0), name
+
+
+def _bounds_tasks(suite):
+    """(name, scene, what its witness solves found) of the suite's bounds tasks."""
+    out = []
+    for name, scene in suite:
+        if category(name) == "bounds":
+            ends = np.array(scene.task.initial.q), np.array(scene.task.final.q)
+            found = [w for seed in (SEED, *HELD_OUT)
+                     if (w := hard_suite._stored((seed, int(name[-2:])), *ends)) is not None]
+            assert len(found) == 1, f"{name}: no stored witness"
+            out.append((name, scene, found[0]))
+    return out
+
+
+def _limits(bounds):
+    return (np.array([np.nan if v is None else v for v in bounds.lower]),
+            np.array([np.nan if v is None else v for v in bounds.upper]))
+
+
+def test_bounds_tasks_have_a_witness_within_their_bounds_that_touches_one(suite):
+    """Feasible by construction: a verified plan (the witness) keeps every bound, and
+    touches one within 1 % (position: of its range, rate: of the bound)."""
+    for name, scene, found in _bounds_tasks(suite):
+        assert found.free is not None and found.witness is not None
+        w = found.witness
+        (q_lo, q_hi), (v_lo, v_hi) = (_limits(scene.task.position_bounds),
+                                      _limits(scene.task.velocity_bounds))
+        tol = BOUND_TOL * np.maximum(1.0, np.abs(np.nan_to_num(q_hi)))
+        assert np.all(~(np.array(w.q_min) < q_lo - tol)), name
+        assert np.all(~(np.array(w.q_max) > q_hi + tol)), name
+        assert np.all(~(np.array(w.rate_max) > v_hi + BOUND_TOL * np.maximum(1.0, v_hi))), name
+        assert np.array_equal(np.isnan(v_lo), np.isnan(q_lo)), name  # the same joints
+        span = np.array(w.q_max) - np.array(w.q_min)
+        gaps = np.concatenate([(np.array(w.q_min) - q_lo) / span, (q_hi - np.array(w.q_max)) / span,
+                               (v_hi - np.array(w.rate_max)) / v_hi])
+        assert np.nanmin(gaps) <= 0.01, name
+
+
+def test_the_unbounded_plan_leaves_a_bounds_tasks_bounds(suite):
+    """The bounds bind: the unbounded plan of the move exceeds every bounded joint's rate
+    bound by the cut (a task whose witness needed no cut, scale 0, has its bounds touch it
+    instead, which the test above holds)."""
+    cut = 0
+    for name, scene, found in _bounds_tasks(suite):
+        assert found.free is not None
+        _, v_hi = _limits(scene.task.velocity_bounds)
+        rate = np.array(found.free.rate_max)
+        bounded = ~np.isnan(v_hi)
+        if found.scale > 0.0:
+            cut += 1
+            beyond = rate[bounded] / v_hi[bounded]
+            assert np.all(beyond >= 1.0 + found.scale * SPEED_CUT[0] / 2), name
+    assert cut > 0
+
+
+def test_a_stored_witness_is_what_its_solves_find():
+    """A bounds task drawn with its witness solved afresh (the cheapest of the stored ones:
+    a vertical arm, 75 iterations) has the stored task's bounds, to their rounding."""
+    seed, index = HELD_OUT[1], 19
+    stored = dict(hard_tasks(index + 1, seed))[f"bounds-{index}"]
+    fresh = hard_suite._task("bounds", np.random.default_rng([seed, index]),
+                             stored.robot.gravity)
+    assert fresh.task.initial == stored.task.initial and fresh.task.final == stored.task.final
+    for field in ("position_bounds", "velocity_bounds"):
+        a, b = getattr(fresh.task, field), getattr(stored.task, field)
+        for x, y in zip([*a.lower, *a.upper], [*b.lower, *b.upper], strict=True):
+            assert (x is None) == (y is None) and (x is None or abs(x - y) <= 2e-3), field
 
 
 def test_tip_targets_are_a_reachable_configurations_tip(suite):
