@@ -12,6 +12,7 @@ from planner.examples import example
 from planner.model import Robot
 from planner.ocp import Plan, plan
 from planner.ocp import guess as guess_module
+from planner.ocp import planner as planner_module
 from planner.ocp import problem as problem_module
 from planner.ocp.guess import hermite_guess, inverse_dynamics_guess
 from planner.ocp.problem import ProblemKey, cached_problem, problem
@@ -304,6 +305,13 @@ def test_a_moved_goal_starts_from_the_earlier_plans_primal_and_dual_solution():
     with pytest.raises(ValueError, match="warm_start: the earlier plan is of an arm with 4 "
                                          "joints, 2 of them active; this one has 2, 2"):
         plan(scene(N=20), warm_start=earlier)
+    with pytest.MonkeyPatch.context() as patch:  # a warm start that needs more than allowed
+        patch.setattr(planner_module, "WARM_ITERATIONS", 1)
+        capped = plan(moved, warm_start=earlier)
+    first = capped.mesh_passes[0]
+    assert (first.strategy, first.iterations, first.status) == (
+        "warm start", 1, "Maximum_Iterations_Exceeded")
+    assert capped.solver.strategy == cold.solver.strategy and capped.verification.verified
     broken = earlier.solution.model_copy(update={"x": [math.nan] * len(earlier.solution.x)})
     fallback = plan(moved, warm_start=earlier.model_copy(update={"solution": broken}))
     # a warm start that fails is followed by the scene's own starts, as a cold plan makes

@@ -162,8 +162,9 @@ def _planned_on(scene: Scene, progress: Handler | None, warm_start: Plan | None,
     (forked once an earlier plan, if one was given, has failed to start it)."""
     robot, T = _design_robot(scene), _duration_guess(scene)
     attempts: list[Attempt] = []
-    _attempt(scene, _warm_starts(scene, robot, T, warm_start, stall=alone), attempts, budget,
-             progress)
+    with budget.capped(WARM_ITERATIONS):
+        _attempt(scene, _warm_starts(scene, robot, T, warm_start, stall=alone), attempts,
+                 budget, progress)
     if attempts and _ended(scene, attempts, budget):
         return _result(scene, attempts, budget)
     starts = itertools.islice(_starts(scene, robot, T, attempts, stall=alone),
@@ -189,6 +190,12 @@ def _planned_on(scene: Scene, progress: Handler | None, warm_start: Plan | None,
     finally:
         companion.stop()
 
+
+WARM_ITERATIONS = 100
+"""Iterations a solve started from an earlier plan may take before the scene's own starts
+take over: a warm start near its optimum converges in a few (docs/benchmarks.md, "Memory of
+motion": at most 34 where it beat the cold plan but one), while those that failed ran for
+half a minute before the cold starts began ("Warm replanning")."""
 
 COMPANION_GRACE = 3.0
 """[s] past the budget the plan waits for its companion's plan (its checks): less than

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -93,6 +95,16 @@ class Budget:
     def spent(self) -> bool:
         """No further solve may start: the time left is kept for the checks."""
         return time.perf_counter() >= self.solves_until
+
+    @contextlib.contextmanager
+    def capped(self, max_iter: int) -> Iterator[None]:
+        """Within: at most `max_iter` iterations per solve."""
+        full = self.max_iter
+        self.max_iter = min(full, max_iter)
+        try:
+            yield
+        finally:
+            self.max_iter = full
 
     def keep_for_checks(self, intervals: int, joints: int) -> None:
         """Keep the checks' expected cost before the deadline: on a mesh of `intervals`
