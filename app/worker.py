@@ -255,8 +255,10 @@ def _warm_start(store: JobStore, scene: Scene) -> tuple[Plan, str, float | None]
     """The earlier plan the scene starts from, its job's id and distance (`_start_from`);
     None for a cold start, or when that job has no plan (any more)."""
     start_from = _start_from(store, scene)
-    earlier = _earlier(store, start_from[0]) if start_from is not None else None
-    return None if earlier is None or start_from is None else (earlier, *start_from)
+    if start_from is None:
+        return None
+    earlier = _earlier(store, start_from[0])
+    return None if earlier is None else (earlier, *start_from)
 
 
 def _started_from(plan: Plan, job_id: str, distance: float | None) -> Plan:

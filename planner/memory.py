@@ -38,10 +38,11 @@ _STATED = ("tracking", "torque_limit", "position_bounds", "velocity_bounds",
 
 def shape(scene: Scene) -> tuple:
     """What must be equal for a plan of one scene to seed another: the joints (passive or
-    active, waved or not) and which final entries are free."""
+    active, waved or not), which final entries are free, and whether a tip target is."""
     links = tuple((link.joint, link.wave is not None) for link in scene.robot.links)
     final = scene.task.final
-    return links, tuple(v is None for v in final.q), tuple(v is None for v in final.dq)
+    return (links, tuple(v is None for v in final.q), tuple(v is None for v in final.dq),
+            scene.task.tip_target is None)
 
 
 def _duration(scene: Scene) -> float:
@@ -83,7 +84,7 @@ def _tip(scene: Scene) -> np.ndarray:
 
 def distance(a: Scene, b: Scene) -> float:
     """How far apart two scenes of the same `shape` are [rad] (inf between shapes)."""
-    if shape(a) != shape(b) or (a.task.tip_target is None) != (b.task.tip_target is None):
+    if shape(a) != shape(b):
         return math.inf
     Ta, Tb = _duration(a), _duration(b)
     T = max(Ta, Tb)
