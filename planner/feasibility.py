@@ -2,7 +2,7 @@
 
 Each check is sufficient for infeasibility, never necessary: a task that passes them all
 may still be infeasible (a duration below the shortest one its torque limit allows is
-found by the solver, `planner.ocp.infeasibility`), but a task that fails one cannot be
+found by the planner's duration probe, `planner.ocp.shortest`), but a task that fails one cannot be
 planned, so `plan()` returns at once (`Plan.infeasibility`, source "checks") and the
 service answers 422 naming the field. The checks:
 
@@ -15,7 +15,12 @@ service answers 422 naming the field. The checks:
   when every final angle is given, at least `task.coupling_margin` (not with wave
   co-design, whose waves are not known before the solve);
 - **reach**: the tip target within the arm's reach, the sum over links of the largest
-  radius l + |a| (with co-design, a up to its bound);
+  radius l + |a| (with co-design, a up to its bound), and no nearer to the base than the
+  arm folds (a link's least radius less the others' largest, `innermost`);
+- **reach within bounds**: where the final angles are bounded (`task.position_bounds`, or
+  given in `task.final.q`), the tip target within the tip's extent in every direction
+  (`extent`: per link the largest r(q) cos(q - theta) over its interval, summed; a target
+  beyond it in some direction lies outside the convex hull of what the tip reaches);
 - **zero torque**: a torque limit of 0 on every active joint leaves only the free motion
   from the initial state (a state at rest without gravity stays there); the task is
   infeasible when that motion misses the given final state by more than `FREE_TOL` at
@@ -169,18 +174,109 @@ def reach(robot: Robot, amplitude_max: float | None = None) -> float:
     return total
 
 
+def _radii(robot: Robot, amplitude_max: float | None) -> list[tuple[float, float]]:
+    """[m] The least and the largest radius l -/+ |a| of every link (a co-designed active
+    joint's amplitude up to `amplitude_max`)."""
+    out = []
+    for joint, link in enumerate(robot.links):
+        a = abs(link.wave.amplitude) if link.wave is not None else 0.0
+        if amplitude_max is not None and joint in robot.active:
+            a = max(a, min(amplitude_max, 0.95 * link.length))
+        out.append((link.length - a, link.length + a))
+    return out
+
+
+def innermost(robot: Robot, amplitude_max: float | None = None) -> float:
+    """[m] The nearest the arm's tip gets to its base, at least: a link of least radius
+    r_k folds back at most by the other links' largest radii (0 when they can cover it)."""
+    radii = _radii(robot, amplitude_max)
+    total = sum(hi for _, hi in radii)
+    return max(0.0, max(lo - (total - hi) for lo, hi in radii))
+
+
+REACH_DIRECTIONS = 360
+"""Directions in which the tip's extent within the final angles' bounds is compared with
+the tip target's."""
+REACH_STEP = 2e-3
+"""[rad] Sample spacing of a joint's interval when its extent in a direction is bounded."""
+
+
+def _final_intervals(scene: Scene) -> list[tuple[float, float]]:
+    """[rad] Per joint, the interval its final angle lies in: the given final angle, else
+    task.position_bounds (unbounded: a whole turn)."""
+    task, out = scene.task, []
+    for joint, value in enumerate(task.final.q):
+        if value is not None:
+            out.append((value, value))
+        elif task.position_bounds is not None:
+            lo, hi = _lower_upper(task.position_bounds, joint)
+            out.append((lo, hi) if hi - lo < 2 * math.pi else (-math.pi, math.pi))
+        else:
+            out.append((-math.pi, math.pi))
+    return out
+
+
+def extent(scene: Scene, theta: np.ndarray) -> np.ndarray:
+    """[m] An upper bound of how far the tip reaches in each direction theta (D,) [rad]
+    with the final angles in their intervals (`_final_intervals`): the sum over links of
+    the largest r_k(q) cos(q - theta) over the joint's interval, taken on samples REACH_STEP
+    apart plus the most it can rise between them (half a step times its largest slope,
+    l + |a| + |a| n). A co-designed or waveless radius counts as its largest where cos >= 0
+    and its least elsewhere. Exact as REACH_STEP -> 0."""
+    co = scene.task.co_design
+    radii = _radii(scene.robot, co.amplitude_max if co is not None else None)
+    total = np.zeros(theta.shape)
+    for joint, ((lo, hi), (r_lo, r_hi)) in enumerate(zip(_final_intervals(scene), radii,
+                                                         strict=True)):
+        link = scene.robot.links[joint]
+        q = np.linspace(lo, hi, max(2, math.ceil((hi - lo) / REACH_STEP) + 1))
+        step = (hi - lo) / max(len(q) - 1, 1)
+        cos = np.cos(q[None, :] - theta[:, None])
+        if co is not None and joint in scene.robot.active or link.wave is None:
+            r = np.where(cos >= 0.0, r_hi, r_lo)
+            rate = r_hi
+        else:
+            w = link.wave
+            r = (link.length + w.amplitude * np.sin(w.frequency * q + w.phase))[None, :]
+            rate = r_hi + abs(w.amplitude) * w.frequency
+        total += (r * cos).max(axis=1) + rate * step / 2
+    return total
+
+
 def _reach(scene: Scene) -> list[Issue]:
     target = scene.task.tip_target
     if target is None:
         return []
     co = scene.task.co_design
-    farthest = reach(scene.robot, co.amplitude_max if co is not None else None)
+    amplitude_max = co.amplitude_max if co is not None else None
+    farthest, nearest = reach(scene.robot, amplitude_max), innermost(scene.robot, amplitude_max)
     distance = math.hypot(target.x, target.y)
-    if distance <= farthest * (1 + BOUND_TOL):
+    where = f"({target.x:g}, {target.y:g}) is {distance:g} m from the base"
+    if distance > farthest * (1 + BOUND_TOL):
+        return [Issue("task.tip_target", "reach",
+                      f"{where}, beyond the arm's reach of {farthest:g} m (the sum of its "
+                      f"largest link radii)")]
+    if distance < nearest * (1 - BOUND_TOL):
+        return [Issue("task.tip_target", "reach",
+                      f"{where}, nearer than the arm folds: at least {nearest:g} m (a "
+                      f"link's least radius less the other links' largest)")]
+    bounded = scene.task.position_bounds is not None or any(
+        v is not None for v in scene.task.final.q)
+    if not bounded:
         return []
-    return [Issue("task.tip_target", "reach",
-                  f"({target.x:g}, {target.y:g}) is {distance:g} m from the base, beyond "
-                  f"the arm's reach of {farthest:g} m (the sum of its largest link radii)")]
+    theta = np.append(np.linspace(-math.pi, math.pi, REACH_DIRECTIONS, endpoint=False),
+                      math.atan2(target.y, target.x))
+    reachable = extent(scene, theta)
+    gap = target.x * np.cos(theta) + target.y * np.sin(theta) - reachable
+    worst = int(np.argmax(gap))
+    towards = reachable[worst] + gap[worst]
+    if gap[worst] <= BOUND_TOL * max(1.0, distance):
+        return []
+    return [Issue("task.tip_target", "reach within bounds",
+                  f"{where}, out of the tip's reach with the final angles within their "
+                  f"bounds (task.position_bounds, task.final.q): in the direction "
+                  f"{math.degrees(theta[worst]):.1f} deg the tip's extent is at most "
+                  f"{reachable[worst]:.4g} m and the target's {towards:.4g} m")]
 
 
 def _zero_torque(scene: Scene) -> list[Issue]:

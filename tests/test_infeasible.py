@@ -12,7 +12,7 @@ from service_fixtures import client, two_link_scene
 
 from app.worker import _verdict
 from planner import feasibility
-from planner.ocp.infeasibility import AGREEING, CHECKS_STATUS, FREE_SPAN, RESTART
+from planner.ocp.infeasibility import AGREEING, CHECKS_STATUS, RESTART
 from planner.ocp.planner import plan
 from planner.scene import Scene
 from planner.simulate import simulate
@@ -35,8 +35,9 @@ BASE = chain_scene(2)  # joints 0.0 -> 0.5 and 0.1 -> 0.6 rad in 1 s, rest to re
 
 def test_a_feasible_task_passes_every_check():
     assert feasibility.check(BASE) == []
-    assert feasibility.check(with_task(BASE, torque_limit=2.0, coupling_margin=1e-3,
-                                       tip_target={"x": 0.5, "y": 0.3})) == []
+    assert feasibility.check(with_task(BASE, torque_limit=2.0, coupling_margin=1e-3)) == []
+    free = with_task(BASE, final={"q": [None, None], "dq": [0.0, 0.0]})
+    assert feasibility.check(with_task(free, tip_target={"x": 0.5, "y": 0.3})) == []
 
 
 def test_a_start_or_goal_outside_a_bound_names_its_entry():
@@ -78,7 +79,51 @@ def test_a_tip_target_beyond_the_largest_link_radii():
     assert reach == pytest.approx(0.4 + 0.4 + 0.04)  # the active link's wave adds 0.1 l
     assert fields(with_task(BASE, tip_target={"x": 0.0, "y": 1.01 * reach})) == [
         ("task.tip_target", "reach")]
-    assert fields(with_task(BASE, tip_target={"x": 0.0, "y": 0.99 * reach})) == []
+    free = with_task(BASE, final={"q": [None, None], "dq": [0.0, 0.0]})
+    assert fields(with_task(free, tip_target={"x": 0.0, "y": 0.99 * reach})) == []
+    # with the final angles given, the target must be their tip
+    assert fields(with_task(BASE, tip_target={"x": 0.0, "y": 0.99 * reach})) == [
+        ("task.tip_target", "reach within bounds")]
+
+
+def test_a_tip_target_nearer_than_the_arm_folds():
+    """A first link of 1 m and a second of 0.4 m cannot bring the tip within 0.6 m of the
+    base."""
+    robot = {"links": [{"length": 1.0, "mass": 1.0, "inertia": 0.01, "joint": "active"},
+                       {"length": 0.4, "mass": 0.5, "inertia": 0.01, "joint": "active"}],
+             "gravity": 0.0}
+    scene = Scene.model_validate({"robot": robot, "task": {
+        "duration": 1.0, "initial": {"q": [0.0, 0.0], "dq": [0.0, 0.0]},
+        "final": {"q": [None, None], "dq": [0.0, 0.0]}, "tip_target": {"x": 0.3, "y": 0.4}}})
+    assert feasibility.innermost(scene.robot) == pytest.approx(0.6)
+    assert feasibility.check(scene)[0].message == (
+        "(0.3, 0.4) is 0.5 m from the base, nearer than the arm folds: at least 0.6 m (a "
+        "link's least radius less the other links' largest)")
+    folded = with_task(scene, tip_target={"x": 0.36, "y": 0.48})  # 0.6 m: reachable
+    assert feasibility.check(folded) == []
+
+
+def test_the_tip_within_bounded_final_angles_is_never_refused_and_beyond_them_is():
+    """Every tip of a configuration within the position bounds passes the check (it is
+    sufficient for infeasibility); a target on the far side of the base does not."""
+    from planner.dynamics import Dynamics
+
+    lower, upper = [-0.3, 0.2, -1.0], [0.3, 0.6, -0.2]
+    scene = with_task(chain_scene(3), final={"q": [None] * 3, "dq": [0.0] * 3},
+                      initial={"q": [0.0, 0.3, -0.5], "dq": [0.0] * 3},
+                      position_bounds={"lower": lower, "upper": upper},
+                      tip_target={"x": 0.5, "y": 0.0})
+    tips = Dynamics(scene.robot).tips
+    rng = np.random.default_rng(7)
+    for q in [np.array(lower), np.array(upper), *rng.uniform(lower, upper, (40, 3))]:
+        x, y = tips(q)[-1]
+        assert feasibility.check(with_task(scene, tip_target={"x": float(x),
+                                                               "y": float(y)})) == []
+    beyond = feasibility.check(with_task(scene, tip_target={"x": -0.5, "y": 0.0}))
+    assert [(i.field, i.kind) for i in beyond] == [("task.tip_target", "reach within bounds")]
+    # the same target is within the arm's reach once the bounds are gone
+    free = with_task(scene, tip_target={"x": -0.5, "y": 0.0}, position_bounds=None)
+    assert feasibility.check(free) == []
 
 
 def test_zero_torque_is_infeasible_unless_the_free_motion_reaches_the_goal():
@@ -168,19 +213,56 @@ def test_a_duration_range_found_infeasible_says_so_for_the_whole_range():
     assert "cannot be done with a free duration in [0.1, 0.15] s" in p.infeasibility.summary
 
 
-def test_a_fixed_duration_held_infeasible_reports_a_duration_a_free_time_solve_found():
-    """A fully actuated arm cannot move 0.5 rad per joint in 0.5 s with 1 N m; a free-time
-    solve in [0.5, 2] s finds a verified plan, and a restart does not count as a start."""
-    scene = with_task(chain_scene(2, under=False, intervals=10), duration=0.5,
-                      torque_limit=1.0)
-    p = plan(scene)
+FAST = with_task(chain_scene(2, under=False, intervals=10), torque_limit=1.0)
+"""A fully actuated arm moving 0.5 rad per joint with 1 N m: about 1.09 s at the least."""
+
+
+def _fastest() -> float:
+    """[s] The shortest duration of FAST's move, planned on its own as a time-optimal task."""
+    p = plan(with_task(FAST, duration={"min": 0.1, "max": 4.0},
+                       objective={"effort": 1e-3, "time": 1.0}))
+    assert p.verification.verified
+    return p.duration
+
+
+def test_a_duration_below_the_shortest_is_infeasible_with_the_shortest_as_evidence():
+    """The probe's time-optimal solve, started from the unlimited motion stretched, finds
+    the same shortest duration as the time-optimal task planned on its own; the plan is
+    the task's own iterate at 0.5 s."""
+    p = plan(with_task(FAST, duration=0.5))
     found = p.infeasibility
-    assert found is not None and found.source == "solver"
-    assert len({a.split(":")[0] for a in found.attempts} - {RESTART}) == AGREEING
-    assert found.shortest_duration is not None
-    assert 0.5 < found.shortest_duration <= FREE_SPAN * 0.5
-    assert f"a verified plan of {found.shortest_duration:.4g} s" in p.solver.message
+    assert found is not None and found.source == "duration"
+    assert found.durations == [0.5] and found.shortest_duration is not None
+    assert found.shortest_duration == pytest.approx(_fastest(), rel=1e-2)
+    assert found.summary.startswith("the task cannot be done in 0.5 s: its attempts gave no "
+                                    "converged plan (direct: ")
+    assert (f"a time-optimal solve under the task's limits found its shortest duration at "
+            f"{found.shortest_duration:.4g} s") in found.summary
+    assert p.solver.message == found.summary and not p.solver.success
     assert p.duration == 0.5  # the plan is still the infeasible task's own iterate
+    assert p.solver.total_time < 15.0  # a quarter of the default budget
+
+
+def test_a_duration_just_above_the_shortest_is_planned_not_held_infeasible():
+    p = plan(with_task(FAST, duration=round(1.1 * _fastest(), 3)))
+    assert p.infeasibility is None
+    assert p.solver.success and p.verification.verified
+
+
+def test_a_stretched_motion_needs_its_torques_over_the_square_of_the_stretch():
+    """Without gravity M(q) ddq + h(q, dq) scales with 1/s^2 when a motion is run s times
+    as long: the stretched guess's torques are the motion's over s^2."""
+    from planner.ocp.guess import hermite_guess, stretched
+
+    scene = with_task(FAST, duration=1.0)
+    robot = scene.robot.model_copy(update={"gravity": 0.0})
+    motion = hermite_guess(scene, robot, 1.0)
+    x = np.linspace(0.0, 1.0, 21)
+    for s in (1.0, 1.7, 3.0):
+        slow = stretched(motion, s, robot)(x)
+        np.testing.assert_allclose(slow["tau"], motion(x)["tau"] / s ** 2, rtol=1e-12,
+                                   atol=1e-14)
+        np.testing.assert_allclose(slow["dq"], motion(x)["dq"] / s, rtol=1e-14)
 
 
 def _attempt(name: str, status: str):

@@ -116,6 +116,19 @@ def interpolant_guess(interp: Interpolant, T: float) -> Guess:
     return guess
 
 
+def stretched(guess: Guess, factor: float, robot: Robot) -> Guess:
+    """The guess's motion run `factor` times as long: the same path, rates divided by the
+    factor, accelerations by its square, and the torques the active rows of the dynamics
+    ask for along it."""
+
+    def out(x: np.ndarray) -> dict[str, np.ndarray]:
+        g = guess(x)
+        q, dq, ddq = g["q"], g["dq"] / factor, g["ddq"] / factor ** 2
+        return {"q": q, "dq": dq, "ddq": ddq, "tau": _torques(robot, q, dq, ddq, robot.active)}
+
+    return out
+
+
 def plan_guess(plan: Plan) -> Guess:
     """An earlier plan: cubic Hermite angles and rates through its nodes, its delivered
     torque (the node torques, linearly interpolated, in plans stored without it)."""

@@ -1,6 +1,6 @@
 """When the planner holds a task infeasible, and the evidence it gives.
 
-Two ways (docs/planner.md, "Limits and failures"):
+Three ways (docs/planner.md, "Limits and failures"):
 
 - before any solve, a check of `planner.feasibility` fails: `plan()` returns at once a
   plan without a trajectory whose `infeasibility` (source "checks") names the fields;
@@ -8,7 +8,10 @@ Two ways (docs/planner.md, "Limits and failures"):
   `INFEASIBLE` (Ipopt's Infeasible_Problem_Detected, Local_Infeasibility,
   Restoration_Failed): the retries stop, and the plan is the iterate of the most
   informative of them, the one whose largest row violation is least (the closest the
-  solver came to feasibility), with its violated NLP rows grouped by kind (`violated`).
+  solver came to feasibility), with its violated NLP rows grouped by kind (`violated`);
+- after the task's first attempts gave no converged plan, a time-optimal solve under the
+  task's limits ends at a duration longer than the task allows (`planner.ocp.shortest`,
+  source "duration"): the plan is its best attempt's iterate, with its violated rows.
 
 A plan whose attempts do not agree keeps the verdict it had (its best outcome's status),
 and its message names an attempt that reported infeasibility, if any, rather than only
@@ -19,7 +22,6 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
@@ -37,8 +39,9 @@ from planner.ocp.result import (
     ViolatedRows,
     WaveOut,
 )
-from planner.ocp.solve import INFEASIBLE, Budget
-from planner.scene import DurationRange, Objective, Scene
+from planner.ocp.shortest import Probe
+from planner.ocp.solve import INFEASIBLE
+from planner.scene import DurationRange, Scene
 
 if TYPE_CHECKING:
     from planner.ocp.planner import Attempt, Outcome
@@ -47,12 +50,6 @@ AGREEING = 2
 """Attempts from different starts that must report infeasibility to stop the retries."""
 VIOLATION_TOL = 1e-6
 """A row violated by less is not listed."""
-FREE_SPAN = 8.0
-"""The free-time solve after a fixed duration T held infeasible looks in [T, FREE_SPAN T]."""
-FREE_SHARE = 0.1
-"""The most of the plan's wall time the free-time solve may take (what is left at most)."""
-FREE_TIME_WEIGHT = 100.0
-"""Its objective's weight of the duration, beside the task's own effort weight."""
 CHECKS_STATUS = "Infeasible_Task"
 """`solver.status` of a plan refused by the checks before any solve."""
 
@@ -166,15 +163,37 @@ def evidence(scene: Scene, attempts: list[Attempt], best: Outcome,
                          durations=durations(scene))
 
 
+def too_short(scene: Scene, attempts: list[Attempt], best: Outcome, attempt: Attempt,
+              probe: Probe) -> Infeasibility:
+    """The infeasibility a duration probe establishes (`planner.ocp.shortest`): the task's
+    attempts gave no converged plan, and a time-optimal solve under its limits ends at a
+    longer duration; the plan is `best`'s iterate, its violated rows listed."""
+    names = list(dict.fromkeys(f"{a.start.name}: {o.solution.status}"
+                               for a in attempts for o in a.outcomes))
+    summary = (f"the task cannot be done {_within(scene)}: its attempts gave no converged "
+               f"plan ({'; '.join(names)}), and {probe.note}")
+    return Infeasibility(source="duration", summary=summary, attempts=names,
+                         attempt=attempt.start.name, violations=violated(best),
+                         durations=durations(scene), shortest_duration=probe.shortest)
+
+
 def annotate(plan: Plan, scene: Scene, attempts: list[Attempt], best: Outcome,
-             attempt: Attempt) -> Plan:
-    """The plan with its infeasibility when the attempts agree (its message says so);
-    otherwise, for a plan that did not converge, a message that also names the attempt
-    that reported infeasibility, if any."""
+             attempt: Attempt, probe: Probe | None = None) -> Plan:
+    """The plan with its infeasibility when the duration probe shows the duration too
+    short or the attempts agree (its message says so); otherwise, for a plan that did not
+    converge, a message that also names the attempt that reported infeasibility, if any."""
     if plan.solver.success:
         return plan
-    if agreed(attempts):
+    found: Infeasibility | None = None
+    if probe is not None and probe.too_short:
+        found = too_short(scene, attempts, best, attempt, probe)
+    elif agreed(attempts):
         found = evidence(scene, attempts, best, attempt)
+        if probe is not None and probe.shortest is not None:
+            found = found.model_copy(update={
+                "shortest_duration": probe.shortest,
+                "summary": f"{found.summary}; {probe.note}"})
+    if found is not None:
         report = plan.solver.model_copy(update={"message": found.summary})
         return plan.model_copy(update={"infeasibility": found, "solver": report})
     informative = most_informative(attempts)
@@ -214,49 +233,3 @@ def refused(scene: Scene, issues: list[Issue], started: float, T: float) -> Plan
             fields=[InfeasibleField(field=i.field, kind=i.kind, message=i.message)
                     for i in issues],
             durations=durations(scene)))
-
-
-def free_time_scene(scene: Scene) -> Scene | None:
-    """The scene with its fixed duration T freed to [T, FREE_SPAN T] and the duration
-    weighted in the objective (None where a duration cannot be freed: a range already,
-    or a tracked motion, which needs a fixed one)."""
-    task = scene.task
-    if isinstance(task.duration, DurationRange) or task.tracking is not None:
-        return None
-    T = float(task.duration)
-    objective = Objective(effort=max(task.objective.effort, 1e-3), time=FREE_TIME_WEIGHT,
-                          smoothness=task.objective.smoothness)
-    freed = task.model_copy(update={"duration": DurationRange(min=T, max=FREE_SPAN * T),
-                                    "objective": objective})
-    return scene.model_copy(update={"task": freed})
-
-
-def with_shortest(plan: Plan, scene: Scene, budget: Budget,
-                  solve: Callable[[Scene, Budget], Plan]) -> Plan:
-    """For a fixed duration the solver held infeasible, the plan with the duration of a
-    verified plan that a free-time solve (`free_time_scene`, by `solve` within what is
-    left of the budget, at most FREE_SHARE of it) found, if any."""
-    found = plan.infeasibility
-    freed = free_time_scene(scene)
-    if found is None or found.source != "solver" or freed is None or budget.spent:
-        return plan
-    started = time.perf_counter()
-    share = FREE_SHARE * (budget.deadline - budget.started)
-    left = budget.solves_until - time.perf_counter()
-    sub = Budget.of(budget.max_iter, min(left, share))
-    other = solve(freed, sub)
-    if other.solver.success and other.verification.verified:
-        note = (f"; a free-time solve found a verified plan of {other.duration:.4g} s "
-                f"(infeasibility.shortest_duration)")
-        shortest: float | None = other.duration
-    else:
-        note = (f"; a free-time solve in [{found.durations[0]:g}, "
-                f"{FREE_SPAN * found.durations[0]:g}] s found no verified plan either")
-        shortest = None
-    updated = found.model_copy(update={"shortest_duration": shortest,
-                                       "summary": found.summary + note})
-    report = plan.solver.model_copy(update={
-        "message": updated.summary,
-        "iterations": plan.solver.iterations + other.solver.iterations,
-        "total_time": (plan.solver.total_time or 0.0) + time.perf_counter() - started})
-    return plan.model_copy(update={"infeasibility": updated, "solver": report})

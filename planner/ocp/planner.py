@@ -23,7 +23,7 @@ from planner import feasibility
 from planner.dynamics import Dynamics
 from planner.errors import InputError
 from planner.model import Robot, Wave
-from planner.ocp import continuation, cores, infeasibility, portfolio
+from planner.ocp import continuation, cores, infeasibility, portfolio, shortest
 from planner.ocp.accuracy import interval_errors
 from planner.ocp.feedback import REPLAY_SAMPLES
 from planner.ocp.guess import (
@@ -32,6 +32,7 @@ from planner.ocp.guess import (
     interpolant_guess,
     inverse_dynamics_guess,
     plan_guess,
+    stretched,
 )
 from planner.ocp.instance import Instance, initial_point, instance
 from planner.ocp.mesh import Mesh
@@ -138,8 +139,16 @@ def plan(scene: Scene, progress: Handler | None = None, warm_start: Plan | None 
     issues = feasibility.check(scene)
     if issues:  # known infeasible before any solve
         return infeasibility.refused(scene, issues, budget.started, _duration_guess(scene))
-    return infeasibility.with_shortest(_plan(scene, progress, warm_start, budget), scene,
-                                       budget, lambda free, sub: _free_time(free, sub, progress))
+    return _plan(scene, progress, warm_start, budget)
+
+
+def shortest_duration(scene: Scene, lowest: float | None = None) -> shortest.Probe:
+    """The duration probe (`planner.ocp.shortest`) of a scene's task on its own, within the
+    scene's whole budget: the unlimited motion, stretched, then a time-optimal solve whose
+    duration may go down to `lowest` [s] (default: the task's shortest)."""
+    budget = Budget.of(scene.solver.max_iter, scene.solver.max_wall_time)
+    probe = _DurationProbe(scene, _design_robot(scene), budget, None)
+    return shortest.probe(scene, budget, probe.solve, probe.guess, lowest, share=1.0)
 
 
 def _plan(scene: Scene, progress: Handler | None, warm_start: Plan | None,
@@ -167,20 +176,24 @@ def _planned_on(scene: Scene, progress: Handler | None, warm_start: Plan | None,
                  budget, progress)
     if attempts and _ended(scene, attempts, budget):
         return _result(scene, attempts, budget)
-    starts = itertools.islice(_starts(scene, robot, T, attempts, stall=alone),
-                              1 + scene.solver.retries)
     if alone:
+        probe = _DurationProbe(scene, robot, budget, progress)
+        starts = itertools.islice(_starts(scene, robot, T, attempts, probe, stall=alone),
+                                  1 + scene.solver.retries)
         _attempt(scene, starts, attempts, budget, progress)
-        return _result(scene, attempts, budget)
+        return _result(scene, attempts, budget, probe)
     relaxed = _continuation_start(scene, robot, T)
     companion = portfolio.Companion(
         lambda guard: _planned(scene, relaxed, replace(budget), guard))
     try:
         handler = _Watch(companion, progress)
+        probe = _DurationProbe(scene, robot, budget, handler)
+        starts = itertools.islice(_starts(scene, robot, T, attempts, probe, stall=alone),
+                                  1 + scene.solver.retries)
         _attempt(scene, (s for s in starts if not s.relaxed), attempts, budget, handler)
         if not handler.cancelled and companion.verified() and companion.plan is not None:
             return _joined(companion.plan, _passes_of(attempts), budget)
-        own = _result(scene, attempts, budget)
+        own = _result(scene, attempts, budget, probe)
         if handler.cancelled or own.infeasibility is not None \
                 or own.solver.success and own.verification.verified:
             return _joined(own, [], budget)
@@ -226,21 +239,60 @@ def _ended(scene: Scene, attempts: list[Attempt], budget: Budget) -> bool:
         or last.solution.status == "User_Requested_Stop" or infeasibility.agreed(attempts)
 
 
-def _planned(scene: Scene, start: Start, budget: Budget, progress: Handler) -> Plan:
+def _planned(scene: Scene, start: Start, budget: Budget, progress: Handler | None) -> Plan:
     """The plan of one start alone (what a companion process runs)."""
     attempts: list[Attempt] = []
     _attempt(scene, iter([start]), attempts, budget, progress)
     return _result(scene, attempts, budget)
 
 
-def _free_time(scene: Scene, budget: Budget, progress: Handler | None) -> Plan:
-    """The plan of a free-time scene from its first two starts (what
-    `infeasibility.with_shortest` runs after a fixed duration held infeasible)."""
-    attempts: list[Attempt] = []
-    robot, T = _design_robot(scene), _duration_guess(scene)
-    starts = itertools.islice(_starts(scene, robot, T, attempts), 2)
-    _attempt(scene, starts, attempts, budget, progress)
-    return _result(scene, attempts, budget)
+class _DurationProbe:
+    """The plan's probe of its shortest duration (`planner.ocp.shortest`): run at most
+    once, after one of the scene's own attempts has given no converged plan, where the
+    task's limits can make its duration too short."""
+
+    def __init__(self, scene: Scene, robot: Robot, budget: Budget, progress: Handler | None):
+        self.scene, self.robot, self.budget, self.progress = scene, robot, budget, progress
+        self.found: shortest.Probe | None = None
+        self.after = 0
+        """The plan's solves before the probe's."""
+
+    def run(self, attempts: list[Attempt]) -> None:
+        """Probe, unless it ran already, does not apply, an attempt converged or the
+        budget is spent."""
+        converged = any(o.solution.success for a in attempts for o in a.outcomes)
+        if self.found is None and shortest.applies(self.scene) and not converged \
+                and not self.budget.spent:
+            self.after = _passes(attempts)
+            self.found = shortest.probe(self.scene, self.budget, self.solve, self.guess)
+
+    @property
+    def too_short(self) -> bool:
+        return self.found is not None and self.found.too_short
+
+    def start(self) -> Start | None:
+        """The task's start from the probe's time-optimal plan, stretched to the nearest
+        duration the task allows, on that plan's mesh (None without such a plan)."""
+        found = self.found
+        if found is None or found.too_short or found.plan is None:
+            return None
+        fastest = found.plan
+        shortest_allowed, longest = shortest.durations(self.scene)
+        T = min(max(fastest.duration, shortest_allowed), longest)
+        breaks = np.asarray(fastest.t) / fastest.duration
+        breaks[0], breaks[-1] = 0.0, 1.0
+        guess = stretched(plan_guess(fastest), T / fastest.duration, self.robot)
+        return Start("shortest-duration plan", Mesh(breaks), guess,
+                     "the time-optimal plan under the task's limits", T, self.robot)
+
+    def solve(self, scene: Scene, guess: Guess, used: str, T: float, budget: Budget) -> Plan:
+        """The plan of one start of `scene` from `guess` (what it is: `used`) at T [s]."""
+        start = Start("direct", _first_mesh(scene), guess, used, T, self.robot, may_stall=True)
+        return _planned(scene, start, budget, self.progress)
+
+    def guess(self, scene: Scene, T: float) -> Guess:
+        """The scene's own initial guess at T [s]."""
+        return _guess(scene, self.robot, T)[0]
 
 
 class _Watch:
@@ -358,7 +410,7 @@ def _warm_starts(scene: Scene, robot: Robot, T: float, warm_start: Plan | None,
 
 
 def _starts(scene: Scene, robot: Robot, T: float, attempts: list[Attempt],
-            stall: bool = True) -> Iterator[Start]:
+            probe: _DurationProbe | None = None, stall: bool = True) -> Iterator[Start]:
     """The scene's own attempts, in order, each tried while the ones before it have not
     given a converged plan (with mesh refinement on: an accurate one; docs/planner.md,
     "Retries"): the scene's own start (with refinement on, a uniform mesh of over
@@ -366,8 +418,11 @@ def _starts(scene: Scene, robot: Robot, T: float, attempts: list[Attempt],
     dynamics (`planner.ocp.continuation`), where it applies; a restart from the last
     iterate of the scene's start where that neither converged nor stalled;
     the classical inverse dynamics as the initial guess; a first mesh of twice, then of
-    half the intervals. stall: the scene's own start is stopped when it stalls (where no
-    companion process solves the continuation meanwhile)."""
+    half the intervals. After the scene's own start, `probe` (where given) runs: when it
+    shows the duration too short no start follows, and a time-optimal plan it found
+    within the task's durations is the next start. stall: the scene's own start is
+    stopped when it stalls (where no companion process solves the continuation
+    meanwhile)."""
     tr = scene.transcription
     mesh = _first_mesh(scene)
     guess, used = _guess(scene, robot, T)
@@ -376,6 +431,13 @@ def _starts(scene: Scene, robot: Robot, T: float, attempts: list[Attempt],
                     coarse=Mesh.uniform(COARSE_INTERVALS), may_stall=stall)
     else:
         yield Start("direct", mesh, guess, used, T, robot, may_stall=stall)
+    if probe is not None:
+        probe.run(attempts)
+        if probe.too_short:
+            return
+        fastest = probe.start()
+        if fastest is not None:
+            yield fastest
     if continuation.applies(scene):
         yield _continuation_start(scene, robot, T)
     last = [a for a in attempts if not a.start.relaxed][-1].outcomes[-1]
@@ -596,7 +658,10 @@ def _interpolant(inst: Instance, robot: Robot, T: float, x: np.ndarray) -> Inter
                                                   dynamics.forward_many)
 
 
-def _result(scene: Scene, attempts: list[Attempt], budget: Budget) -> Plan:
+def _result(scene: Scene, attempts: list[Attempt], budget: Budget,
+            probe: _DurationProbe | None = None) -> Plan:
+    """The plan of the best outcome of the attempts, checked (`verify`), with the
+    infeasibility the attempts or the duration probe establish."""
     ranked = [(o, a) for a in attempts for o in a.outcomes]
     best, attempt = min(ranked, key=lambda pair: _rank(pair[0]))
     if infeasibility.agreed(attempts):  # the plan is the most informative one's iterate
@@ -641,11 +706,19 @@ def _result(scene: Scene, attempts: list[Attempt], budget: Budget) -> Plan:
                             compiled=outcomes[0].inst.problem.compiled,
                             initial_guess=attempt.start.guess_used,
                             strategy=attempt.start.name + refined_by),
-        mesh_passes=[o.record for o in outcomes],
+        mesh_passes=_records(outcomes, probe),
         feedback=feedback,
         verification=verification,
         solution=_nlp_solution(best),
-    ), scene, attempts, best, attempt)
+    ), scene, attempts, best, attempt, None if probe is None else probe.found)
+
+
+def _records(outcomes: list[Outcome], probe: _DurationProbe | None) -> list[MeshPass]:
+    """Every solve of the plan in the order they ran, the duration probe's included."""
+    records = [o.record for o in outcomes]
+    if probe is None or probe.found is None:
+        return records
+    return records[:probe.after] + probe.found.passes + records[probe.after:]
 
 
 def _nlp_solution(outcome: Outcome) -> NlpSolution | None:

@@ -137,6 +137,10 @@ class Robustness(_Out):
     worst_final_error: float | None = Field(
         description="[rad, rad/s] the largest |q - q_goal|, |dq - dq_goal| at the end over "
                     "the models (None: a replay diverged)")
+    open_loop_final_error: float | None = Field(
+        default=None, description="[rad, rad/s] the same for the delivered torque alone, "
+                                  "without the feedback (None: a replay diverged, or a plan "
+                                  "stored before the field existed)")
     worst_model: str = Field(description="the model of the worst tracking error, e.g. "
                                          "\"mass+ length-\"")
     bound: float | None = Field(description="[rad] solver.robustness, if set")
@@ -270,10 +274,12 @@ class Infeasibility(_Out):
     """Why the planner holds the task infeasible, with its evidence (docs/planner.md,
     "Limits and failures")."""
 
-    source: Literal["checks", "solver"] = Field(
+    source: Literal["checks", "solver", "duration"] = Field(
         description="checks: a check before any solve failed (`fields`; no solve ran); "
                     "solver: two different starts ended with a status saying that the "
-                    "constraints cannot all hold")
+                    "constraints cannot all hold; duration: the task's attempts gave no "
+                    "converged plan and a time-optimal solve under its limits found a "
+                    "verified plan only at a longer duration (`shortest_duration`)")
     summary: str = Field(description="one sentence: what cannot hold, and the evidence")
     fields: list[InfeasibleField] = Field(default_factory=list)
     attempts: list[str] = Field(
@@ -289,10 +295,10 @@ class Infeasibility(_Out):
         default_factory=list, description="[s] the durations it covers: [T] for a fixed "
                                           "duration, [min, max] for a duration range")
     shortest_duration: float | None = Field(
-        default=None, description="[s] for a fixed duration T held infeasible by the solver: "
-                                  "the duration of a verified plan that a free-time solve "
-                                  "(T to FREE_SPAN x T, time-weighted) found within what "
-                                  "was left of the budget; null when none was found or tried")
+        default=None, description="[s] the duration of the verified plan a time-optimal "
+                                  "solve under the task's torque limit and velocity bounds "
+                                  "found (docs/planner.md, \"Infeasible tasks\"); null when "
+                                  "none was found or tried")
 
 
 class NlpSolution(_Out):
