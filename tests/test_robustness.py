@@ -72,6 +72,9 @@ def test_the_feedback_holds_a_heavier_arm_near_the_plan_where_the_torque_alone_d
     open_loop = [replay(model, interp, start[None, :], None)[0][0]
                  for _, model in models(scene.robot, Uncertainty(mass=0.1))]
     assert report.worst_tracking_error < 0.2 * max(e for e in open_loop if e is not None)
+    # at the end too: the torque alone leaves the heavier arm farther from the goal
+    assert report.open_loop_final_error is not None
+    assert report.worst_final_error < 0.5 * report.open_loop_final_error
     # gains of the wrong sign push the arm away: the report sees it
     K = np.asarray(result.feedback.gains)
     wrong = robustness(scene.robot, interp, -K, Uncertainty(mass=0.1), None)

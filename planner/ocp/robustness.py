@@ -7,9 +7,10 @@ corners of that box with every link changed alike: each stated kind scaled by 1 
 amplitude keeps every wave inside its link, a < l). Each model replays the plan's torque
 with its LQR feedback (`planner.ocp.feedback`) from the planned initial state, and the
 report keeps the worst tracking error (largest |q_sim - q_plan| along the horizon) and
-the worst final-state error (|q - q_goal| and |dq - dq_goal| at the end, rad and rad/s).
-With `solver.robustness` set, a plan is verified only when the worst tracking error is
-within it.
+the worst final-state error (|q - q_goal| and |dq - dq_goal| at the end, rad and rad/s),
+beside the worst final-state error of the torque alone (the same models, open loop): what
+the feedback is worth. With `solver.robustness` set, a plan is verified only when the
+worst tracking error is within it.
 """
 
 from __future__ import annotations
@@ -67,18 +68,24 @@ def robustness(robot: Robot, interp: Interpolant, K: np.ndarray, uncertainty: Un
     goal = np.concatenate([interp.q(breaks[-1:])[0], interp.dq(breaks[-1:])[0]])
     tracking: list[float] = []
     final: list[float] = []
+    alone: list[float] = []
     labels = []
     for label, model in models(robot, uncertainty):
-        (error, _, end), = replay(model, interp, start[None, :], K, compiled=compiled,
-                                  ends=True, deadline=deadline)
+        (error, _, end), (_, _, drift) = replay(model, interp, start[None, :], K,
+                                                compiled=compiled, ends=True,
+                                                deadline=deadline) + \
+            replay(model, interp, start[None, :], None, compiled=compiled, ends=True,
+                   deadline=deadline)
         labels.append(label)
         tracking.append(np.inf if error is None else error)
         final.append(np.inf if end is None else float(np.abs(end - goal).max()))
+        alone.append(np.inf if drift is None else float(np.abs(drift - goal).max()))
     worst = int(np.argmax(tracking))
     worst_tracking = tracking[worst]
     return Robustness(
         uncertainty=uncertainty, models=len(labels),
         worst_tracking_error=worst_tracking if np.isfinite(worst_tracking) else None,
         worst_final_error=max(final) if np.isfinite(max(final)) else None,
+        open_loop_final_error=max(alone) if np.isfinite(max(alone)) else None,
         worst_model=labels[worst], bound=bound,
         within=None if bound is None else bool(worst_tracking <= bound))
