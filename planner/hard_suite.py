@@ -41,6 +41,13 @@ its category (`<category>-<index>`), one of:
   may choose) sigma_min(M_pa) keeps twice the margin along the straight segment, and
   det M_pa keeps the sign it has at the start for the planner's first design.
 
+Beside the suite's cycle, extra categories are drawn on their own (`category_tasks`,
+EXTRA_COUNT tasks a seed), so that adding one leaves the suite's tasks as they were:
+
+- `bounds-5-links`: random 5-link arms (mixed joints, as `links-5to8`), every joint moved
+  by up to LINKS_MOVE rad, with position and velocity bounds drawn from a witness as for
+  `bounds`.
+
 Where a category does not fix it, gravity alternates between g = 0 and g = 9.81 from one
 round of CYCLE to the next.
 
@@ -53,6 +60,7 @@ planner.hard_suite`), any other is solved when its task is drawn (seconds to min
 Everything else is the scene's default (Legendre degree 3 on 50 intervals, Ipopt, 60 s).
 
     hard_tasks(count, seed) -> list of (name, Scene)
+    category_tasks(name, count, seed) -> list of (name, Scene)
 
 SEED is the suite's own seed, HELD_OUT two seeds for tasks the planner was not tuned on.
 """
@@ -65,7 +73,7 @@ import math
 import os
 import pprint
 import textwrap
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -88,6 +96,11 @@ HELD_OUT = (31415926, 27182818)
 COUNT = 48
 CATEGORIES = ("seed-g0-cross", "seed-g9.81-cross", "seed-swing", "links-5to8", "torque-limit",
               "free-time", "tip-target", "bounds", "co-design")
+EXTRA_CATEGORIES = ("bounds-5-links",)
+"""Categories drawn on their own (`category_tasks`), outside the suite's cycle, so that the
+suite's tasks stay what they were."""
+EXTRA_COUNT = 8  # tasks of an extra category, per seed
+EXTRA_INDEX = 1000  # extra category k's task i is drawn from (seed, EXTRA_INDEX (k + 1) + i)
 CYCLE = (*CATEGORIES, "seed-g0-cross", "seed-g9.81-cross", "links-5to8")
 """Task i is of category CYCLE[i % 12]: every category within the first nine tasks; of 48,
 eight of each seed-arm crossing and of 5 to 8 links, four of every other."""
@@ -272,19 +285,10 @@ def _task(category: str, rng: np.random.Generator, gravity: float,
                       final={"q": [None] * robot.n, "dq": _rest(robot.n)})
     if category == "bounds":
         robot = _seed_robot(gravity)
-        for _ in range(WITNESS_TRIES):
-            start, goal = _crossing(rng, robot, 1.0)
-            start, goal = np.round(start, 6), np.round(goal, 6)
-            bounded = rng.random(robot.n) < 0.75
-            bounded[int(rng.integers(robot.n))] = True
-            cuts = (float(rng.uniform(*SPEED_CUT)), float(rng.uniform(*EXCURSION_CUT)))
-            found = witnessed(robot, start, goal, bounded, cuts, key)
-            if found.free is not None:
-                position, velocity = bounds_of(start, goal, found.free, bounded,
-                                               *(found.scale * c for c in cuts))
-                return _scene(robot, start, goal, position_bounds=position,
-                              velocity_bounds=velocity)
-        raise RuntimeError("no crossing whose unbounded plan verifies")
+        return _bounded(rng, robot, lambda: _crossing(rng, robot, 1.0), key)
+    if category == "bounds-5-links":
+        robot = _random_arm(rng, (5, 5), gravity)
+        return _bounded(rng, robot, lambda: _moved(rng, robot, LINKS_MOVE), key)
     if category == "co-design":
         robot = _seed_robot(gravity)
         for _ in range(TRIES):
@@ -295,6 +299,27 @@ def _task(category: str, rng: np.random.Generator, gravity: float,
                               co_design={"amplitude_max": AMPLITUDE_MAX, "frequency": freq})
         raise RuntimeError("no co-design crossing found")
     raise ValueError(f"unknown category {category!r}")
+
+
+def _bounded(rng: np.random.Generator, robot: Robot,
+             move: Callable[[], tuple[np.ndarray, np.ndarray]],
+             key: tuple[int, int] | None) -> Scene:
+    """A bounds task of `robot`: a move drawn by `move` until its unbounded plan verifies,
+    with position and velocity bounds on about three quarters of the joints from its
+    witness (`witnessed`)."""
+    for _ in range(WITNESS_TRIES):
+        start, goal = move()
+        start, goal = np.round(start, 6), np.round(goal, 6)
+        bounded = rng.random(robot.n) < 0.75
+        bounded[int(rng.integers(robot.n))] = True
+        cuts = (float(rng.uniform(*SPEED_CUT)), float(rng.uniform(*EXCURSION_CUT)))
+        found = witnessed(robot, start, goal, bounded, cuts, key)
+        if found.free is not None:
+            position, velocity = bounds_of(start, goal, found.free, bounded,
+                                           *(found.scale * c for c in cuts))
+            return _scene(robot, start, goal, position_bounds=position,
+                          velocity_bounds=velocity)
+    raise RuntimeError("no move whose unbounded plan verifies")
 
 
 # --------------------------------------------------------------------------- witnesses
@@ -359,7 +384,7 @@ def bounds_of(start, goal, free: Envelope, bounded, speed_cut: float,
 
 
 @contextlib.contextmanager
-def _one_process() -> Iterator[None]:
+def one_process() -> Iterator[None]:
     """Plans in this process alone: with a companion, which process wins depends on
     timing (docs/planner.md, "Both cores")."""
     from planner.ocp.portfolio import ENVIRONMENT
@@ -383,7 +408,7 @@ def _witness(scene: Scene) -> tuple[Envelope | None, int]:
     data = scene.model_dump(mode="json")
     data["transcription"]["intervals"] = WITNESS_INTERVALS
     data["solver"]["max_wall_time"] = WITNESS_WALL_TIME
-    with _one_process():
+    with one_process():
         found = plan(Scene.model_validate(data))
     ok = found.solver.success and bool(found.verification.verified)
     return (Envelope.of(found) if ok else None), found.solver.iterations
@@ -422,6 +447,8 @@ def witnessed(robot: Robot, start: np.ndarray, goal: np.ndarray, bounded: np.nda
     `planner.hard_suite_witnesses`, else solved (and kept for this process)."""
     stored = _stored(key, start, goal)
     if stored is not None:
+        if key is not None and stored not in _solved.setdefault(key, []):
+            _solved[key].append(stored)
         return stored
     memo = (robot.gravity, tuple(start), tuple(goal), tuple(bounded), cuts)
     if memo not in _found:
@@ -452,6 +479,28 @@ def _solve_witness(robot: Robot, start: np.ndarray, goal: np.ndarray, bounded: n
 def category(name: str) -> str:
     """The category of a task's name."""
     return name.rsplit("-", 1)[0]
+
+
+def index_of(name: str) -> int:
+    """The index a task's random draws come from (seed, index): its number in the suite,
+    or for an extra category's task its number past that category's first index."""
+    kind, number = category(name), int(name.rsplit("-", 1)[1])
+    if kind in EXTRA_CATEGORIES:
+        return EXTRA_INDEX * (EXTRA_CATEGORIES.index(kind) + 1) + number
+    return number
+
+
+def category_tasks(name: str, count: int = EXTRA_COUNT,
+                   seed: int = SEED) -> list[tuple[str, Scene]]:
+    """`count` tasks of the extra category `name` (one of EXTRA_CATEGORIES), named
+    "<name>-<i>", gravity alternating between 0 and GRAVITY; task i depends on (seed, i)
+    alone."""
+    out = []
+    for i in range(count):
+        index = index_of(f"{name}-{i:02d}")
+        out.append((f"{name}-{i:02d}", _task(name, np.random.default_rng([seed, index]),
+                                              GRAVITY if i % 2 else 0.0, (seed, index))))
+    return out
 
 
 def hard_tasks(count: int = COUNT, seed: int = SEED) -> list[tuple[str, Scene]]:
@@ -540,19 +589,19 @@ from typing import Any
 '''
 
 
-def write_witnesses(seeds: tuple[int, ...] = (SEED, *HELD_OUT), count: int = COUNT) -> None:
-    """Solve the witnesses of the bounds tasks of `seeds` within `count` afresh and store
-    them in WITNESS_FILE."""
+def write_witnesses(seeds: tuple[int, ...] = (SEED, *HELD_OUT), count: int = COUNT,
+                    afresh: bool = False) -> None:
+    """Store in WITNESS_FILE the witnesses of the bounds tasks of `seeds` within `count`
+    and of the extra categories' EXTRA_COUNT: those stored already as they are (`afresh`:
+    every one solved again), the others solved."""
     global _use_stored
-    _use_stored = False
+    _use_stored = not afresh
     try:
         for seed in seeds:
-            for name, _ in hard_tasks(count, seed):
-                if category(name) == "bounds":
-                    index = int(name.rsplit("-", 1)[1])
-                    for found in _solved[(seed, index)]:
-                        print(seed, name, f"scale {found.scale:g}, "
-                              f"{found.iterations} iterations", flush=True)
+            drawn = hard_tasks(count, seed) + [
+                task for name in EXTRA_CATEGORIES for task in category_tasks(name, seed=seed)]
+            for name, _ in drawn:
+                print(seed, name, flush=True)
     finally:
         _use_stored = True
     records = {key: [dataclasses.asdict(found) for found in _solved[key]]

@@ -25,6 +25,7 @@ from planner.hard_suite import (
     SPEED_CUT,
     SWING,
     category,
+    category_tasks,
     check,
     crosses,
     crossing_zeros,
@@ -40,6 +41,13 @@ from planner.scene import DurationRange
 @pytest.fixture(scope="module", params=[SEED, *HELD_OUT])
 def suite(request):
     return hard_tasks(COUNT, request.param)
+
+
+@pytest.fixture(scope="module", params=[SEED, *HELD_OUT])
+def bounded(request):
+    """The bounds tasks of a seed: the suite's and the extra category's of 5 links."""
+    return [t for t in hard_tasks(COUNT, request.param) if category(t[0]) == "bounds"] + \
+        category_tasks("bounds-5-links", seed=request.param)
 
 
 def _dumped(tasks):
@@ -111,11 +119,9 @@ def test_many_link_arms_are_mixed_and_underactuated(suite):
             assert 1 <= len(robot.passive) <= len(robot.active), name
 
 
-def test_bounds_hold_at_start_and_goal_with_margin(suite):
-    for name, scene in suite:
+def test_bounds_hold_at_start_and_goal_with_margin(bounded):
+    for name, scene in bounded:
         task = scene.task
-        if category(name) != "bounds":
-            continue
         assert task.position_bounds is not None and task.velocity_bounds is not None
         for q in (task.initial.q, task.final.q):
             for k, (lo, hi) in enumerate(zip(task.position_bounds.lower,
@@ -127,16 +133,16 @@ def test_bounds_hold_at_start_and_goal_with_margin(suite):
             assert (lo is None or lo < 0.0) and (hi is None or hi > 0.0), name
 
 
-def _bounds_tasks(suite):
-    """(name, scene, what its witness solves found) of the suite's bounds tasks."""
+def _bounds_tasks(bounded):
+    """(name, scene, what its witness solves found) of bounds tasks."""
     out = []
-    for name, scene in suite:
-        if category(name) == "bounds":
-            ends = np.array(scene.task.initial.q), np.array(scene.task.final.q)
-            found = [w for seed in (SEED, *HELD_OUT)
-                     if (w := hard_suite._stored((seed, int(name[-2:])), *ends)) is not None]
-            assert len(found) == 1, f"{name}: no stored witness"
-            out.append((name, scene, found[0]))
+    for name, scene in bounded:
+        ends = np.array(scene.task.initial.q), np.array(scene.task.final.q)
+        found = [w for seed in (SEED, *HELD_OUT)
+                 if (w := hard_suite._stored((seed, hard_suite.index_of(name)), *ends))
+                 is not None]
+        assert len(found) == 1, f"{name}: no stored witness"
+        out.append((name, scene, found[0]))
     return out
 
 
@@ -145,10 +151,10 @@ def _limits(bounds):
             np.array([np.nan if v is None else v for v in bounds.upper]))
 
 
-def test_bounds_tasks_have_a_witness_within_their_bounds_that_touches_one(suite):
+def test_bounds_tasks_have_a_witness_within_their_bounds_that_touches_one(bounded):
     """Feasible by construction: a verified plan (the witness) keeps every bound, and
     touches one within 1 % (position: of its range, rate: of the bound)."""
-    for name, scene, found in _bounds_tasks(suite):
+    for name, scene, found in _bounds_tasks(bounded):
         assert found.free is not None and found.witness is not None
         w = found.witness
         (q_lo, q_hi), (v_lo, v_hi) = (_limits(scene.task.position_bounds),
@@ -164,12 +170,12 @@ def test_bounds_tasks_have_a_witness_within_their_bounds_that_touches_one(suite)
         assert np.nanmin(gaps) <= 0.01, name
 
 
-def test_the_unbounded_plan_leaves_a_bounds_tasks_bounds(suite):
+def test_the_unbounded_plan_leaves_a_bounds_tasks_bounds(bounded):
     """The bounds bind: the unbounded plan of the move exceeds every bounded joint's rate
     bound by the cut (a task whose witness needed no cut, scale 0, has its bounds touch it
     instead, which the test above holds)."""
     cut = 0
-    for name, scene, found in _bounds_tasks(suite):
+    for name, scene, found in _bounds_tasks(bounded):
         assert found.free is not None
         _, v_hi = _limits(scene.task.velocity_bounds)
         rate = np.array(found.free.rate_max)
@@ -193,6 +199,15 @@ def test_a_stored_witness_is_what_its_solves_find():
         a, b = getattr(fresh.task, field), getattr(stored.task, field)
         for x, y in zip([*a.lower, *a.upper], [*b.lower, *b.upper], strict=True):
             assert (x is None) == (y is None) and (x is None or abs(x - y) <= 2e-3), field
+
+
+def test_the_extra_category_is_drawn_apart_from_the_suite_and_has_five_links():
+    drawn = category_tasks("bounds-5-links", seed=SEED)
+    assert [name for name, _ in drawn] == [f"bounds-5-links-{i:02d}" for i in range(8)]
+    assert all(scene.robot.n == 5 and scene.robot.passive for _, scene in drawn)
+    assert [s.robot.gravity for _, s in drawn] == [0.0, 9.81] * 4
+    assert {category(name) for name, _ in hard_tasks(COUNT, SEED)} == set(CATEGORIES)
+    assert all(check(scene) == [] for _, scene in drawn)
 
 
 def test_tip_targets_are_a_reachable_configurations_tip(suite):
