@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import socket
 from functools import lru_cache
+from typing import Literal
 
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -24,6 +25,9 @@ class Settings(BaseSettings):
     db_url: str | None = Field(default=None, description=(
         "PostgreSQL job store, postgresql://user:password@host:port/database; shared by "
         "servers and workers on any machine (unset: the SQLite file at UNDERTOW_DB_PATH)"))
+    queue: Literal["own", "procrastinate"] = Field(default="own", description=(
+        "what queues the jobs of a PostgreSQL store: undertow's own statements, or "
+        "procrastinate (docs/deploy.md, \"Queue engine\"); SQLite always uses its own"))
     db_path: str = Field(default="var/undertow-jobs.sqlite3",
                          description="SQLite job store file (relative to the working directory)")
     instance: str = Field(default_factory=socket.gethostname,
