@@ -168,10 +168,14 @@ def test_jobs_queued_or_running_before_the_switch_are_taken_over(postgres_url):
         assert own.claim("host", "old-worker", time.time() - 1.0).id == "running"
     with contextlib.closing(ProcrastinateJobStore(postgres_url, lease=LEASE)) as taken:
         assert engine(taken, "queued")["status"] == "todo"
+        with contextlib.closing(PostgresJobStore(postgres_url)) as older:
+            older.create("late", SCENE, "host")  # a server not switched yet
         time.sleep(LEASE)  # the store's expiry waits a lease after the database started
         assert taken.expire(time.time()) == {"running": "queued"}  # by its own lease
+        assert engine(taken, "late")["status"] == "todo"
         taken._rows("UPDATE procrastinate_jobs SET scheduled_at = now()")
-        assert {claim(taken, None), claim(taken, "host", "w2")} == {"queued", "running"}
+        assert {claim(taken, None), claim(taken, None), claim(taken, "host", "w2")} == {
+            "queued", "running", "late"}
 
 
 def test_purge_deletes_the_engine_jobs_of_deleted_jobs(store):

@@ -22,9 +22,10 @@ What undertow keeps is its record of each transition (history, counts, dead-lett
 errors: `app.store.sql`) and the supervisor that runs each solve in a process of its own.
 The engine's schema (procrastinate's `schema.sql` of the pinned version) and the link
 table are created when the store opens a database that lacks them; queued jobs stored
-before the switch are deferred then. A lease is this store's `lease` [s] (UNDERTOW_LEASE),
-counted by the database's clock from the last renewal, so every process sharing the
-database needs the same UNDERTOW_LEASE.
+before the switch are deferred then, and any left without one (queued by a server of an
+older version during a rolling upgrade) at each look for stalled jobs. A lease is this
+store's `lease` [s] (UNDERTOW_LEASE), counted by the database's clock from the last
+renewal, so every process sharing the database needs the same UNDERTOW_LEASE.
 """
 
 from __future__ import annotations
@@ -129,13 +130,16 @@ class ProcrastinateJobStore(PostgresJobStore):
                 if self._run("check_connection")[0]["check"] is None:
                     conn.execute(schema.SchemaManager.get_schema())
                 conn.execute(_LINK)
-                unlinked = conn.execute(
-                    "SELECT id, owner FROM jobs WHERE status = 'queued' AND NOT EXISTS "
-                    "(SELECT 1 FROM undertow_queue WHERE job_id = jobs.id) "
-                    "ORDER BY created, id").fetchall()
-                self._defer(unlinked)
+                self._adopt()
         except psycopg.Error as exc:
             raise self._unavailable(exc) from exc
+
+    def _adopt(self) -> None:
+        """An engine job for every queued job that has none (stored before the switch,
+        or by a server of an older version during a rolling upgrade), oldest first."""
+        self._defer([(job_id, owner) for job_id, owner in self._rows(
+            "SELECT id, owner FROM jobs WHERE status = 'queued' AND NOT EXISTS "
+            "(SELECT 1 FROM undertow_queue WHERE job_id = jobs.id) ORDER BY created, id")])
 
     def _defer(self, jobs: builtins.list[tuple[str, str]], after: float = 0.0) -> None:
         """An engine job in the owner's queue for each (job id, owner), linked to it, to
@@ -231,12 +235,14 @@ class ProcrastinateJobStore(PostgresJobStore):
 
     def expire(self, now: float) -> dict[str, JobStatus]:
         """Requeue the jobs whose claim's registration was silent for a lease before
-        `now` (none within a lease of a database restart, when nobody could renew)."""
+        `now` (none within a lease of a database restart, when nobody could renew); defer
+        the queued jobs that have no engine job yet."""
         restarted = self._rows("SELECT EXTRACT(EPOCH FROM now() - pg_postmaster_start_time())")
         if float(restarted[0][0]) < self.lease:
             return {}
         silent = max(0.0, self.lease - (now - time.time()))
         with self._transaction():
+            self._adopt()
             before = self._requeue(  # claimed before the switch: undertow's own lease
                 "lease_until < :expired AND NOT EXISTS (SELECT 1 FROM undertow_queue "
                 "WHERE job_id = jobs.id)", {"expired": now}, LEASE_RAN_OUT)
