@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import socket
 from functools import lru_cache
+from typing import Literal
 
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -24,6 +25,10 @@ class Settings(BaseSettings):
     db_url: str | None = Field(default=None, description=(
         "PostgreSQL job store, postgresql://user:password@host:port/database; shared by "
         "servers and workers on any machine (unset: the SQLite file at UNDERTOW_DB_PATH)"))
+    queue: Literal["procrastinate", "own"] = Field(default="procrastinate", description=(
+        "what queues the jobs of a PostgreSQL store: procrastinate, or undertow's own "
+        "statements (docs/deploy.md, \"Queue engine\"); every process sharing the database "
+        "needs the same. SQLite always queues with its own"))
     db_path: str = Field(default="var/undertow-jobs.sqlite3",
                          description="SQLite job store file (relative to the working directory)")
     instance: str = Field(default_factory=socket.gethostname,

@@ -78,15 +78,17 @@ one of them, none)"""
 
 
 def probe(fault: Callable[[WorkerNode, postgres.PostgresServer], None],
-          counted: str) -> dict:
+          counted: str, **extra: str) -> dict:
+    """One try of `fault`; `extra`: more UNDERTOW_* settings of the servers and nodes."""
+    settings = {**SETTINGS, **extra}
     with tempfile.TemporaryDirectory() as folder, postgres.PostgresServer() as server, \
             contextlib.ExitStack() as stack:
         url = server.create_database("faults")
         store = PostgresJobStore(url, timeout=2.0)
         stack.callback(store.close)
-        api = stack.enter_context(api_server(Path(folder), url, "api", **SETTINGS))
+        api = stack.enter_context(api_server(Path(folder), url, "api", **settings))
         nodes = [stack.enter_context(WorkerNode(Path(folder), name, 2, UNDERTOW_DB_URL=url,
-                                                **SETTINGS)) for name in ("node-1", "node-2")]
+                                                **settings)) for name in ("node-1", "node-2")]
         http = stack.enter_context(httpx.Client(base_url=api.url, timeout=30))
         ids = [http.post("/v1/plans", json=scene()).json()["id"] for _ in range(PLANS)]
         deadline = time.monotonic() + 60

@@ -2,7 +2,8 @@
 worker, for the three ways a worker learns of a queued job.
 
 - PostgreSQL, a worker node (`undertow worker --processes 1`) and an API-only server: the
-  node LISTENs and the store NOTIFYs whenever a job is queued;
+  node LISTENs and procrastinate's trigger NOTIFYs whenever a job is deferred (the
+  default queue; `python -m bench queue_engine` measures undertow's own queue beside it);
 - SQLite, a server with its own solver worker: the server tells its worker over a pipe;
 - SQLite, an API-only server and a worker node on the same file: the node polls the store
   every second (`app.worker.IDLE_POLL`), as every node did before LISTEN/NOTIFY.
@@ -72,7 +73,7 @@ def sqlite_node(folder: Path) -> Iterator[tuple[str, JobStore]]:
 
 
 CONFIGURATIONS = [
-    ("PostgreSQL, worker node (LISTEN/NOTIFY)", postgres_node),
+    ("PostgreSQL, worker node (procrastinate's LISTEN/NOTIFY)", postgres_node),
     ("SQLite, the server's own worker (pipe)", sqlite_server),
     ("SQLite, worker node (1 s poll)", sqlite_node),
 ]
@@ -121,10 +122,11 @@ def main(argv: list[str]) -> int:
         "Submit-to-claim latency with an idle worker: the job's `started` (the worker's "
         "claim) minus its `created` (the API server's insert), plans sent one at a time on "
         "127.0.0.1 with the fake solver (one 20 ms iteration), after one warm-up plan. On "
-        "PostgreSQL a trigger NOTIFYs the channel `undertow_jobs` whenever a job becomes "
-        "queued and every idle solver process LISTENs on a connection of its own; the last "
-        "row is the 1 s poll every worker node relied on before (and still falls back to "
-        "when its listening connection breaks, and for a requeued job's retry pause).",
+        "PostgreSQL (queued by procrastinate, the default) its trigger NOTIFYs its channel "
+        "whenever a job is deferred and every idle solver process LISTENs on a connection "
+        "of its own; the last row is the 1 s poll every worker node relied on before (and "
+        "still falls back to when its listening connection breaks, and for a requeued or "
+        "released job).",
         harness.table(rows, columns),
         f"Rows: `bench/results/pickup.csv`. {harness.manifest('pickup', argv, started, note)}"])
     print(text)

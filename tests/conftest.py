@@ -113,17 +113,28 @@ def postgres_url(postgres: pg.PostgresServer) -> str:
     return postgres.create_database(pg.unique_name())
 
 
+ENGINE_LEASE = 0.5
+"""[s] The lease of the procrastinate-queued stores of the tests: a claim left unrenewed
+that long has run out (that store's leases count from the last renewal, not from a time
+the claim names)."""
+
+
 def open_store(kind: str, request: pytest.FixtureRequest, tmp_path) -> JobStore:
     """A new empty store of `kind` ("sqlite": a file under `tmp_path`; "postgres": a new
-    database)."""
+    database; "procrastinate": a new database queued by procrastinate)."""
     if kind == "sqlite":
         return SqliteJobStore(tmp_path / "jobs" / "db.sqlite3")
+    url = request.getfixturevalue("postgres_url")
+    if kind == "procrastinate":
+        from app.store.queue_engine import ProcrastinateJobStore
+
+        return ProcrastinateJobStore(url, lease=ENGINE_LEASE)
     from app.store.postgres import PostgresJobStore
 
-    return PostgresJobStore(request.getfixturevalue("postgres_url"))
+    return PostgresJobStore(url)
 
 
-@pytest.fixture(params=["sqlite", "postgres"])
+@pytest.fixture(params=["sqlite", "postgres", "procrastinate"])
 def store(request: pytest.FixtureRequest, tmp_path) -> Iterator[JobStore]:
     """An empty job store, once of each kind."""
     s = open_store(request.param, request, tmp_path)
@@ -144,13 +155,14 @@ SERVICE = frozenset({
     "test_dockerfile.py", "test_e2e_server.py", "test_errors.py", "test_infeasible.py",
     "test_job_faults.py", "test_jobs.py", "test_limits.py", "test_node_faults.py",
     "test_migrations.py", "test_openapi.py", "test_stored_plan.py", "test_sync_memory.py",
-    "test_openapi_client.py", "test_plan_budget.py", "test_plots.py", "test_readme.py",
+    "test_openapi_client.py", "test_plan_budget.py", "test_plots.py", "test_queue_engine.py",
+    "test_readme.py",
     "test_sampling.py", "test_scene_validation.py", "test_schemathesis.py", "test_server.py",
     "test_service_interface.py", "test_store.py", "test_stress.py", "test_viewer.py"})
 """Files that exercise the service (app/): its app in-process, live servers and worker
 processes, the command line, the job store, the API documents. Any other file is `unit`:
 the library alone, in the test's own process."""
-DATABASE = frozenset({"test_distributed.py", "test_node_faults.py"})
+DATABASE = frozenset({"test_distributed.py", "test_node_faults.py", "test_queue_engine.py"})
 """Files every test of which needs PostgreSQL; elsewhere a test that takes the `postgres`
 or `postgres_url` fixture, or the `store` fixture's PostgreSQL case, is marked too."""
 BROWSER = frozenset({"test_viewer.py"})
@@ -167,7 +179,8 @@ def kinds(item: pytest.Item) -> set[str]:
     callspec = getattr(item, "callspec", None)
     fixtures = set(getattr(item, "fixturenames", ()))
     if name in DATABASE or fixtures & {"postgres", "postgres_url"} or (
-            callspec is not None and callspec.params.get("store") == "postgres"):
+            callspec is not None and callspec.params.get("store") in ("postgres",
+                                                                     "procrastinate")):
         found.add("database")
     return found
 

@@ -28,6 +28,7 @@ from app.store import (
 from app.store.migrations import SCHEMA_VERSION, migrate
 from app.store.postgres import PostgresJobStore
 from app.store.postgres import _execute as pg_execute
+from app.store.queue_engine import ProcrastinateJobStore
 
 SCENE = {"robot": {"links": []}, "note": "stored verbatim", "x": 0.1, "tiny": 1e-300}
 
@@ -44,7 +45,17 @@ def reopen(store: JobStore) -> JobStore:
     """A new store object on the same file or database."""
     if isinstance(store, SqliteJobStore):
         return SqliteJobStore(store.path)
+    if isinstance(store, ProcrastinateJobStore):
+        return ProcrastinateJobStore(store.url, lease=store.lease)
     return PostgresJobStore(store.url)
+
+
+def lapse(store: JobStore) -> None:
+    """Let the leases of the claims made so far run out: at once for the stores whose
+    claims name their end (claimed with a lease of -1 s), one lease for procrastinate's,
+    which count from the last renewal."""
+    if isinstance(store, ProcrastinateJobStore):
+        time.sleep(store.lease + 0.05)
 
 
 def test_wal_mode_is_on(sqlite):
@@ -159,6 +170,7 @@ def test_leases_are_renewed_by_job_and_worker_with_cancel_flags_and_expire(store
     claim(store, worker="w1", lease=-1.0)  # a: lease already over
     claim(store, worker="w2", lease=-1.0)  # b
     claim(store, worker="w3", lease=-1.0)  # c
+    lapse(store)
     store.request_cancel("b")
     assert store.renew([("a", "w1"), ("b", "w2"), ("c", "w9")], time.time() + 60) == {
         "a": False, "b": True}  # c is not w9's: its lease is not renewed
@@ -182,6 +194,7 @@ def test_infrastructure_failures_are_retried_after_a_pause_then_dead_lettered(st
     assert claim(store, worker="w2", lease=-1.0) == "a"
     assert not store.report_progress("a", {"iteration": 1}, worker="w1")
     assert store.report_progress("a", {"iteration": 1}, worker="w2")
+    lapse(store)
     assert store.expire(time.time()) == {"a": "queued"}
     time.sleep(0.35)  # the second pause: doubled, at most max_backoff
     assert claim(store, worker="w3") == "a"
@@ -216,6 +229,7 @@ def test_a_cancelled_job_is_not_requeued_and_a_release_is_not_a_failure(store):
     store.create("b", SCENE, "host")
     assert claim(store, worker="w3", lease=-1.0) == "b"
     store.request_cancel("b")
+    lapse(store)
     assert store.expire(time.time()) == {"b": "cancelled"}
     assert store.get("b").error == "cancelled on request"
     store.create("c", SCENE, "host")  # a released claim does not count

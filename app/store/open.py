@@ -1,5 +1,6 @@
-"""The job store a process's settings name: PostgreSQL at UNDERTOW_DB_URL when it is set,
-else the SQLite file at UNDERTOW_DB_PATH."""
+"""The job store a process's settings name: PostgreSQL at UNDERTOW_DB_URL when it is set
+(queued by undertow's own statements or by procrastinate: UNDERTOW_QUEUE), else the SQLite
+file at UNDERTOW_DB_PATH."""
 
 from __future__ import annotations
 
@@ -13,6 +14,10 @@ def open_store(settings: Settings) -> JobStore:
     the settings' retry policy."""
     policy = RetryPolicy(settings.max_retries, settings.retry_backoff,
                          settings.retry_max_backoff)
+    if settings.db_url and settings.queue == "procrastinate":
+        from app.store.queue_engine import ProcrastinateJobStore
+
+        return ProcrastinateJobStore(settings.db_url, policy=policy, lease=settings.lease)
     if settings.db_url:
         from app.store.postgres import PostgresJobStore  # psycopg only where it is used
 

@@ -30,6 +30,7 @@ from functools import partial
 from typing import Any
 
 import psycopg
+from psycopg.sql import SQL, Identifier
 from psycopg.types.json import Jsonb
 from psycopg_pool import ConnectionPool, PoolTimeout
 
@@ -259,7 +260,7 @@ class PostgresJobStore(SqlJobStore):
 
     def listen(self) -> Listener:
         """A connection of its own that hears whenever a job is queued."""
-        return Listener(self.url, self.timeout)
+        return Listener(self.url, self.timeout, CHANNEL)
 
     def create_batch(self, batch_id: str, spec: dict[str, Any],
                      members: builtins.list[tuple[str, dict[str, Any]]], owner: str,
@@ -306,13 +307,13 @@ class PostgresJobStore(SqlJobStore):
 
 
 class Listener:
-    """LISTEN on the channel of queued jobs through a connection of its own: `fileno()`
-    to wait on with select, `drain()` to read what arrived. Any failure closes it (the
-    caller falls back to polling and opens a new one later)."""
+    """LISTEN on `channel` (the one notified of queued jobs) through a connection of its
+    own: `fileno()` to wait on with select, `drain()` to read what arrived. Any failure
+    closes it (the caller falls back to polling and opens a new one later)."""
 
-    def __init__(self, url: str, timeout: float):
+    def __init__(self, url: str, timeout: float, channel: str):
         self.conn = psycopg.connect(url, autocommit=True, connect_timeout=max(1, int(timeout)))
-        self.conn.execute(f"LISTEN {CHANNEL}")
+        self.conn.execute(SQL("LISTEN {}").format(Identifier(channel)))
 
     def fileno(self) -> int:
         return self.conn.fileno()

@@ -38,6 +38,8 @@ listing shows."""
 NO_WORKER_OR = "(CAST(:worker AS TEXT) IS NULL OR worker = :worker)"
 """A condition that holds for any worker when the parameter is NULL, else for that one."""
 _NOW = "CAST(:now AS DOUBLE PRECISION)"
+LEASE_RAN_OUT = "its lease ran out: its worker or node was lost"
+"""The reason of an infrastructure failure found by `JobStore.expire`."""
 _REQUEUE = "(NOT cancel_requested AND infra_failures < :max)"
 """A running job that fails for an infrastructure reason goes back to the queue."""
 
@@ -145,19 +147,28 @@ class SqlJobStore(JobStore):
                           "ORDER BY finished DESC, id LIMIT ?", (limit,))
         return [(job_id, self._from_json(scene)) for job_id, scene in rows]
 
-    def claim(self, owner: str | None, worker: str, lease_until: float) -> JobRecord | None:
+    def _claiming(self) -> str:
+        """The SET list that turns a queued job into a claimed one (parameters :now,
+        :worker, :until, :lease, :progress: `_claim_params`)."""
+        return ("status = 'running', started = :now, worker = :worker, "
+                "lease_until = :until, lease = :lease, not_before = NULL, progress = :progress, "
+                "attempts = attempts + 1, "
+                f"history = {self._push(event('claimed', 'CAST(:worker AS TEXT)'))}")
+
+    def _claim_params(self, worker: str, lease_until: float) -> dict[str, Any]:
+        """The parameters of `_claiming` for a claim by `worker` until `lease_until` [s]."""
         now = time.time()
+        return {"now": now, "worker": worker, "until": lease_until, "lease": lease_until - now,
+                "progress": self._json(BUILDING)}
+
+    def claim(self, owner: str | None, worker: str, lease_until: float) -> JobRecord | None:
         mine = "AND owner = :owner" if owner is not None else ""
         rows = self._write(
-            "UPDATE jobs SET status = 'running', started = :now, worker = :worker, "
-            "lease_until = :until, lease = :lease, not_before = NULL, progress = :progress, "
-            "attempts = attempts + 1, "
-            f"history = {self._push(event('claimed', 'CAST(:worker AS TEXT)'))} "
+            f"UPDATE jobs SET {self._claiming()} "
             "WHERE status = 'queued' AND id = (SELECT id FROM jobs WHERE status = 'queued' "
             f"{mine} AND (not_before IS NULL OR not_before <= :now) ORDER BY created, id "
             f"LIMIT 1 {self.claim_lock}) RETURNING {COLUMNS}",
-            {"now": now, "worker": worker, "until": lease_until, "lease": lease_until - now,
-             "progress": self._json(BUILDING), "owner": owner})
+            {**self._claim_params(worker, lease_until), "owner": owner})
         return self._record(rows[0]) if rows else None
 
     def _release(self, condition: str, params: dict[str, Any]) -> builtins.list[str]:
@@ -217,7 +228,7 @@ class SqlJobStore(JobStore):
 
     def expire(self, now: float) -> dict[str, JobStatus]:
         return self._requeue(f"lease_until < :expired {self.expire_guard}",
-                             {"expired": now}, "its lease ran out: its worker or node was lost")
+                             {"expired": now}, LEASE_RAN_OUT)
 
     def recover(self, owner: str) -> dict[str, JobStatus]:
         return self._requeue(

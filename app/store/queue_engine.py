@@ -1,0 +1,332 @@
+"""The PostgreSQL job store with procrastinate as its queue (UNDERTOW_QUEUE=procrastinate).
+
+undertow's `jobs` rows stay the record the API reads and writes (status, progress, cancel
+flag, plan, history, batches, limits); procrastinate's `procrastinate_jobs` rows are the
+queue. Each job has one engine job (queue: the job's owner, task `TASK`), linked by the
+table `undertow_queue`, and every transition changes both rows in one transaction:
+
+- claim: procrastinate's `fetch_job` (oldest by id, `FOR UPDATE SKIP LOCKED`, its retry
+  time come) for a procrastinate worker registered for that claim alone, so that the
+  registration's heartbeat is the claim's lease;
+- pickup: procrastinate's trigger NOTIFYs its channel when a job is deferred; idle solver
+  processes LISTEN there;
+- renewal: procrastinate's `update_heartbeat` of the claim's registration;
+- stalled jobs: procrastinate's `select_stalled_jobs_by_heartbeat`, with the lease as the
+  heartbeat timeout, finds the claims whose supervisor went silent (their registrations
+  are removed as the jobs are requeued);
+- retries: procrastinate's `retry_job` queues the job again at its retry time (the pause of
+  undertow's `RetryPolicy`), its `finish_job` ends it (failed, a dead letter, or aborted
+  when it was cancelled), its `cancel_job` cancels a queued one and flags a running one.
+
+What undertow keeps is its record of each transition (history, counts, dead-letter
+errors: `app.store.sql`) and the supervisor that runs each solve in a process of its own.
+The engine's schema (procrastinate's `schema.sql` of the pinned version) and the link
+table are created when the store opens a database that lacks them; queued jobs stored
+before the switch are deferred then, and any left without one (queued by a server of an
+older version during a rolling upgrade) at each look for stalled jobs. A lease is this
+store's `lease` [s] (UNDERTOW_LEASE), counted by the database's clock from the last
+renewal, so every process sharing the database needs the same UNDERTOW_LEASE.
+"""
+
+from __future__ import annotations
+
+import builtins
+import datetime
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Any
+
+import psycopg
+from procrastinate import SyncPsycopgConnector, exceptions, manager, schema
+from procrastinate import jobs as engine_jobs
+from procrastinate.sql import queries
+
+from app.store.base import FINAL, JobRecord, JobStatus, RetryPolicy
+from app.store.postgres import Listener, PostgresJobStore
+from app.store.sql import COLUMNS, LEASE_RAN_OUT
+
+TASK = "undertow.plan"
+"""The procrastinate task name of every engine job (nothing runs it as a task)."""
+CHANNEL = next(iter(manager.get_channel_for_queues(None)))
+"""procrastinate's channel notified whenever a job of any queue is deferred."""
+ENDED: dict[str, str] = {"succeeded": "succeeded", "failed": "failed", "cancelled": "aborted"}
+"""A running job's final status -> its engine job's."""
+_LINK = ("CREATE TABLE IF NOT EXISTS undertow_queue ("
+         "job_id TEXT PRIMARY KEY REFERENCES jobs (id) ON DELETE CASCADE, "
+         "queue_id BIGINT NOT NULL UNIQUE REFERENCES procrastinate_jobs (id) ON DELETE CASCADE)")
+_ENGINE_LOCK = 0x756E6475  # advisory lock key held while the engine's schema is installed
+_LINKED = ("FROM jobs j JOIN undertow_queue m ON m.job_id = j.id "
+           "JOIN procrastinate_jobs q ON q.id = m.queue_id")
+
+
+@contextmanager
+def _database_errors() -> Iterator[None]:
+    """procrastinate's wrapped database errors raised as psycopg's own (so that the store
+    reports an unreachable database as StoreUnavailable)."""
+    try:
+        yield
+    except exceptions.ConnectorException as exc:
+        raise (exc.__cause__ or exc) from None
+
+
+def _utc(seconds: float) -> datetime.datetime:
+    """Unix seconds as an aware datetime (what procrastinate's times are)."""
+    return datetime.datetime.fromtimestamp(seconds, datetime.UTC)
+
+
+class ProcrastinateJobStore(PostgresJobStore):
+    """Jobs in a PostgreSQL database at `url` queued by procrastinate; `lease` [s]: how
+    long a claim holds after its last renewal (the heartbeat timeout)."""
+
+    def __init__(self, url: str, pool_size: int = 4, timeout: float = 10.0,
+                 policy: RetryPolicy | None = None, lease: float = 60.0):
+        self.lease = lease
+        self._local = threading.local()
+        self._engine = SyncPsycopgConnector()  # runs on this store's connections only
+        super().__init__(url, pool_size, timeout, policy)
+
+    def __getstate__(self) -> dict[str, Any]:
+        return {**super().__getstate__(), "lease": self.lease}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        super().__setstate__(state)
+        self.lease, self._local = state["lease"], threading.local()
+        self._engine = SyncPsycopgConnector()
+
+    @contextmanager
+    def _connection(self) -> Iterator[psycopg.Connection]:
+        """The connection of this thread's open transaction, else a pooled one."""
+        held = getattr(self._local, "conn", None)
+        if held is not None:
+            yield held
+            return
+        with super()._connection() as conn:
+            yield conn
+
+    @contextmanager
+    def _transaction(self) -> Iterator[psycopg.Connection]:
+        """One transaction that every statement of this thread joins until it ends."""
+        with self._connection() as conn, conn.transaction():
+            outer, self._local.conn = getattr(self._local, "conn", None), conn
+            try:
+                yield conn
+            finally:
+                self._local.conn = outer
+
+    def _run(self, name: str, **params: Any) -> builtins.list[dict[str, Any]]:
+        """The rows of procrastinate's statement `name` in this thread's transaction."""
+        with self._connection() as conn, _database_errors():
+            return self._engine.execute_query_all_with_connection(conn, queries[name], **params)
+
+    def _migrate(self) -> None:
+        """undertow's migrations, then the engine's schema and the link table where they
+        are missing, and an engine job for every queued job that has none."""
+        super()._migrate()
+        try:
+            with self._transaction() as conn:
+                conn.execute("SELECT pg_advisory_xact_lock(%s)", (_ENGINE_LOCK,))
+                if self._run("check_connection")[0]["check"] is None:
+                    conn.execute(schema.SchemaManager.get_schema())
+                conn.execute(_LINK)
+                self._adopt()
+        except psycopg.Error as exc:
+            raise self._unavailable(exc) from exc
+
+    def _adopt(self) -> None:
+        """An engine job for every queued job that has none (stored before the switch,
+        or by a server of an older version during a rolling upgrade), oldest first."""
+        self._defer([(job_id, owner) for job_id, owner in self._rows(
+            "SELECT id, owner FROM jobs WHERE status = 'queued' AND NOT EXISTS "
+            "(SELECT 1 FROM undertow_queue WHERE job_id = jobs.id) ORDER BY created, id")])
+
+    def _defer(self, jobs: builtins.list[tuple[str, str]], after: float = 0.0) -> None:
+        """An engine job in the owner's queue for each (job id, owner), linked to it, to
+        be claimed no sooner than `after` seconds from now."""
+        if not jobs:
+            return
+        start = _utc(time.time() + after) if after > 0.0 else None
+        with self._connection() as conn, _database_errors():
+            deferred = manager.JobManager(self._engine).batch_defer_jobs(
+                [engine_jobs.Job(queue=owner, lock=None, queueing_lock=None, task_name=TASK,
+                                 task_kwargs={"job": job_id}, scheduled_at=start)
+                 for job_id, owner in jobs], connection=conn)
+            with conn.cursor() as cursor:
+                cursor.executemany(
+                    "INSERT INTO undertow_queue (job_id, queue_id) VALUES (%s, %s) "
+                    "ON CONFLICT (job_id) DO UPDATE SET queue_id = EXCLUDED.queue_id",
+                    [(job_id, job.id) for (job_id, _), job in zip(jobs, deferred, strict=True)])
+
+    def _settle(self, ids: builtins.list[str], pause: bool) -> None:
+        """Bring the engine jobs of `ids` in line with their jobs' new status: a queued one
+        is retried (after the policy's pause for its failures when `pause`, else at once;
+        deferred anew when it had none: claimed before the switch), a final one ended; the
+        claim's registration is removed."""
+        if not ids:
+            return
+        rows = self._rows(
+            "SELECT j.id, j.owner, j.status, j.infra_failures, q.id, q.status, q.worker_id "
+            "FROM jobs j LEFT JOIN undertow_queue m ON m.job_id = j.id "
+            "LEFT JOIN procrastinate_jobs q ON q.id = m.queue_id WHERE j.id = ANY(%s)", (ids,))
+        for job_id, owner, status, failures, queue_id, engine_status, engine_worker in rows:
+            delay = self.policy.delay(failures) if pause else 0.0
+            if queue_id is None and status == "queued":
+                self._defer([(job_id, owner)], delay)
+            elif status == "queued" and engine_status == "doing":
+                self._run("retry_job", job_id=queue_id, retry_at=_utc(time.time() + delay),
+                          new_priority=None, new_queue_name=None, new_lock=None)
+            elif status in FINAL and engine_status == "todo":
+                self._run("cancel_job", job_id=queue_id, abort=False, delete_job=False)
+            elif status in FINAL and engine_status == "doing":
+                self._run("finish_job", job_id=queue_id, status=ENDED[status],
+                          delete_job=False)
+            if engine_worker is not None:
+                self._run("unregister_worker", worker_id=engine_worker)
+
+    def create(self, job_id: str, scene: dict[str, Any], owner: str,
+               limit: int | None = None, key: str | None = None) -> JobRecord | None:
+        with self._transaction():
+            record = super().create(job_id, scene, owner, limit, key)
+            if record is not None:
+                self._defer([(job_id, owner)])
+            return record
+
+    def create_batch(self, batch_id: str, spec: dict[str, Any],
+                     members: builtins.list[tuple[str, dict[str, Any]]], owner: str,
+                     limit: int | None = None) -> bool:
+        with self._transaction():
+            if not super().create_batch(batch_id, spec, members, owner, limit):
+                return False
+            self._defer([(job_id, owner) for job_id, _ in members])
+            return True
+
+    def claim(self, owner: str | None, worker: str, lease_until: float) -> JobRecord | None:
+        with self._transaction():
+            [registered] = self._run("register_worker")
+            [row] = self._run("fetch_job", queues=None if owner is None else [owner],
+                              worker_id=registered["worker_id"])
+            if row["id"] is None:
+                raise psycopg.Rollback()  # no registration left behind
+            rows = self._write(
+                f"UPDATE jobs SET {self._claiming()} WHERE status = 'queued' AND id = "
+                f"(SELECT job_id FROM undertow_queue WHERE queue_id = :queue) RETURNING {COLUMNS}",
+                {**self._claim_params(worker, lease_until), "queue": row["id"]})
+            if not rows:  # an engine job whose job is not queued: end it
+                self._run("finish_job", job_id=row["id"], status="failed", delete_job=False)
+                self._run("unregister_worker", worker_id=registered["worker_id"])
+                return None
+            return self._record(rows[0])
+        return None
+
+    def renew(self, claims: builtins.list[tuple[str, str]],
+              lease_until: float) -> dict[str, bool]:
+        """A heartbeat of each claim's registration (the lease runs `lease` seconds from
+        now; `lease_until` is not used); {job id: cancel requested} of those still held."""
+        if not claims:
+            return {}
+        pairs = ", ".join(["(%s, %s)"] * len(claims))
+        rows = self._rows(
+            f"SELECT j.id, j.cancel_requested, procrastinate_update_heartbeat_v1(q.worker_id) "
+            f"{_LINKED} WHERE j.status = 'running' AND q.status = 'doing' "
+            f"AND q.worker_id IS NOT NULL AND (j.id, j.worker) IN (VALUES {pairs})",
+            tuple(v for claim in claims for v in claim))
+        return {job_id: bool(cancel) for job_id, cancel, _ in rows}
+
+    def expire(self, now: float) -> dict[str, JobStatus]:
+        """Requeue the jobs whose claim's registration was silent for a lease before
+        `now` (none within a lease of a database restart, when nobody could renew); defer
+        the queued jobs that have no engine job yet."""
+        restarted = self._rows("SELECT EXTRACT(EPOCH FROM now() - pg_postmaster_start_time())")
+        if float(restarted[0][0]) < self.lease:
+            return {}
+        silent = max(0.0, self.lease - (now - time.time()))
+        with self._transaction():
+            self._adopt()
+            before = self._requeue(  # claimed before the switch: undertow's own lease
+                "lease_until < :expired AND NOT EXISTS (SELECT 1 FROM undertow_queue "
+                "WHERE job_id = jobs.id)", {"expired": now}, LEASE_RAN_OUT)
+            stalled = [row["id"] for row in self._run(
+                "select_stalled_jobs_by_heartbeat", seconds_since_heartbeat=silent,
+                queue=None, task_name=TASK)]
+            if not stalled:
+                return before
+            return {**before, **self._requeue(
+                "id IN (SELECT job_id FROM undertow_queue WHERE queue_id = ANY(:stalled))",
+                {"stalled": stalled}, LEASE_RAN_OUT)}
+
+    def _requeue(self, condition: str, params: dict[str, Any],
+                 reason: str) -> dict[str, JobStatus]:
+        with self._transaction():
+            done = super()._requeue(condition, params, reason)
+            self._settle(builtins.list(done), pause=True)
+            return done
+
+    def _release(self, condition: str, params: dict[str, Any]) -> builtins.list[str]:
+        with self._transaction():
+            released = super()._release(condition, params)
+            self._settle(released, pause=False)
+            return released
+
+    def finish(self, job_id: str, status: JobStatus, plan: dict[str, Any] | None,
+               error: str | None, solution: dict[str, Any] | None = None,
+               worker: str | None = None) -> bool:
+        with self._transaction():
+            if not super().finish(job_id, status, plan, error, solution, worker):
+                return False
+            self._settle([job_id], pause=False)
+            return True
+
+    def fail(self, job_id: str, error: str) -> bool:
+        with self._transaction():
+            if not super().fail(job_id, error):
+                return False
+            self._settle([job_id], pause=False)
+            return True
+
+    def _abort(self, condition: str, params: tuple) -> None:
+        """procrastinate's cancel of the engine jobs of the jobs that meet `condition`: a
+        queued one ends cancelled, a running one is flagged for abort."""
+        self._rows(f"SELECT procrastinate_cancel_job_v1(q.id, true, false) {_LINKED} "
+                   f"WHERE {condition} AND q.status IN ('todo', 'doing')", params)
+
+    def request_cancel(self, job_id: str) -> JobRecord | None:
+        with self._transaction():
+            record = super().request_cancel(job_id)
+            if record is not None and record.cancel_requested:
+                self._abort("j.id = %s", (job_id,))
+            return record
+
+    def cancel_batch(self, batch_id: str) -> bool:
+        with self._transaction():
+            if not super().cancel_batch(batch_id):
+                return False
+            self._abort("j.batch = %s AND j.cancel_requested", (batch_id,))
+            return True
+
+    def retry(self, job_id: str, owner: str, limit: int | None = None) -> bool:
+        """A failed engine job is retried in the new owner's queue; a cancelled or
+        aborted one, which procrastinate does not retry, is replaced by a new one."""
+        with self._transaction():
+            if not super().retry(job_id, owner, limit):
+                return False
+            row = self._rows(f"SELECT q.id, q.status {_LINKED} WHERE j.id = %s", (job_id,))
+            if row and row[0][1] == "failed":
+                self._run("retry_job", job_id=row[0][0], retry_at=_utc(time.time()),
+                          new_priority=None, new_queue_name=owner, new_lock=None)
+            else:
+                self._defer([(job_id, owner)])
+            return True
+
+    def purge(self, before: float, keep: int) -> int:
+        """undertow's purge, then the ended engine jobs no job links to any more."""
+        with self._transaction():
+            purged = super().purge(before, keep)
+            self._rows("DELETE FROM procrastinate_jobs q WHERE q.status IN ('succeeded', "
+                       "'failed', 'cancelled', 'aborted') AND NOT EXISTS (SELECT 1 FROM "
+                       "undertow_queue m WHERE m.queue_id = q.id)")
+            return purged
+
+    def listen(self) -> Listener:
+        """A connection of its own on procrastinate's channel of deferred jobs."""
+        return Listener(self.url, self.timeout, CHANNEL)

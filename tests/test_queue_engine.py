@@ -1,0 +1,189 @@
+"""The PostgreSQL store queued by procrastinate (`app.store.queue_engine`): every
+transition of a job moves its engine job the same way in the same transaction (the
+interface's own behaviour is tests/test_store.py's, run on this store too); claims are
+procrastinate registrations whose heartbeat is the lease; the engine's NOTIFY wakes a
+listener; jobs queued before the switch are taken over."""
+
+from __future__ import annotations
+
+import contextlib
+import datetime
+import select
+import time
+from collections.abc import Iterator
+
+import pytest
+
+from app.store import DuplicateKey, RetryPolicy
+from app.store.postgres import PostgresJobStore
+from app.store.queue_engine import ProcrastinateJobStore
+
+SCENE = {"robot": {"links": []}}
+LEASE = 0.5  # [s]
+
+
+@pytest.fixture
+def store(postgres_url: str) -> Iterator[ProcrastinateJobStore]:
+    s = ProcrastinateJobStore(postgres_url, lease=LEASE,
+                              policy=RetryPolicy(max_retries=1, backoff=30.0))
+    yield s
+    s.close()
+
+
+def engine(store: ProcrastinateJobStore, job_id: str) -> dict:
+    """The engine job of `job_id`: its status, queue, attempts, abort flag, seconds until
+    its retry time (None when it has none) and whether a registration holds it."""
+    rows = store._rows(
+        "SELECT q.status, q.queue_name, q.attempts, q.abort_requested, "
+        "EXTRACT(EPOCH FROM q.scheduled_at - now()), q.worker_id IS NOT NULL "
+        "FROM undertow_queue m JOIN procrastinate_jobs q ON q.id = m.queue_id "
+        "WHERE m.job_id = %s", (job_id,))
+    assert rows, f"job {job_id} has no engine job"
+    status, queue, attempts, abort, wait, held = rows[0]
+    return {"status": status, "queue": queue, "attempts": attempts, "abort": abort,
+            "wait": None if wait is None else float(wait), "held": held}
+
+
+def registrations(store: ProcrastinateJobStore) -> int:
+    return store._rows("SELECT COUNT(*) FROM procrastinate_workers")[0][0]
+
+
+def claim(store: ProcrastinateJobStore, owner: str | None = "host",
+          worker: str = "w1") -> str | None:
+    record = store.claim(owner, worker, time.time() + 60)
+    return None if record is None else record.id
+
+
+def test_a_job_and_its_engine_job_move_together(store):
+    store.create("a", SCENE, "host")
+    assert engine(store, "a")["status"] == "todo"
+    assert engine(store, "a")["queue"] == "host"  # a queue per owner
+    assert claim(store, "other") is None and registrations(store) == 0  # nothing held
+    assert claim(store) == "a"
+    assert engine(store, "a") == {**engine(store, "a"), "status": "doing", "held": True}
+    assert registrations(store) == 1  # the claim's own registration
+    assert store.finish("a", "succeeded", {"k": 1}, None, worker="w1")
+    assert engine(store, "a")["status"] == "succeeded"
+    assert registrations(store) == 0
+
+
+def test_an_infrastructure_failure_is_a_retry_of_the_engine_job_at_its_pause(store):
+    store.create("a", SCENE, "host")
+    claim(store)
+    assert store.requeue("a", "w1", "the worker process died") == "queued"
+    first = engine(store, "a")
+    assert (first["status"], first["held"]) == ("todo", False)
+    assert 29.0 < first["wait"] <= 30.0  # the policy's first pause, kept by the engine
+    assert claim(store, None) is None  # its fetch waits for the retry time
+    store._rows("UPDATE procrastinate_jobs SET scheduled_at = now() WHERE id = "
+                "(SELECT queue_id FROM undertow_queue WHERE job_id = 'a')")
+    assert claim(store, None, "w2") == "a"
+    assert store.requeue("a", "w2", "the worker process died again") == "failed"
+    assert engine(store, "a")["status"] == "failed"  # a dead letter ends its engine job
+    assert store.get("a").dead_letter and registrations(store) == 0
+
+
+def test_a_release_requeues_the_engine_job_at_once(store):
+    store.create("a", SCENE, "host")
+    claim(store)
+    assert store.release_claimed("w1", "the node was stopping") == ["a"]
+    released = engine(store, "a")
+    assert (released["status"], released["held"]) == ("todo", False)
+    assert released["wait"] <= 0.0
+    assert claim(store, None, "w2") == "a"
+
+
+def test_cancels_reach_the_engine_job(store):
+    store.create("q", SCENE, "host")
+    store.request_cancel("q")
+    assert engine(store, "q")["status"] == "cancelled"  # never fetched
+    store.create("r", SCENE, "host")
+    claim(store)
+    store.request_cancel("r")
+    assert engine(store, "r")["abort"]
+    assert store.finish("r", "cancelled", None, "cancelled on request", worker="w1")
+    assert engine(store, "r")["status"] == "aborted"
+    members = [(f"b-{k}", SCENE) for k in range(3)]
+    store.create_batch("b", {}, members, "host")
+    claim(store, worker="w2")
+    store.cancel_batch("b")
+    assert [engine(store, f"b-{k}")["status"] for k in range(3)] == [
+        "doing", "cancelled", "cancelled"]
+    assert engine(store, "b-0")["abort"]
+
+
+def test_a_retried_job_is_claimed_from_its_new_owners_queue(store):
+    store.create("f", SCENE, "host")
+    claim(store)
+    store.finish("f", "failed", None, "boom", worker="w1")
+    assert store.retry("f", "elsewhere")
+    assert (engine(store, "f")["status"], engine(store, "f")["queue"]) == ("todo", "elsewhere")
+    assert claim(store, "host") is None
+    assert claim(store, "elsewhere") == "f"
+    store.create("c", SCENE, "host")
+    store.request_cancel("c")
+    assert store.retry("c", "host")  # procrastinate does not retry a cancelled job: anew
+    assert engine(store, "c")["status"] == "todo"
+    assert claim(store, "host") == "c"
+
+
+def test_nothing_of_a_refused_job_or_batch_reaches_the_engine(store):
+    store.create("a", SCENE, "host", key="k")
+    with pytest.raises(DuplicateKey):
+        store.create("b", SCENE, "host", key="k")
+    assert not store.create_batch("big", {}, [(f"m-{k}", SCENE) for k in range(3)], "host",
+                                  limit=3)
+    assert store._rows("SELECT COUNT(*) FROM procrastinate_jobs")[0][0] == 1
+
+
+def test_a_claim_whose_heartbeats_stop_is_requeued_by_the_engines_stalled_jobs(store):
+    for job_id in ("kept", "lost"):
+        store.create(job_id, SCENE, "host")
+    claim(store, worker="w1")
+    claim(store, worker="w2")
+    time.sleep(LEASE * 0.6)
+    assert store.renew([("kept", "w1")], time.time() + LEASE) == {"kept": False}
+    time.sleep(LEASE * 0.6)  # "lost" silent for more than a lease, "kept" for less
+    assert store.expire(time.time()) == {"lost": "queued"}
+    assert engine(store, "lost")["status"] == "todo"
+    assert registrations(store) == 1  # the stalled registration is gone
+    assert store.renew([("kept", "w1"), ("lost", "w2")], time.time() + LEASE) == {
+        "kept": False}
+
+
+def test_a_deferred_job_is_notified_on_the_engines_channel(store):
+    listener = store.listen()
+    try:
+        store.create("a", SCENE, "host")
+        ready, _, _ = select.select([listener], [], [], 5.0)
+        assert ready and listener.drain() >= 1
+    finally:
+        listener.close()
+
+
+def test_jobs_queued_or_running_before_the_switch_are_taken_over(postgres_url):
+    with contextlib.closing(PostgresJobStore(postgres_url)) as own:
+        own.create("running", SCENE, "host")
+        own.create("queued", SCENE, "host")
+        assert own.claim("host", "old-worker", time.time() - 1.0).id == "running"
+    with contextlib.closing(ProcrastinateJobStore(postgres_url, lease=LEASE)) as taken:
+        assert engine(taken, "queued")["status"] == "todo"
+        with contextlib.closing(PostgresJobStore(postgres_url)) as older:
+            older.create("late", SCENE, "host")  # a server not switched yet
+        time.sleep(LEASE)  # the store's expiry waits a lease after the database started
+        assert taken.expire(time.time()) == {"running": "queued"}  # by its own lease
+        assert engine(taken, "late")["status"] == "todo"
+        taken._rows("UPDATE procrastinate_jobs SET scheduled_at = now()")
+        assert {claim(taken, None), claim(taken, None), claim(taken, "host", "w2")} == {
+            "queued", "running", "late"}
+
+
+def test_purge_deletes_the_engine_jobs_of_deleted_jobs(store):
+    store.create("a", SCENE, "host")
+    claim(store)
+    store.finish("a", "succeeded", None, None)
+    store.create("b", SCENE, "host")
+    later = (datetime.datetime.now(datetime.UTC) + datetime.timedelta(days=1)).timestamp()
+    assert store.purge(later, 0) == 1
+    assert store._rows("SELECT COUNT(*) FROM procrastinate_jobs")[0][0] == 1
+    assert engine(store, "b")["status"] == "todo"
