@@ -1,88 +1,107 @@
-"""Impossible tasks: how many end `infeasible`, how soon, and within what share of the budget.
+"""Impossible tasks: how many end `infeasible` with evidence, how soon, and within what
+share of the budget.
 
-Eight tasks that cannot be done, on 2- and 3-link arms moving 0.5 rad per joint, g = 0,
-default settings (60 s budget): three that the checks before a solve see (a tip target
-beyond reach, a zero torque limit on a 3-link arm, velocity bounds that cannot cover the
-move) and five durations below the minimum under a torque limit (2 and 3 links, fully
-actuated and with a passive first joint, and a duration range). Reported per task: the
-outcome, whether it says `infeasible` (`plan.infeasibility` set), wall time, and that time
-as a share of the budget.
+The generated impossible suite (`planner.impossible_suite`: durations and duration ranges
+below the shortest one, unreachable tips, zero torque, contradictory bounds) on its own
+seed and its held-out one, default settings (a 60 s budget), one plan each as a service
+worker runs it (both cores: a companion process where the planner forks one). Reported
+per task: the outcome, whether it says `infeasible` (`plan.infeasibility` set, and by what:
+the checks before a solve, agreeing starts, the duration probe), the evidence (the
+shortest duration found, or the first violated field), wall and CPU time, and the wall time
+as a share of the budget; per category and seed the share said infeasible within a quarter
+of the budget; and the latest any plan returned past its budget.
 
-    python -m bench impossible
+    python -m bench impossible [--seeds 20261126,16180339] [--count 40]
 """
 
 from __future__ import annotations
 
+import argparse
 import time
-from typing import Any
 
 from bench import harness
+from planner import impossible_suite
+from planner.hard_suite import category
 from planner.ocp import plan
-from planner.scene import Scene
+from planner.ocp.result import Plan
 
 DOC = harness.DOCS / "benchmarks.md"
 SECTION = "Impossible tasks: said infeasible, and how soon"
 BUDGET = 60.0  # [s] the default solver.max_wall_time
 
 
-def _arm(n: int, passive_first: bool) -> dict[str, Any]:
-    lengths, masses = (0.5, 0.4, 0.3)[:n], (1.0, 0.8, 0.6)[:n]
-    return {"links": [{"length": length, "mass": mass, "inertia": 0.01,
-                       "joint": "passive" if passive_first and k == 0 else "active"}
-                      for k, (length, mass) in enumerate(zip(lengths, masses, strict=True))],
-            "gravity": 0.0}
+def _evidence(result: Plan, duration: float) -> str:
+    found = result.infeasibility
+    if found is None:
+        return ""
+    if found.shortest_duration is not None:
+        return f"shortest {found.shortest_duration:.4g} s against {duration:.4g} s"
+    if found.fields:
+        return f"{found.fields[0].field}: {found.fields[0].kind}"
+    return ", ".join(v.kind for v in found.violations[:2])
 
 
-def _scene(n: int, passive_first: bool, duration: Any, **task: Any) -> Scene:
-    rest = [0.0] * n
-    return Scene.model_validate({"robot": _arm(n, passive_first), "task": {
-        "duration": duration, "initial": {"q": rest, "dq": rest},
-        "final": {"q": [0.5] * n, "dq": rest}, **task}})
+def _row(seed: int, name: str, result: Plan, wall: float, cpu: float) -> dict:
+    found = result.infeasibility
+    longest = max(found.durations) if found is not None and found.durations else 0.0
+    return {"seed": seed, "task": name, "category": category(name),
+            "status": result.solver.status,
+            "infeasible": "no" if found is None else found.source,
+            "evidence": _evidence(result, longest), "time": wall, "cpu": cpu,
+            "budget_share": wall / BUDGET, "past_budget": wall - BUDGET,
+            "within_quarter": "yes" if found is not None and wall <= BUDGET / 4 else "no"}
 
 
-def tasks() -> list[tuple[str, Scene]]:
-    """The eight impossible tasks, named."""
-    return [
-        ("tip beyond reach", _scene(2, False, 2.0, final={"q": [None, None], "dq": [0, 0]},
-                                    tip_target={"x": 2.0, "y": 0.0})),
-        ("zero torque, 3 links", _scene(3, False, 2.0, torque_limit=0.0)),
-        ("velocity bounds too tight", _scene(2, False, 1.0, velocity_bounds={
-            "lower": [-0.1, -0.1], "upper": [0.1, 0.1]})),
-        ("2 links actuated, 0.3 s, 1 N m", _scene(2, False, 0.3, torque_limit=1.0)),
-        ("2 links passive first, 0.15 s, 1 N m", _scene(2, True, 0.15, torque_limit=1.0)),
-        ("3 links actuated, 0.3 s, 2 N m", _scene(3, False, 0.3, torque_limit=2.0)),
-        ("3 links passive first, 0.2 s, 1 N m", _scene(3, True, 0.2, torque_limit=1.0)),
-        ("2 links actuated, 0.1 to 0.2 s, 1 N m",
-         _scene(2, False, {"min": 0.1, "max": 0.2}, torque_limit=1.0,
-                objective={"effort": 1.0, "time": 1.0})),
-    ]
+def _summary(rows: list[dict], key: str) -> list[dict]:
+    out = []
+    for value in dict.fromkeys(r[key] for r in rows):
+        group = [r for r in rows if r[key] == value]
+        quick = sum(r["within_quarter"] == "yes" for r in group)
+        out.append({key: value, "tasks": len(group),
+                    "infeasible": sum(r["infeasible"] != "no" for r in group),
+                    "quarter": quick, "share": f"{100 * quick / len(group):.0f} %",
+                    "median": harness.median(r["time"] for r in group),
+                    "max": max(r["time"] for r in group)})
+    return out
 
 
 def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench impossible")
+    parser.add_argument("--seeds", default=",".join(
+        str(s) for s in (impossible_suite.SEED, *impossible_suite.HELD_OUT)))
+    parser.add_argument("--count", type=int, default=impossible_suite.COUNT)
+    args = parser.parse_args(argv)
     started, note = time.perf_counter(), harness.machine_note()
     rows = []
-    for name, scene in tasks():
-        cpu = harness.cpu_time()
-        wall = time.perf_counter()
-        result = plan(scene)
-        wall, cpu = time.perf_counter() - wall, harness.cpu_time() - cpu
-        named = result.infeasibility is not None
-        rows.append({"task": name, "status": result.solver.status,
-                     "infeasible": "yes" if named else "no", "time": wall, "cpu": cpu,
-                     "budget_share": wall / BUDGET,
-                     "within_quarter": "yes" if named and wall <= BUDGET / 4 else "no"})
-        print(rows[-1], flush=True)
+    for seed in (int(s) for s in args.seeds.split(",")):
+        for name, scene in impossible_suite.impossible_tasks(args.count, seed):
+            cpu, wall = harness.cpu_time(), time.perf_counter()
+            result = plan(scene)
+            wall, cpu = time.perf_counter() - wall, harness.cpu_time() - cpu
+            rows.append(_row(seed, name, result, wall, cpu))
+            print(rows[-1], flush=True)
     harness.write_csv(harness.RESULTS / "impossible.csv", rows)
-    said = sum(r["infeasible"] == "yes" for r in rows)
     quick = sum(r["within_quarter"] == "yes" for r in rows)
+    latest = max(r["past_budget"] for r in rows)
+    summary_columns = [("tasks", "tasks"), ("infeasible", "said infeasible"),
+                       ("quarter", "within a quarter of the budget"), ("share", "share"),
+                       ("median", "median wall [s]"), ("max", "max wall [s]")]
     text = "\n\n".join([
-        f"Eight tasks that cannot be done (bench/impossible.py), default settings and a "
-        f"{BUDGET:g} s budget, one plan each in one process. {said} of {len(rows)} end "
-        f"`infeasible`, {quick} of them within a quarter of the budget.",
-        harness.table(rows, [("task", "task"), ("status", "status"),
-                             ("infeasible", "said infeasible"), ("time", "wall [s]"),
-                             ("cpu", "CPU [s]"), ("budget_share", "share of the budget"),
-                             ("within_quarter", "infeasible within a quarter")]),
+        f"The generated impossible suite (`planner.impossible_suite`, {args.count} tasks a "
+        f"seed; seeds {args.seeds}), default settings and a {BUDGET:g} s budget, one plan "
+        f"each in one process that may fork its companion. {quick} of {len(rows)} "
+        f"({100 * quick / len(rows):.0f} %) end `infeasible` with evidence within a quarter "
+        f"of the budget; the latest plan returned {latest:+.3g} s past its budget "
+        f"(negative: within it). `infeasible` says by what: `checks` before any solve, "
+        f"`solver` (two starts agree), `duration` (the duration probe's shortest duration "
+        f"is longer than the task allows).",
+        harness.table(_summary(rows, "category"), [("category", "category"),
+                                                   *summary_columns]),
+        harness.table(_summary(rows, "seed"), [("seed", "seed"), *summary_columns]),
+        harness.table(rows, [("seed", "seed"), ("task", "task"), ("status", "status"),
+                             ("infeasible", "said infeasible"), ("evidence", "evidence"),
+                             ("time", "wall [s]"), ("cpu", "CPU [s]"),
+                             ("budget_share", "share of the budget")]),
         f"Rows: `bench/results/impossible.csv`. "
         f"{harness.manifest('impossible', argv, started, note)}"])
     harness.write_section(DOC, SECTION, text)
