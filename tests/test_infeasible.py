@@ -249,20 +249,45 @@ def test_a_duration_just_above_the_shortest_is_planned_not_held_infeasible():
     assert p.solver.success and p.verification.verified
 
 
-def test_a_stretched_motion_needs_its_torques_over_the_square_of_the_stretch():
-    """Without gravity M(q) ddq + h(q, dq) scales with 1/s^2 when a motion is run s times
-    as long: the stretched guess's torques are the motion's over s^2."""
+def test_a_stretched_motion_needs_its_torques_beside_gravity_over_the_square_of_the_stretch():
+    """M(q) ddq + h(q, dq) scales with 1/s^2 when a motion is run s times as long, gravity's
+    torque G(q) stays: the stretched guess's torques are (tau - G) / s^2 + G, which is what
+    the probe's stretch factor counts on (without gravity: tau / s^2)."""
+    from planner.dynamics import Dynamics
     from planner.ocp.guess import hermite_guess, stretched
 
     scene = with_task(FAST, duration=1.0)
-    robot = scene.robot.model_copy(update={"gravity": 0.0})
-    motion = hermite_guess(scene, robot, 1.0)
     x = np.linspace(0.0, 1.0, 21)
-    for s in (1.0, 1.7, 3.0):
-        slow = stretched(motion, s, robot)(x)
-        np.testing.assert_allclose(slow["tau"], motion(x)["tau"] / s ** 2, rtol=1e-12,
-                                   atol=1e-14)
-        np.testing.assert_allclose(slow["dq"], motion(x)["dq"] / s, rtol=1e-14)
+    for gravity in (0.0, 9.81):
+        robot = scene.robot.model_copy(update={"gravity": gravity})
+        motion = hermite_guess(scene, robot, 1.0)
+        G = np.array([Dynamics(robot).gravity(q)[robot.active] for q in motion(x)["q"]])
+        for s in (1.0, 1.7, 3.0):
+            slow = stretched(motion, s, robot)(x)
+            np.testing.assert_allclose(slow["tau"], (motion(x)["tau"] - G) / s ** 2 + G,
+                                       rtol=1e-11, atol=1e-12)
+            np.testing.assert_allclose(slow["dq"], motion(x)["dq"] / s, rtol=1e-14)
+
+
+def test_the_stretch_factor_is_the_least_that_keeps_the_limit_in_gravity():
+    from planner.ocp import shortest
+
+    scene = with_task(chain_scene(2, under=False, intervals=10), duration=0.3, torque_limit=None)
+    motion = plan(scene)
+    G = np.array([shortest.Dynamics(scene.robot).gravity(q)[scene.robot.active]
+                  for q in motion.dense.q])
+    tau = np.asarray(motion.dense.tau)
+    assert np.abs(tau).max() > 2 * np.abs(G).max()
+    # between: gravity alone keeps it, the motion does not
+    limit = shortest.STRETCH_MARGIN * (np.abs(G).max() + np.abs(tau).max()) / 2
+    factor = shortest.stretch_factor(with_task(scene, torque_limit=limit), motion)
+    assert factor > 1.0
+
+    def peak(s: float) -> float:
+        return float(np.abs((tau - G) / s ** 2 + G).max())
+
+    assert peak(factor) <= limit / shortest.STRETCH_MARGIN * (1 + 1e-9)
+    assert peak(factor * (1 - 1e-6)) > limit / shortest.STRETCH_MARGIN
 
 
 def _attempt(name: str, status: str):

@@ -103,6 +103,9 @@ class Start:
     may_stall: bool = False
     """Stop its first solves when they stall (`planner.ocp.monitor`): the scene's own start,
     which the other starts are there to rescue."""
+    time_share: float = 1.0
+    """The most of the plan's wall time its first solves may take (the scene's own start
+    of a task whose duration the probe may show too short: `shortest.FIRST_SHARE`)."""
 
 
 @dataclass
@@ -148,7 +151,7 @@ def shortest_duration(scene: Scene, lowest: float | None = None) -> shortest.Pro
     duration may go down to `lowest` [s] (default: the task's shortest)."""
     budget = Budget.of(scene.solver.max_iter, scene.solver.max_wall_time)
     probe = _DurationProbe(scene, _design_robot(scene), budget, None)
-    return shortest.probe(scene, budget, probe.solve, probe.guess, lowest, share=1.0)
+    return shortest.probe(scene, budget, probe.solve, probe.motion, lowest, share=1.0)
 
 
 def _plan(scene: Scene, progress: Handler | None, warm_start: Plan | None,
@@ -264,7 +267,7 @@ class _DurationProbe:
         if self.found is None and shortest.applies(self.scene) and not converged \
                 and not self.budget.spent:
             self.after = _passes(attempts)
-            self.found = shortest.probe(self.scene, self.budget, self.solve, self.guess)
+            self.found = shortest.probe(self.scene, self.budget, self.solve, self.motion)
 
     @property
     def too_short(self) -> bool:
@@ -290,9 +293,16 @@ class _DurationProbe:
         start = Start("direct", _first_mesh(scene), guess, used, T, self.robot, may_stall=True)
         return _planned(scene, start, budget, self.progress)
 
-    def guess(self, scene: Scene, T: float) -> Guess:
-        """The scene's own initial guess at T [s]."""
-        return _guess(scene, self.robot, T)[0]
+    def motion(self, scene: Scene, budget: Budget) -> Plan:
+        """The plan of a fixed-duration scene from the continuation start where it applies
+        (an underactuated arm, whose fast motions the direct start often fails to find),
+        else from the scene's own start."""
+        T = _duration_guess(scene)
+        if continuation.applies(scene):
+            return _planned(scene, _continuation_start(scene, self.robot, T), budget,
+                            self.progress)
+        guess, used = _guess(scene, self.robot, T)
+        return self.solve(scene, guess, used, T, budget)
 
 
 class _Watch:
@@ -343,7 +353,14 @@ def _first_solves(scene: Scene, start: Start, budget: Budget, progress: Handler 
                   first_pass: int) -> tuple[list[Outcome], Outcome]:
     """An attempt's preliminary solves (on its coarse mesh, or of the relaxed NLPs), and
     its first solve on its own mesh: from the preliminary plan where that converged, else
-    from the start's guess."""
+    from the start's guess; together within the start's share of the wall time."""
+    with budget.capped_time(start.time_share):
+        return _first_solves_within(scene, start, budget, progress, first_pass)
+
+
+def _first_solves_within(scene: Scene, start: Start, budget: Budget,
+                         progress: Handler | None,
+                         first_pass: int) -> tuple[list[Outcome], Outcome]:
     guess, robot, T, preliminary = start.guess, start.robot, start.T, []
     if start.coarse is not None:
         preliminary = [_solve_on(scene, instance(scene, robot, start.coarse, T), robot, T,
@@ -420,17 +437,19 @@ def _starts(scene: Scene, robot: Robot, T: float, attempts: list[Attempt],
     the classical inverse dynamics as the initial guess; a first mesh of twice, then of
     half the intervals. After the scene's own start, `probe` (where given) runs: when it
     shows the duration too short no start follows, and a time-optimal plan it found
-    within the task's durations is the next start. stall: the scene's own start is
-    stopped when it stalls (where no companion process solves the continuation
-    meanwhile)."""
+    within the task's durations is the next start; where the probe applies, the scene's
+    own start may take `shortest.FIRST_SHARE` of the wall time before it runs. stall: the
+    scene's own start is stopped when it stalls (where no companion process solves the
+    continuation meanwhile)."""
     tr = scene.transcription
     mesh = _first_mesh(scene)
     guess, used = _guess(scene, robot, T)
+    share = shortest.FIRST_SHARE if probe is not None and shortest.applies(scene) else 1.0
     if tr.refinement.enabled and tr.breaks is None and tr.intervals > COARSE_INTERVALS:
         yield Start("coarse to fine", mesh, guess, used, T, robot,
-                    coarse=Mesh.uniform(COARSE_INTERVALS), may_stall=stall)
+                    coarse=Mesh.uniform(COARSE_INTERVALS), may_stall=stall, time_share=share)
     else:
-        yield Start("direct", mesh, guess, used, T, robot, may_stall=stall)
+        yield Start("direct", mesh, guess, used, T, robot, may_stall=stall, time_share=share)
     if probe is not None:
         probe.run(attempts)
         if probe.too_short:

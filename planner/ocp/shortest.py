@@ -3,15 +3,17 @@ or a feasible start for it.
 
 A torque limit and velocity bounds are what can make a duration too short (without them a
 motion can be run as fast as asked). When a task with either gives no converged plan from
-its first start, the planner probes its shortest duration (`probe`) before further starts:
+its first start (which may take FIRST_SHARE of the wall time), the planner probes its
+shortest duration (`probe`) before further starts:
 
-1. the task without its torque limit and velocity bounds, at its (longest) duration T:
-   the motion it asks for, which converges easily;
-2. that motion stretched in time by the factor s that brings its peak torque and rates
-   within the limits (stretched by s, a motion needs its rates divided by s and its
-   inertial torques by s^2: exactly what it needs without gravity);
-3. from it, a time-optimal solve: the duration free in [the task's shortest, SPAN x s T],
-   the duration minimised with a little effort beside it (EFFORT_SHARE).
+1. the task without its torque limit and velocity bounds, at MOTION_SPAN times its
+   (longest) duration T: the motion it asks for, slowed so that it converges easily;
+2. that motion stretched in time by the least factor s that brings its torque and rates
+   within the limits (stretched by s, a motion needs its rates divided by s and the
+   torque beside gravity's by s^2, exactly: `stretch_factor`), a start that keeps them;
+3. from it, a time-optimal solve: the duration free between the task's shortest and
+   SPAN times the stretched motion's, the duration minimised with a little effort beside
+   it (EFFORT_SHARE).
 
 A verified time-optimal plan whose duration T* exceeds the task's longest duration by more
 than DURATION_RTOL is the evidence that the task is infeasible: the solve's duration is at
@@ -29,6 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from planner.dynamics import Dynamics
 from planner.ocp.guess import Guess, plan_guess, stretched
 from planner.ocp.result import MeshPass, Plan
 from planner.ocp.solve import Budget
@@ -39,6 +42,12 @@ DURATION_RTOL = 1e-3
 too short (Ipopt keeps the duration's bound to about 1e-8 when it is active)."""
 PROBE_SHARE = 0.15
 """The most of the plan's wall time the probe's two solves may take together."""
+FIRST_SHARE = 0.1
+"""The most of the plan's wall time the scene's own first start may take before the probe
+runs (on an infeasible task Ipopt's iterations can slow to half a second each)."""
+MOTION_SPAN = 2.0
+"""The unlimited motion is planned at this many times the task's longest duration: a
+slower motion converges where a fast one of an underactuated arm stalls."""
 SPAN = 4.0
 """The time-optimal solve's longest duration, in multiples of the stretched motion's."""
 STRETCH_MARGIN = 1.05
@@ -52,6 +61,8 @@ stretched motion's effort."""
 Solver = Callable[[Scene, Guess, str, float, Budget], Plan]
 """solver(scene, guess, what the guess is, T [s] to start from, budget): the plan of one
 start of `scene` (the planner's own, with its refinement and checks)."""
+Planner = Callable[[Scene, Budget], Plan]
+"""planner(scene, budget): the plan of a scene from the planner's own first starts."""
 
 
 @dataclass(frozen=True)
@@ -105,17 +116,11 @@ def time_optimal(scene: Scene, shortest: float, longest: float, effort: float) -
 
 
 def stretch_factor(scene: Scene, motion: Plan) -> float:
-    """The factor s >= 1 by which stretching `motion` in time brings its peak torque (as
-    1/s^2) and its rates (as 1/s) within the task's limits, STRETCH_MARGIN inside them; inf
-    where a zero limit meets a nonzero torque."""
-    task, factor = scene.task, 1.0
-    if task.torque_limit is not None:
-        tau = np.abs(np.asarray(motion.dense.tau, float))
-        limit = np.broadcast_to(np.asarray(task.torque_limit, float), tau.shape[1:])
-        peak = tau.max(axis=0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ratio = np.where(peak > 0.0, peak / limit, 0.0)
-        factor = max(factor, math.sqrt(STRETCH_MARGIN * float(ratio.max(initial=0.0))))
+    """The factor s >= 1 by which stretching `motion` in time brings its torque and its
+    rates within the task's limits, STRETCH_MARGIN inside them (`_torque_stretch`; rates
+    scale as 1/s); inf where a zero limit meets a torque."""
+    task = scene.task
+    factor = 1.0 if task.torque_limit is None else _torque_stretch(scene, motion)
     if task.velocity_bounds is not None:
         dq = np.asarray(motion.dq, float)
         for j, (lo, hi) in enumerate(zip(task.velocity_bounds.lower,
@@ -124,6 +129,38 @@ def stretch_factor(scene: Scene, motion: Plan) -> float:
                     float(dq[:, j].min()) / lo if lo is not None and lo < 0 else 0.0]
             factor = max(factor, STRETCH_MARGIN * max(fast))
     return factor
+
+
+def _torque_stretch(scene: Scene, motion: Plan) -> float:
+    """The least s >= 1 with |I(t) / s^2 + G(t)| <= limit / STRETCH_MARGIN along the motion's
+    dense samples, G the gravity torque of the active joints and I = tau - G the rest of the
+    torque (stretched by s, the motion needs its rates over s and its accelerations over
+    s^2, so I scales as 1/s^2 and G stays). Where G alone is beyond the limit no stretch
+    keeps it: then the s that would bring the whole torque within it (inf for a zero
+    limit), for a start that is not feasible but near. The set
+    of u = 1/s^2 that keep the limit is an interval (|u I + G| is convex in u) holding 0
+    when G keeps it: its upper end is found by bisection."""
+    tau = np.asarray(motion.dense.tau, float)
+    limit = np.broadcast_to(np.asarray(scene.task.torque_limit, float),
+                            tau.shape[1:]) / STRETCH_MARGIN
+    dynamics = Dynamics(scene.robot)
+    active = scene.robot.active
+    G = np.array([dynamics.gravity(q)[active] for q in np.asarray(motion.dense.q, float)])
+    inertial = tau - G
+
+    def keeps(u: float) -> bool:
+        return bool(np.all(np.abs(u * inertial + G) <= limit))
+
+    if keeps(1.0):
+        return 1.0
+    if not keeps(0.0):  # the stretch that scales the whole torque: a start, if no witness
+        peak = np.abs(tau).max(axis=0)
+        return math.sqrt(float(np.max(peak / limit))) if np.all(limit > 0.0) else math.inf
+    low, high = 0.0, 1.0  # keeps(low), not keeps(high)
+    for _ in range(60):
+        middle = (low + high) / 2
+        low, high = (middle, high) if keeps(middle) else (low, middle)
+    return math.inf if low == 0.0 else 1.0 / math.sqrt(low)
 
 
 def _effort(motion: Plan) -> float:
@@ -142,33 +179,33 @@ def _share(budget: Budget, share: float) -> Budget:
                   used=budget.used)
 
 
-def probe(scene: Scene, budget: Budget, solve: Solver,
-          robot_guess: Callable[[Scene, float], Guess], lowest: float | None = None,
-          share: float = PROBE_SHARE) -> Probe:
+def probe(scene: Scene, budget: Budget, solve: Solver, plan_motion: Planner,
+          lowest: float | None = None, share: float = PROBE_SHARE) -> Probe:
     """The shortest duration of the task's motion under its limits (see the module), within
-    `share` of the plan's wall time; `robot_guess(scene, T)` is the planner's initial guess
-    of a scene at duration T; `lowest` [s]: the time-optimal solve's shortest duration
-    (default: the task's)."""
+    `share` of the plan's wall time; `plan_motion` plans the unlimited motion, `solve` the
+    time-optimal task from its stretch; `lowest` [s]: the time-optimal solve's shortest
+    duration (default: the task's)."""
     shortest, longest = durations(scene)
     shortest = shortest if lowest is None else lowest
     sub = _share(budget, share)
-    free = unlimited(scene, longest)
-    motion = solve(free, robot_guess(free, longest), "interpolation", longest, sub)
+    slow = MOTION_SPAN * longest
+    free = unlimited(scene, slow)
+    motion = plan_motion(free, sub)
     passes = _named(motion, "the task without its limits")
     if not (motion.solver.success and motion.verification.verified):
         return _done(budget, sub, passes, None, False, f"the task without its limits gave no "
-                                               f"verified motion in {longest:g} s "
-                                               f"({motion.solver.status})")
+                                                       f"verified motion in {slow:g} s "
+                                                       f"({motion.solver.status})")
     s = stretch_factor(scene, motion)
     if not math.isfinite(s):
         return _done(budget, sub, passes, None, False, "a zero torque limit stops a joint the "
-                                               "motion needs")
+                                                       "motion needs")
     effort = _effort(motion) / s ** 3  # the stretched motion's, exact without gravity
-    weight = EFFORT_SHARE * s * longest / effort if effort > 0.0 else EFFORT_SHARE
-    fastest = time_optimal(scene, shortest, SPAN * s * longest, weight)
+    weight = EFFORT_SHARE * s * slow / effort if effort > 0.0 else EFFORT_SHARE
+    fastest = time_optimal(scene, shortest, max(SPAN * s * slow, longest), weight)
     guess = stretched(plan_guess(motion), s, scene.robot)
     found = solve(fastest, guess, "the task's motion without its limits, stretched",
-                  s * longest, sub)
+                  s * slow, sub)
     passes += _named(found, "time-optimal")
     if not (found.solver.success and found.verification.verified):
         return _done(budget, sub, passes, None, False, f"the time-optimal solve gave no verified "

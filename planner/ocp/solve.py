@@ -80,6 +80,8 @@ class Budget:
     reserve: float = 0.0
     measured: float = 0.0
     """[s] What the interval errors and open-loop replay of the latest solve's plan took."""
+    cap: float = math.inf
+    """When the solves of a `capped_time` block stop (time.perf_counter() seconds)."""
 
     @classmethod
     def of(cls, max_iter: int, max_wall_time: float) -> Budget:
@@ -89,7 +91,7 @@ class Budget:
     @property
     def solves_until(self) -> float:
         """When the solves stop (time.perf_counter() seconds)."""
-        return self.deadline - self.reserve
+        return min(self.deadline - self.reserve, self.cap)
 
     @property
     def spent(self) -> bool:
@@ -105,6 +107,16 @@ class Budget:
             yield
         finally:
             self.max_iter = full
+
+    @contextlib.contextmanager
+    def capped_time(self, share: float) -> Iterator[None]:
+        """Within: the solves stop `share` of the plan's wall time from now at the latest."""
+        outer = self.cap
+        self.cap = min(outer, time.perf_counter() + share * (self.deadline - self.started))
+        try:
+            yield
+        finally:
+            self.cap = outer
 
     def keep_for_checks(self, intervals: int, joints: int) -> None:
         """Keep the checks' expected cost before the deadline: on a mesh of `intervals`
