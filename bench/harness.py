@@ -214,10 +214,11 @@ def read_csv(path: Path) -> list[dict]:
 
 
 def write_csv(path: Path, rows: Sequence[dict]) -> None:
-    """Rows (dicts with the same keys) as CSV; floats with 6 significant digits."""
+    """Rows as CSV, every key of any row a column (empty where a row has none, as rows kept
+    from a run before a column existed); floats with 6 significant digits."""
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer = csv.DictWriter(f, fieldnames=list(dict.fromkeys(k for r in rows for k in r)))
         writer.writeheader()
         for row in rows:
             writer.writerow({k: f"{v:.6g}" if isinstance(v, float) else v for k, v in row.items()})

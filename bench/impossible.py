@@ -91,10 +91,11 @@ def main(argv: list[str]) -> int:
         f"seed; seeds {args.seeds}), default settings and a {BUDGET:g} s budget, one plan "
         f"each in one process that may fork its companion. {quick} of {len(rows)} "
         f"({100 * quick / len(rows):.0f} %) end `infeasible` with evidence within a quarter "
-        f"of the budget; the latest plan returned {latest:+.3g} s past its budget "
-        f"(negative: within it). `infeasible` says by what: `checks` before any solve, "
-        f"`solver` (two starts agree), `duration` (the duration probe's shortest duration "
-        f"is longer than the task allows).",
+        f"of the budget; " + (f"the latest plan returned {latest:.3g} s past its budget. "
+                              if latest > 0 else "every plan returned within its budget. ")
+        + "`infeasible` says by what: `checks` before any solve, "
+        "`solver` (two starts agree), `duration` (the duration probe's shortest duration "
+        "is longer than the task allows).",
         harness.table(_summary(rows, "category"), [("category", "category"),
                                                    *summary_columns]),
         harness.table(_summary(rows, "seed"), [("seed", "seed"), *summary_columns]),

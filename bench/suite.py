@@ -736,8 +736,10 @@ def limits_and_robustness(rows: list[dict]) -> str:
                      f"torque (its polynomial, exact extrema) exceeds the limit by at most "
                      f"{max(excess, default=0.0):.2g} of it (the verdict allows 1e-6)")
     if late:
-        parts.append(f"the latest plan returned {max(late):+.3g} s past its budget "
-                     f"(negative: within it)")
+        latest = max(late)
+        parts.append(f"the latest plan returned {latest:.3g} s past its budget" if latest > 0
+                     else f"every plan returned within its budget (the latest "
+                          f"{-latest:.3g} s before it)")
     figures = {k: _finite(r.get(k) for r in ours) for k in
                ("robust_tracking_error", "robust_final_error", "open_loop_final_error")}
     if figures["robust_tracking_error"]:
