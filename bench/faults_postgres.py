@@ -162,7 +162,7 @@ def main(argv: list[str], tries: int) -> int:
         "dies, one for one solver process), none for SIGTERM (released) or a database "
         "restart. *Requeue* is how long the first of node 1's two plans "
         "stayed `running` under its worker after the fault (for the restart: until it "
-        "ended, as nothing is requeued). Load average at the end: {harness.load()}.",
+        f"ended, as nothing is requeued). Load average at the end: {harness.load()}.",
         harness.table(rows, COLUMNS),
         "Rows: `bench/results/faults_postgres.csv`. "
         + harness.manifest("faults", ["--postgres", *[a for a in argv if a != "--postgres"]],

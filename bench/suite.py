@@ -761,7 +761,10 @@ def report_hard(args, argv: list[str], configs: list[str], rows: list[dict],
                 skipped: dict[str, str], started: float, note: str) -> int:
     """The hard suite's CSV and section of docs/benchmarks.md."""
     own = args.seed == hard_suite.SEED
-    csv = "hard-suite.csv" if own else f"hard-suite-seed-{args.seed}.csv"
+    chosen = [c.strip() for c in args.categories.split(",") if c.strip()]
+    extra = bool(chosen) and all(c in hard_suite.EXTRA_CATEGORIES for c in chosen)
+    stem = f"hard-suite-{'-'.join(chosen)}" if extra else "hard-suite"
+    csv = f"{stem}.csv" if own else f"{stem}-seed-{args.seed}.csv"
     kept: list[dict] = []
     if args.merge and (harness.RESULTS / csv).exists():
         kept = [r for r in harness.read_csv(harness.RESULTS / csv) if r["config"] not in configs]
@@ -800,7 +803,8 @@ def report_hard(args, argv: list[str], configs: list[str], rows: list[dict],
         args.note,
         f"Rows: `bench/results/{csv}`. {harness.manifest('suite', argv, started, note)}"]
         if part)
-    heading = HARD_SECTION if own else f"{HARD_SECTION}, seed {args.seed}"
+    section = f"Hard suite: {', '.join(chosen)}" if extra else HARD_SECTION
+    heading = section if own else f"{section}, seed {args.seed}"
     harness.write_section(DOC, heading, text)
     for row in summary:
         print(row, flush=True)
