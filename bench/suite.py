@@ -563,7 +563,8 @@ def main(argv: list[str]) -> int:
     args.seed = args.seed if args.seed is not None else hard_suite.SEED if hard else SEED
     args.configs = args.configs or ("undertow" if hard else ",".join(CONFIGS))
     categories = tuple(c.strip() for c in args.categories.split(",") if c.strip())
-    wrong = [c for c in categories if c not in hard_suite.CATEGORIES]
+    wrong = [c for c in categories
+             if c not in (*hard_suite.CATEGORIES, *hard_suite.EXTRA_CATEGORIES)]
     if categories and not hard:
         parser.error("--categories: only with --suite hard")
     if wrong:
