@@ -549,7 +549,8 @@ def main(argv: list[str]) -> int:
                         help=f"every configuration's cap on a task [s] (default {WALL_TIME:g}, "
                              "the planner's max_wall_time)")
     parser.add_argument("--merge", action="store_true",
-                        help="keep the other configurations' rows of the CSV (runs split "
+                        help="keep the other configurations' rows of the CSV, and with "
+                             "--categories the other categories' rows (runs split "
                              "over processes or cores write one table)")
     parser.add_argument("--note", default="",
                         help="where and how the rows were measured, when they come from "
@@ -768,8 +769,14 @@ def report_hard(args, argv: list[str], configs: list[str], rows: list[dict],
     csv = f"{stem}.csv" if own else f"{stem}-seed-{args.seed}.csv"
     kept: list[dict] = []
     if args.merge and (harness.RESULTS / csv).exists():
-        kept = [r for r in harness.read_csv(harness.RESULTS / csv) if r["config"] not in configs]
-        rows = [r for r in kept if r["config"] in CONFIGS] + rows
+        ran = {(r["task"], r["config"]) for r in rows}
+        kept = [r for r in harness.read_csv(harness.RESULTS / csv)
+                if (r["task"], r["config"]) not in ran
+                and (r["config"] not in configs or chosen and not extra)]
+        order = {r["task"]: k for k, r in enumerate(harness.read_csv(harness.RESULTS / csv))}
+        rows = sorted([r for r in kept if r["config"] in CONFIGS] + rows,
+                      key=lambda r: (list(CONFIGS).index(r["config"]),
+                                     order.get(r["task"], len(order))))
         configs = [c for c in CONFIGS if c in {r["config"] for r in rows}]
     if not rows:
         print("no rows", flush=True)
@@ -793,7 +800,10 @@ def report_hard(args, argv: list[str], configs: list[str], rows: list[dict],
         "planner configuration the tasks its settings can state (fatrop: no free time or "
         "co-design); fatrop writes no log to count in.",
         "".join(f"Not run here: {c}, {why}. " for c, why in skipped.items()).strip(),
-        ("Rows of " + ", ".join(sorted({r["config"] for r in kept})) + " come from an earlier "
+        (f"Only the tasks of {', '.join(chosen)} ran in this invocation; the other rows come "
+         "from an earlier one on the same tasks, kept by `--merge`." if kept and chosen
+         and not extra else
+         "Rows of " + ", ".join(sorted({r["config"] for r in kept})) + " come from an earlier "
          "invocation on the same tasks, kept by `--merge`." if kept else ""),
         harness.table(summary, [("config", "configuration"), ("what", "settings"),
                                 *_SUMMARY_COLUMNS]),

@@ -266,15 +266,24 @@ class CouplingMargin(Term):
 
 
 def margin_function(s: Structure) -> ca.Function:
-    """Leading principal minors of G / margin^2 - I, G the smaller Gram matrix of M_pa.
+    """Rows that are all >= 0 exactly where sigma_min(M_pa) >= margin (the least singular
+    value) and a square block's determinant keeps the sign it has at the start.
 
-    All minors > 0 <=> G - margin^2 I is positive definite <=> sigma_min(M_pa) > margin.
-    A square block also keeps the sign its determinant has at the start:
-    sign * det(M_pa) / margin^p - 1 >= 0, necessary for the margin (|det| >= margin^p) and
-    what stops a path from jumping through det = 0 between two knots. A 1 x 1 block needs
-    that row alone (sign * M_pa / margin >= 1 is the margin): its minor M_pa^2 / margin^2 - 1
-    would be active at the same points with a parallel gradient, which breaks the linear
-    independence of the active constraints' gradients that Ipopt's steps rely on.
+    In general: the leading principal minors of G / margin^2 - I, G the smaller Gram matrix
+    of M_pa (all > 0 <=> G - margin^2 I positive definite <=> sigma_min(M_pa) > margin). A
+    square block adds sign * det(M_pa) / margin^p - 1 >= 0, necessary for the margin
+    (|det| >= margin^p) and what stops a path from jumping through det = 0 between two
+    knots. A 1 x 1 block needs that row alone (sign * M_pa / margin >= 1 is the margin):
+    its minor M_pa^2 / margin^2 - 1 would be active at the same points with a parallel
+    gradient, which breaks the linear independence of the active constraints' gradients
+    that Ipopt's steps rely on. A 2 x 2 block, the seed arm's, replaces the minors by one
+    row of the order of sigma_min / margin, sign * det / (margin sqrt(|M_pa|_F^2 -
+    margin^2)) - 1 >= 0: with sigma_1 >= sigma_2, det = sigma_1 sigma_2 and |M_pa|_F^2 =
+    sigma_1^2 + sigma_2^2, it holds where both singular values are at least the margin or
+    both at most it, and the sign row (det >= margin^2) leaves the first. The minors grow
+    as sigma^4 / margin^4 (1e5 for entries of 0.1 kg m^2 and a margin of 0.005), which
+    left Ipopt in its restoration phase for hundreds of iterations on the hard suite's
+    co-design tasks (docs/benchmarks.md, "Hard suite").
     """
     sym = derive(s)
     margin, sign = ca.SX.sym("margin"), ca.SX.sym("sign")
@@ -284,6 +293,10 @@ def margin_function(s: Structure) -> ca.Function:
     square = mpa.size1() == mpa.size2()
     orders = [] if square and mpa.size1() == 1 else range(1, gram.size1() + 1)
     rows = [ca.det(shifted[:k, :k]) for k in orders]
+    if square and mpa.size1() == 2:
+        det = sign * ca.det(mpa)
+        rest = ca.fmax(ca.sumsqr(mpa) - margin**2, 1e-6 * margin**2)
+        rows = [det / (margin * ca.sqrt(rest)) - 1]
     if square:
         rows.append(sign * ca.det(mpa) / margin ** mpa.size1() - 1)
     return ca.Function("margin", [sym.q, sym.p, margin, sign], [ca.vertcat(*rows)])
