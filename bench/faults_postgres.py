@@ -153,7 +153,9 @@ def main(argv: list[str], tries: int) -> int:
         print(rows[-1], flush=True)
     text = "\n\n".join([
         "A throwaway PostgreSQL server, one API-only server and two worker nodes (`undertow "
-        "worker --processes 2`) on 127.0.0.1, a fresh cluster per try, the fake solve "
+        "worker --processes 2`) on 127.0.0.1, the jobs queued by "
+        f"{os.environ.get('UNDERTOW_QUEUE', 'procrastinate')} (`UNDERTOW_QUEUE`), a fresh "
+        "cluster per try, the fake solve "
         "function (plans of 3 s), `UNDERTOW_LEASE` "
         f"{LEASE:g} s, `UNDERTOW_RETRY_BACKOFF` 0.5 s. {PLANS} plans are submitted (4 "
         "run, 6 wait); the fault strikes while both of node 1's processes solve one. "
