@@ -255,7 +255,10 @@ class Supervisor:
         self._enforce_cancels(now)
         if now >= self._next_expiry:
             self._next_expiry = now + self._expire_interval
-            for job_id, status in self.store.expire(time.time()).items():
+            # a claim whose lease runs out before the next look is taken now: a job of a
+            # dead process stays `running` for at most a lease after its last renewal
+            upcoming = time.time() + self._expire_interval
+            for job_id, status in self.store.expire(upcoming).items():
                 log.warning("job %s lost its worker (lease ran out): %s", job_id,
                             "requeued" if status == "queued" else status)
                 if status == "queued":
