@@ -132,6 +132,7 @@ COLUMNS = [("probe", "fault"), ("tries", "tries"), ("accepted", "plans accepted"
            ("succeeded", "succeeded"), ("failed", "failed"),
            ("infra", "infrastructure failures counted"), ("lost", "lost"),
            ("requeue", "requeue: node 1's first plan left its worker after [s], median"),
+           ("requeue_max", "the same, the longest [s]"),
            ("span", "fault to the last plan's end [s], median"), ("ok", "as documented")]
 
 
@@ -148,6 +149,7 @@ def main(argv: list[str], tries: int) -> int:
                      **{k: sum(r[k] for r in runs)
                         for k in ("accepted", "succeeded", "failed", "infra", "lost")},
                      "requeue": harness.median(requeues) if requeues else None,
+                     "requeue_max": max(requeues) if requeues else None,
                      "span": harness.median(r["span"] for r in runs),
                      "ok": f"{sum(r['ok'] for r in runs)} of {tries}"})
         print(rows[-1], flush=True)
