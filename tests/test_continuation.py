@@ -28,7 +28,8 @@ from planner.suite import singular_configuration
 def crossing() -> Scene:
     """The seed's 4-link arm, g = 0, moving by up to 0.6 rad per joint either side of a
     configuration where its waveless M_pa is singular: from the interpolation Ipopt's steps
-    stay at a thousandth of a Newton step, with a dozen line-search trials each."""
+    stay at a thousandth of a Newton step, with a dozen line-search trials each. No torque
+    limit: with one a stalled first start goes to the duration probe (see below)."""
     rng = np.random.default_rng(1)
     robot = seed_arm(True)
     centre = singular_configuration(robot, rng)
@@ -38,7 +39,7 @@ def crossing() -> Scene:
     return Scene.model_validate({"robot": robot.model_dump(mode="json"), "task": {
         "duration": 2.0, "initial": {"q": (centre - move / 2).round(6).tolist(), "dq": rest},
         "final": {"q": (centre + move / 2).round(6).tolist(), "dq": rest},
-        "torque_limit": 20.0, "objective": {"effort": 1.0}}})
+        "objective": {"effort": 1.0}}})
 
 
 def _children() -> list[int]:
@@ -85,6 +86,22 @@ def test_the_continuation_verifies_a_crossing_the_direct_start_stalls_on(crossin
     assert result.mesh_passes[first_real].objective == pytest.approx(
         relaxed[-1].objective, rel=0.01)
     assert result.solver.iterations <= 400
+
+
+def test_a_limited_crossing_that_stalls_is_probed_through_the_continuation(
+        crossing: Scene, monkeypatch: pytest.MonkeyPatch):
+    """With a torque limit the stalled first start is followed by the duration probe, whose
+    motion without limits is the continuation's; the plan it starts keeps the limit."""
+    monkeypatch.setenv(portfolio.ENVIRONMENT, "1")
+    limited = crossing.model_copy(update={"task": crossing.task.model_copy(
+        update={"torque_limit": 20.0})})
+    result = plan(limited)
+    assert result.solver.success and result.verification.verified
+    assert result.solver.strategy == "shortest-duration plan"
+    unlimited = [p.strategy for p in result.mesh_passes
+                 if p.strategy.startswith("shortest-duration probe, the task without")]
+    assert unlimited and all("continuation" in s for s in unlimited)
+    assert result.verification.torque_excess <= 1e-6 * 20.0
 
 
 def _monitor(violations: list[float]) -> IterationMonitor:
