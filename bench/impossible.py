@@ -3,7 +3,7 @@ share of the budget.
 
 The generated impossible suite (`planner.impossible_suite`: durations and duration ranges
 below the shortest one, unreachable tips, zero torque, contradictory bounds) on its own
-seed and its held-out one, default settings (a 60 s budget), one plan each as a service
+seed and its held-out ones, default settings (a 60 s budget), one plan each as a service
 worker runs it (both cores: a companion process where the planner forks one). Reported
 per task: the outcome, whether it says `infeasible` (`plan.infeasibility` set, and by what:
 the checks before a solve, agreeing starts, the duration probe), the evidence (the
@@ -11,7 +11,7 @@ shortest duration found, or the first violated field), wall and CPU time, and th
 as a share of the budget; per category and seed the share said infeasible within a quarter
 of the budget; and the latest any plan returned past its budget.
 
-    python -m bench impossible [--seeds 20261126,16180339] [--count 40]
+    python -m bench impossible [--seeds 20261126,16180339,14142135] [--count 40]
 """
 
 from __future__ import annotations
