@@ -88,7 +88,8 @@ def main(argv: list[str]) -> int:
                        ("median", "median wall [s]"), ("max", "max wall [s]")]
     text = "\n\n".join([
         f"The generated impossible suite (`planner.impossible_suite`, {args.count} tasks a "
-        f"seed; seeds {args.seeds}), default settings and a {BUDGET:g} s budget, one plan "
+        f"seed; seeds {', '.join(args.seeds.split(','))}), default settings and a "
+        f"{BUDGET:g} s budget, one plan "
         f"each in one process that may fork its companion. {quick} of {len(rows)} "
         f"({100 * quick / len(rows):.0f} %) end `infeasible` with evidence within a quarter "
         f"of the budget; " + (f"the latest plan returned {latest:.3g} s past its budget. "
