@@ -39,7 +39,7 @@ import numpy as np
 
 from planner import coupling_block
 from planner.model import Robot
-from planner.scene import Bounds, DurationRange, Scene
+from planner.scene import Bounds, Scene
 
 BOUND_TOL = 1e-6
 """Relative tolerance of a bound check, times max(1, |bound|) (verify's BOUND_TOL)."""
@@ -103,11 +103,6 @@ def _bounds(scene: Scene) -> list[Issue]:
     return issues
 
 
-def _durations(scene: Scene) -> tuple[float, float]:
-    d = scene.task.duration
-    return (d.min, d.max) if isinstance(d, DurationRange) else (float(d), float(d))
-
-
 def _velocity_reach(scene: Scene) -> list[Issue]:
     """Joints whose given displacement no duration of the task lets their velocity bounds
     cover: q_f - q_0 = integral of dq, within [lower T, upper T]."""
@@ -115,7 +110,7 @@ def _velocity_reach(scene: Scene) -> list[Issue]:
     issues: list[Issue] = []
     if task.velocity_bounds is None:
         return issues
-    t_min, t_max = _durations(scene)
+    t_min, t_max = scene.task.duration_span
     for joint, (q0, qf) in enumerate(zip(task.initial.q, task.final.q, strict=True)):
         if qf is None:
             continue
@@ -293,7 +288,7 @@ def _zero_torque(scene: Scene) -> list[Issue]:
     if not given.any():
         return []
     x0 = np.array([*task.initial.q, *task.initial.dq], float)
-    t_min, t_max = _durations(scene)
+    t_min, t_max = scene.task.duration_span
     miss = _free_miss(scene.robot, x0, final, given, t_min, t_max)
     if miss is None or miss <= FREE_TOL:
         return []

@@ -139,6 +139,12 @@ class Task(BaseModel):
         default=None, description="model errors the plan's verification replays its "
                                   "feedback under (verification.robustness)")
 
+    @property
+    def duration_span(self) -> tuple[float, float]:
+        """[s] The shortest and the longest duration allowed (equal for a fixed one)."""
+        d = self.duration
+        return (d.min, d.max) if isinstance(d, DurationRange) else (float(d), float(d))
+
     @model_validator(mode="after")
     def _positive(self) -> Task:
         if isinstance(self.duration, float) and self.duration <= 0.0:

@@ -280,7 +280,7 @@ class _DurationProbe:
         if found is None or found.too_short or found.plan is None:
             return None
         fastest = found.plan
-        shortest_allowed, longest = shortest.durations(self.scene)
+        shortest_allowed, longest = self.scene.task.duration_span
         T = min(max(fastest.duration, shortest_allowed), longest)
         breaks = np.asarray(fastest.t) / fastest.duration
         breaks[0], breaks[-1] = 0.0, 1.0

@@ -90,12 +90,6 @@ def applies(scene: Scene) -> bool:
     return limited and task.tracking is None and task.co_design is None
 
 
-def durations(scene: Scene) -> tuple[float, float]:
-    """[s] The task's shortest and longest duration (equal for a fixed one)."""
-    d = scene.task.duration
-    return (d.min, d.max) if isinstance(d, DurationRange) else (float(d), float(d))
-
-
 def unlimited(scene: Scene, T: float) -> Scene:
     """The task at duration T [s] without its torque limit and velocity bounds, its
     effort minimised (at least a little of it, so that the problem has an objective)."""
@@ -185,7 +179,7 @@ def probe(scene: Scene, budget: Budget, solve: Solver, plan_motion: Planner,
     `share` of the plan's wall time; `plan_motion` plans the unlimited motion, `solve` the
     time-optimal task from its stretch; `lowest` [s]: the time-optimal solve's shortest
     duration (default: the task's)."""
-    shortest, longest = durations(scene)
+    shortest, longest = scene.task.duration_span
     shortest = shortest if lowest is None else lowest
     sub = _share(budget, share)
     slow = MOTION_SPAN * longest
