@@ -71,8 +71,6 @@ import contextlib
 import dataclasses
 import math
 import os
-import pprint
-import textwrap
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -85,6 +83,7 @@ from planner.dynamics import Dynamics
 from planner.examples import SEED_WAVES, seed_arm
 from planner.model import Robot, Wave
 from planner.scene import DurationRange, Scene
+from planner.stored_records import module_text
 from planner.suite import random_robot, singular_configuration
 
 if TYPE_CHECKING:
@@ -579,14 +578,10 @@ def crossing_zeros(scene: Scene) -> np.ndarray:
 # --------------------------------------------------------------------------- stored witnesses
 
 WITNESS_FILE = Path(__file__).with_name("hard_suite_witnesses.py")
-_HEADER = '''"""What the witness solves of the hard suite's bounds tasks found, for the tasks of
+_DOCSTRING = """What the witness solves of the hard suite's bounds tasks found, for the tasks of
 planner.hard_suite.SEED and HELD_OUT within COUNT: per (seed, index), per move drawn,
 `planner.hard_suite.Witnessed` as a dict. Written by `python -m planner.hard_suite`; not
 edited by hand."""
-
-from typing import Any
-
-'''
 
 
 def write_witnesses(seeds: tuple[int, ...] = (SEED, *HELD_OUT), count: int = COUNT,
@@ -604,20 +599,9 @@ def write_witnesses(seeds: tuple[int, ...] = (SEED, *HELD_OUT), count: int = COU
                 print(seed, name, flush=True)
     finally:
         _use_stored = True
-    records = {key: [dataclasses.asdict(found) for found in _solved[key]]
-               for key in sorted(_solved)}
-    WITNESS_FILE.write_text(_module(records))
-
-
-def _module(records: dict[tuple[int, int], list[dict[str, Any]]]) -> str:
-    """WITNESS_FILE's text holding `records`."""
-    lines = [_HEADER + "WITNESSES: dict[tuple[int, int], list[dict[str, Any]]] = {"]
-    for key, found in records.items():
-        lines.append(f"    {key!r}: [")
-        lines += [textwrap.indent(pprint.pformat(r, width=91, sort_dicts=False), " " * 8) + ","
-                  for r in found]
-        lines.append("    ],")
-    return "\n".join([*lines, "}", ""])
+    records = {key: [dataclasses.asdict(found) for found in found_list]
+               for key, found_list in _solved.items()}
+    WITNESS_FILE.write_text(module_text(_DOCSTRING, "WITNESSES", records))
 
 
 if __name__ == "__main__":

@@ -36,8 +36,6 @@ ones by default, and keeps the others); any other is solved when its task is dra
 from __future__ import annotations
 
 import math
-import pprint
-import textwrap
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -48,6 +46,7 @@ from planner import feasibility
 from planner.hard_suite import guess_peak
 from planner.model import Robot
 from planner.scene import Scene
+from planner.stored_records import module_text
 from planner.suite import random_robot
 
 SEED = 20261126
@@ -130,9 +129,14 @@ def _stored(key: tuple[int, int] | None, start: np.ndarray, goal: np.ndarray,
                 and np.allclose(record["start"], start, rtol=0.0, atol=1e-9) \
                 and np.allclose(record["goal"], goal, rtol=0.0, atol=1e-9) \
                 and record["limit"] == limit:
-            return Reference(**{**record, "start": tuple(record["start"]),
-                                "goal": tuple(record["goal"])})
+            return _reference(record)
     return None
+
+
+def _reference(record: dict[str, Any]) -> Reference:
+    """A stored record as a Reference."""
+    return Reference(**{**record, "start": tuple(record["start"]),
+                        "goal": tuple(record["goal"])})
 
 
 def time_optimal(robot: Robot, start, goal, limit: float) -> Scene:
@@ -304,14 +308,10 @@ def impossible_tasks(count: int = COUNT, seed: int = SEED) -> list[tuple[str, Sc
 
 # --------------------------------------------------------------------------- stored
 
-_HEADER = '''"""What the reference solves of the impossible suite's short tasks found, for the tasks
+_DOCSTRING = """What the reference solves of the impossible suite's short tasks found, for the tasks
 of planner.impossible_suite.SEED and HELD_OUT within COUNT: per (seed, index), per move
 drawn, `planner.impossible_suite.Reference` as a dict. Written by `python -m
 planner.impossible_suite`; not edited by hand."""
-
-from typing import Any
-
-'''
 
 
 def write_references(seeds: tuple[int, ...] = (SEED, *HELD_OUT), count: int = COUNT) -> None:
@@ -323,8 +323,7 @@ def write_references(seeds: tuple[int, ...] = (SEED, *HELD_OUT), count: int = CO
     _solved.clear()
     for key, records in REFERENCES.items():
         if key[0] not in seeds:
-            _solved[key] = [Reference(**{**r, "start": tuple(r["start"]),
-                                         "goal": tuple(r["goal"])}) for r in records]
+            _solved[key] = [_reference(record) for record in records]
     _use_stored = False
     try:
         for seed in seeds:
@@ -335,13 +334,8 @@ def write_references(seeds: tuple[int, ...] = (SEED, *HELD_OUT), count: int = CO
                           f"{found.iterations} iterations", flush=True)
     finally:
         _use_stored = True
-    lines = [_HEADER + "REFERENCES: dict[tuple[int, int], list[dict[str, Any]]] = {"]
-    for key in sorted(_solved):
-        lines.append(f"    {key!r}: [")
-        lines += [textwrap.indent(pprint.pformat(asdict(r), width=91, sort_dicts=False),
-                                  " " * 8) + "," for r in _solved[key]]
-        lines.append("    ],")
-    REFERENCE_FILE.write_text("\n".join([*lines, "}", ""]))
+    stored = {key: [asdict(r) for r in found] for key, found in _solved.items()}
+    REFERENCE_FILE.write_text(module_text(_DOCSTRING, "REFERENCES", stored))
 
 
 if __name__ == "__main__":
