@@ -71,11 +71,10 @@ def robustness(robot: Robot, interp: Interpolant, K: np.ndarray, uncertainty: Un
     alone: list[float] = []
     labels = []
     for label, model in models(robot, uncertainty):
-        (error, _, end), (_, _, drift) = replay(model, interp, start[None, :], K,
-                                                compiled=compiled, ends=True,
-                                                deadline=deadline) + \
-            replay(model, interp, start[None, :], None, compiled=compiled, ends=True,
-                   deadline=deadline)
+        (error, _, end), = replay(model, interp, start[None, :], K, compiled=compiled,
+                                  ends=True, deadline=deadline)
+        (_, _, drift), = replay(model, interp, start[None, :], None, compiled=compiled,
+                                ends=True, deadline=deadline)
         labels.append(label)
         tracking.append(np.inf if error is None else error)
         final.append(np.inf if end is None else float(np.abs(end - goal).max()))
