@@ -718,7 +718,8 @@ def hard_task_table(rows: list[dict], configs: list[str]) -> str:
 
 
 def _finite(values) -> list[float]:
-    return [float(v) for v in values if v is not None and v == v and math.isfinite(float(v))]
+    """The finite numbers among values (None, or "" from a CSV cell, where a row has none)."""
+    return [float(v) for v in values if v not in (None, "") and math.isfinite(float(v))]
 
 
 def limits_and_robustness(rows: list[dict]) -> str:
@@ -728,7 +729,7 @@ def limits_and_robustness(rows: list[dict]) -> str:
     ours = [r for r in rows if r["config"] == "undertow"]
     if not ours:
         return ""
-    limited = [r for r in ours if r.get("torque_excess") not in (None, "")
+    limited = [r for r in ours if _finite([r.get("torque_excess")])
                and r["status"] == "Solve_Succeeded" and r["verified"] in (True, "True")]
     excess = _finite(r["torque_excess"] for r in limited)
     late = _finite(r.get("past_budget") for r in ours)
@@ -770,10 +771,10 @@ def report_hard(args, argv: list[str], configs: list[str], rows: list[dict],
     kept: list[dict] = []
     if args.merge and (harness.RESULTS / csv).exists():
         ran = {(r["task"], r["config"]) for r in rows}
-        kept = [r for r in harness.read_csv(harness.RESULTS / csv)
-                if (r["task"], r["config"]) not in ran
+        earlier = harness.read_csv(harness.RESULTS / csv)
+        kept = [r for r in earlier if (r["task"], r["config"]) not in ran
                 and (r["config"] not in configs or chosen and not extra)]
-        order = {r["task"]: k for k, r in enumerate(harness.read_csv(harness.RESULTS / csv))}
+        order = {r["task"]: k for k, r in enumerate(earlier)}
         rows = sorted([r for r in kept if r["config"] in CONFIGS] + rows,
                       key=lambda r: (list(CONFIGS).index(r["config"]),
                                      order.get(r["task"], len(order))))
