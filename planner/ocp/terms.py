@@ -288,15 +288,16 @@ def margin_function(s: Structure) -> ca.Function:
     sym = derive(s)
     margin, sign = ca.SX.sym("margin"), ca.SX.sym("sign")
     mpa = sym.mass[s.passive_idx, s.active_idx]
-    gram = ca.mtimes(mpa, mpa.T) if mpa.size1() <= mpa.size2() else ca.mtimes(mpa.T, mpa)
-    shifted = gram / margin**2 - ca.SX.eye(gram.size1())
     square = mpa.size1() == mpa.size2()
-    orders = [] if square and mpa.size1() == 1 else range(1, gram.size1() + 1)
-    rows = [ca.det(shifted[:k, :k]) for k in orders]
-    if square and mpa.size1() == 2:
-        det = sign * ca.det(mpa)
+    if square and mpa.size1() == 1:
+        rows = []
+    elif square and mpa.size1() == 2:
         rest = ca.fmax(ca.sumsqr(mpa) - margin**2, 1e-6 * margin**2)
-        rows = [det / (margin * ca.sqrt(rest)) - 1]
+        rows = [sign * ca.det(mpa) / (margin * ca.sqrt(rest)) - 1]
+    else:
+        gram = ca.mtimes(mpa, mpa.T) if mpa.size1() <= mpa.size2() else ca.mtimes(mpa.T, mpa)
+        shifted = gram / margin**2 - ca.SX.eye(gram.size1())
+        rows = [ca.det(shifted[:k, :k]) for k in range(1, gram.size1() + 1)]
     if square:
         rows.append(sign * ca.det(mpa) / margin ** mpa.size1() - 1)
     return ca.Function("margin", [sym.q, sym.p, margin, sign], [ca.vertcat(*rows)])
