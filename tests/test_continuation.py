@@ -15,10 +15,11 @@ from app.settings import Settings
 from planner.dynamics import Dynamics
 from planner.examples import seed_arm
 from planner.ocp import continuation, plan, portfolio
+from planner.ocp.attempt import artefact
 from planner.ocp.instance import initial_point, instance
 from planner.ocp.mesh import Mesh
 from planner.ocp.monitor import STALL_FLOOR, STALL_WINDOW, IterationMonitor
-from planner.ocp.planner import _artefact, _interpolant
+from planner.ocp.outcome import interpolant
 from planner.ocp.solve import Budget, solve
 from planner.scene import Scene
 from planner.suite import singular_configuration
@@ -125,11 +126,11 @@ def _outcome(objective: float, error: float, success: bool = True) -> SimpleName
                            errors=np.array([error / 2, error]))
 
 
-def test_a_refinement_whose_objective_grows_without_gaining_accuracy_left_an_artefact():
-    assert _artefact(_outcome(723.0, 0.075), _outcome(2848.0, 0.11))
-    assert not _artefact(_outcome(723.0, 0.075), _outcome(1200.0, 0.01))  # more accurate
-    assert not _artefact(_outcome(1.12, 0.02), _outcome(1.13, 0.02))  # the same optimum
-    assert not _artefact(_outcome(723.0, 0.075, success=False), _outcome(2848.0, 0.11))
+def test_a_refinement_whose_objective_grows_without_gaining_accuracy_left_anartefact():
+    assert artefact(_outcome(723.0, 0.075), _outcome(2848.0, 0.11))
+    assert not artefact(_outcome(723.0, 0.075), _outcome(1200.0, 0.01))  # more accurate
+    assert not artefact(_outcome(1.12, 0.02), _outcome(1.13, 0.02))  # the same optimum
+    assert not artefact(_outcome(723.0, 0.075, success=False), _outcome(2848.0, 0.11))
 
 
 def test_a_companion_solves_the_continuation_and_is_gone_when_the_plan_returns(
@@ -177,7 +178,7 @@ def test_the_relaxed_nlps_virtual_torques_are_the_passive_joints_generalised_for
     x0 = initial_point(inst, continuation.relaxed_guess(crossing, robot, T), T, robot)
     solution = solve(inst, x0, Budget.of(200, 60.0), None, 0)
     assert solution.success
-    interp = _interpolant(inst, robot, T, solution.x)
+    interp = interpolant(inst, robot, T, solution.x)
     points = np.asarray(inst.problem.transcription.knot_positions)
     t = (inst.mesh.breaks[:-1, None] * T + np.diff(inst.mesh.breaks)[:, None] * T * points).ravel()
     dyn = Dynamics(robot)

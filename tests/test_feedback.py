@@ -13,7 +13,7 @@ from planner.dynamics import Dynamics
 from planner.examples import example
 from planner.model import Structure
 from planner.ocp import flow as flow_module
-from planner.ocp import planner as planner_module
+from planner.ocp import plan
 from planner.ocp.accuracy import SAMPLES, interval_errors
 from planner.ocp.feedback import PERTURBATION, growth_factor, linearise, replay
 from planner.ocp.flow import Flow, flow, inputs
@@ -22,20 +22,9 @@ from planner.suite import tasks
 
 
 def planned(sc: Scene):
-    """The plan of a scene and the interpolant it was built from."""
-    seen = {}
-    original = planner_module._interpolant
-
-    def keep(*args):
-        seen["interp"] = original(*args)
-        return seen["interp"]
-
-    planner_module._interpolant = keep
-    try:
-        result = planner_module.plan(sc)
-    finally:
-        planner_module._interpolant = original
-    return result, seen["interp"]
+    """The plan of a scene and the interpolant its checks ran on."""
+    result = plan(sc)
+    return result, result.interpolant()
 
 
 @pytest.fixture(scope="module")

@@ -12,7 +12,7 @@ from service_fixtures import client, two_link_scene
 
 from app.worker import _verdict
 from planner import feasibility
-from planner.ocp.infeasibility import AGREEING, CHECKS_STATUS, RESTART
+from planner.ocp.infeasibility import AGREEING, CHECKS_STATUS
 from planner.ocp.planner import plan
 from planner.scene import Scene
 from planner.simulate import simulate
@@ -161,7 +161,7 @@ def test_two_starts_that_agree_stop_the_retries_with_the_violated_rows():
     p = plan(scene)
     found = p.infeasibility
     assert found is not None and found.source == "solver"
-    starts = {a.split(":")[0] for a in found.attempts} - {RESTART}
+    starts = {a.split(":")[0] for a in found.attempts} - {"restart from the last iterate"}
     assert len(starts) == AGREEING  # a restart from an attempt's last iterate not counted
     assert found.attempt in p.solver.strategy and found.durations == [0.15]
     assert p.solver.status in ("Infeasible_Problem_Detected", "Restoration_Failed",
@@ -290,12 +290,13 @@ def test_the_stretch_factor_is_the_least_that_keeps_the_limit_in_gravity():
     assert peak(factor * (1 - 1e-6)) > limit / shortest.STRETCH_MARGIN
 
 
-def _attempt(name: str, status: str):
+def _attempt(name: str, status: str, continues: bool = False):
     from types import SimpleNamespace
 
     solution = SimpleNamespace(status=status, success=False, g=None)
     outcome = SimpleNamespace(solution=solution, finite=True)
-    return SimpleNamespace(start=SimpleNamespace(name=name), outcomes=[outcome]), outcome
+    start = SimpleNamespace(name=name, continues=continues)
+    return SimpleNamespace(start=start, outcomes=[outcome]), outcome
 
 
 def test_attempts_that_do_not_agree_leave_the_verdict_but_name_the_one_that_found_infeasibility():
@@ -315,7 +316,8 @@ def test_attempts_that_do_not_agree_leave_the_verdict_but_name_the_one_that_foun
     assert out.infeasibility is None
     assert out.solver.message == ("the iteration limit was reached; the attempt "
                                   "'inverse-dynamics start' ended Infeasible_Problem_Detected")
-    restart, _ = _attempt(infeasibility.RESTART, "Infeasible_Problem_Detected")
+    restart, _ = _attempt("restart from the last iterate", "Infeasible_Problem_Detected",
+                          continues=True)
     assert not infeasibility.agreed([first, other, restart])
     third, _ = _attempt("first mesh of 25 intervals", "Restoration_Failed")
     assert infeasibility.agreed([first, other, third])

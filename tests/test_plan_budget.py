@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 from app.settings import Settings
-from planner.ocp import planner as planner_module
 from planner.ocp.accuracy import CHUNK, interval_errors
 from planner.ocp.feedback import growth_factor
 from planner.ocp.planner import plan
@@ -84,20 +83,8 @@ def test_the_service_grace_exceeds_the_plans_margin():
 def test_the_interval_errors_and_the_replay_stop_at_the_deadline():
     """On 60 intervals (over CHUNK), a deadline already past leaves every interval
     unchecked and says where; a deadline ahead changes nothing."""
-    seen = {}
-    original = planner_module._interpolant
-
-    def keep(*args):
-        seen["interp"] = original(*args)
-        return seen["interp"]
-
     scene = chain_scene(2, intervals=60, refinement={"enabled": False})
-    planner_module._interpolant = keep
-    try:
-        planner_module.plan(scene)
-    finally:
-        planner_module._interpolant = original
-    interp, robot = seen["interp"], scene.robot
+    interp, robot = plan(scene).interpolant(), scene.robot
     assert interp.tau.coeffs.shape[0] == 60 > CHUNK
     free, status = interval_errors(robot, interp)
     assert status == "completed"

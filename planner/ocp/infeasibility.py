@@ -23,11 +23,12 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import replace
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from planner.feasibility import Issue
+from planner.ocp.attempt import Attempt
+from planner.ocp.outcome import Outcome
 from planner.ocp.problem import stages
 from planner.ocp.result import (
     DenseTrajectory,
@@ -42,9 +43,6 @@ from planner.ocp.result import (
 from planner.ocp.shortest import Probe
 from planner.ocp.solve import INFEASIBLE
 from planner.scene import DurationRange, Scene
-
-if TYPE_CHECKING:
-    from planner.ocp.planner import Attempt, Outcome
 
 AGREEING = 2
 """Attempts from different starts that must report infeasibility to stop the retries."""
@@ -65,18 +63,13 @@ def _reporting(attempts: list[Attempt]) -> list[tuple[Outcome, Attempt]]:
     return [(o, a) for a in attempts for o in a.outcomes if reported(o)]
 
 
-RESTART = "restart from the last iterate"
-"""The start (`planner.ocp.planner._starts`) that goes on from where an earlier one
-stopped: it is no independent witness of that one's verdict."""
-
-
 def agreed(attempts: list[Attempt]) -> bool:
     """Whether attempts from at least AGREEING different starts (a restart from an
     earlier attempt's last iterate not counted) reported infeasibility, and none converged
     (a converged solve, accurate or not, shows the NLP feasible)."""
     if any(o.solution.success for a in attempts for o in a.outcomes):
         return False
-    starts = {a.start.name for _, a in _reporting(attempts) if a.start.name != RESTART}
+    starts = {a.start.name for _, a in _reporting(attempts) if not a.start.continues}
     return len(starts) >= AGREEING
 
 
@@ -153,7 +146,7 @@ def evidence(scene: Scene, attempts: list[Attempt], best: Outcome,
     names = list(dict.fromkeys(f"{a.start.name}: {o.solution.status}" for o, a in found))
     rows = violated(best)
     largest = ", ".join(f"{v.kind} by {v.largest:.3g} (t = {v.time:.3g} s)" for v in rows[:3])
-    starts = len({a.start.name for _, a in found if a.start.name != RESTART})
+    starts = len({a.start.name for _, a in found if not a.start.continues})
     summary = (f"the task cannot be done {_within(scene)}: attempts from {starts} different "
                f"starts ended saying the constraints cannot all hold "
                f"({'; '.join(names)}); the closest, '{attempt.start.name}', still violates "

@@ -11,6 +11,7 @@ by itself when the process that forked it is gone, and is killed when the plan e
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import pickle
 import select
@@ -107,3 +108,29 @@ def _serve(run: Callable[[Handler], Plan], fd: int) -> None:
             out.write(data)
     finally:
         os._exit(code)
+
+
+class Watch:
+    """The plan's own progress handler beside a companion: it passes reports on, and also
+    stops the solve once the companion has a verified plan; `cancelled`: the caller's
+    handler stopped it."""
+
+    def __init__(self, companion: Companion, progress: Handler | None):
+        self.companion, self.progress, self.cancelled = companion, progress, False
+
+    def __call__(self, report: Progress) -> bool:
+        if self.progress is not None and self.progress(report) is False:
+            self.cancelled = True
+            return False
+        return not self.companion.verified()
+
+
+def better(own: Plan, other: Plan) -> bool:
+    """Whether `own` is at least as good as `other`: verified, then converged, then the
+    smaller largest interval error."""
+    def rank(p: Plan) -> tuple[bool, bool, float]:
+        error = p.verification.local_error
+        return (not p.verification.verified, not p.solver.success,
+                math.inf if error is None else error)
+
+    return rank(own) <= rank(other)

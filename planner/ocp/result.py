@@ -16,6 +16,7 @@ from planner.dynamics import Dynamics
 from planner.errors import InputError
 from planner.model import Robot, Wave
 from planner.ocp.interpolant import PiecewisePolynomial
+from planner.ocp.transcription import Interpolant
 from planner.scene import Uncertainty
 from planner.torque import TorquePolynomial
 
@@ -382,6 +383,18 @@ class Plan(_Out):
         waves = {w.joint: Wave(amplitude=w.amplitude, frequency=w.frequency, phase=w.phase)
                  for w in self.waves}
         return robot.with_waves(waves) if waves else robot
+
+    def interpolant(self) -> Interpolant:
+        """The plan's angles, rates and delivered torque as piecewise polynomials, exactly
+        those its checks ran on; ValueError for a plan without them (refused before a
+        solve, or stored before they were)."""
+        if self.states is None or self.torque is None:
+            raise ValueError("the plan holds no polynomials: no solve ran, or it was stored "
+                             "before they were")
+        q, dq = self.states.polynomials()
+        tau = PiecewisePolynomial(np.asarray(self.torque.breaks, float),
+                                  np.asarray(self.torque.coefficients, float))
+        return Interpolant(q, dq, tau)
 
     def sample(self, robot: Robot, times: Sequence[float]) -> PlanSample:
         """The plan at `times` [s] (at most MAX_SAMPLE_TIMES, each within [0, duration]):

@@ -1,0 +1,170 @@
+"""An attempt: where it starts (`Start`) and its solves in order (`Attempt`): preliminary
+solves that prepare a guess (a coarse mesh, the relaxed NLPs of the continuation), the
+first solve on its own mesh, and the refinements of that mesh while the plan is not
+accurate (`planner.ocp.refine`)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from planner.model import Robot
+from planner.ocp import continuation
+from planner.ocp.guess import Guess, interpolant_guess
+from planner.ocp.instance import instance
+from planner.ocp.mesh import Mesh
+from planner.ocp.monitor import Handler
+from planner.ocp.outcome import Outcome, relaxed_solve, solve_on
+from planner.ocp.refine import refined
+from planner.ocp.result import NlpSolution
+from planner.ocp.solve import Budget
+from planner.scene import Scene
+
+
+@dataclass(frozen=True)
+class Start:
+    """Where an attempt starts: its name (the plan's `solver.strategy`), the mesh of its
+    first solve, the initial guess with what it was, and the duration [s] and robot (the
+    co-designed waves) it starts from."""
+
+    name: str
+    mesh: Mesh
+    guess: Guess
+    guess_used: str
+    T: float
+    robot: Robot
+    point: NlpSolution | None = None
+    """An earlier solution of the same problem on the same mesh: the start, primal and dual."""
+    coarse: Mesh | None = None
+    """A coarser mesh solved first, whose plan (if it converged) starts the solve on `mesh`."""
+    relaxed: bool = False
+    """Start from the continuation of relaxed NLPs (`planner.ocp.continuation`) on `mesh`."""
+    may_stall: bool = False
+    """Stop its first solves when they stall (`planner.ocp.monitor`): the scene's own start,
+    which the other starts are there to rescue."""
+    time_share: float = 1.0
+    """The most of the plan's wall time its first solves may take (the scene's own start
+    of a task whose duration the probe may show too short: `shortest.FIRST_SHARE`)."""
+    continues: bool = False
+    """It goes on from where an earlier attempt stopped (its last iterate), so its verdict
+    is no independent witness of that attempt's."""
+
+
+@dataclass
+class Attempt:
+    """The solves of one start, in order (`passes`): those that prepare a guess (on a
+    coarse mesh, or of the relaxed NLPs) and those on its mesh and the refinements of that
+    (`outcomes`, the plans it offers)."""
+
+    start: Start
+    passes: list[Outcome]
+    outcomes: list[Outcome]
+
+    def add(self, outcome: Outcome) -> None:
+        """Record a solve of a plan the attempt may return."""
+        self.passes.append(outcome)
+        self.outcomes.append(outcome)
+
+
+def attempt(scene: Scene, start: Start, budget: Budget, progress: Handler | None,
+            first_pass: int) -> Attempt:
+    """The solves of one start: its first solves (`first_solves`), then its refinements
+    (`refine`); `first_pass`: the plan's solves before it."""
+    preliminary, first = first_solves(scene, start, budget, progress, first_pass)
+    made = Attempt(start, [*preliminary, first], [first])
+    refine(scene, made, budget, progress, first_pass)
+    return made
+
+
+def first_solves(scene: Scene, start: Start, budget: Budget, progress: Handler | None,
+                 first_pass: int) -> tuple[list[Outcome], Outcome]:
+    """An attempt's preliminary solves (on its coarse mesh, or of the relaxed NLPs), and
+    its first solve on its own mesh: from the preliminary plan where that converged, else
+    from the start's guess; together within the start's share of the wall time."""
+    with budget.capped_time(start.time_share):
+        return _first_solves_within(scene, start, budget, progress, first_pass)
+
+
+def _first_solves_within(scene: Scene, start: Start, budget: Budget,
+                         progress: Handler | None,
+                         first_pass: int) -> tuple[list[Outcome], Outcome]:
+    guess, robot, T = start.guess, start.robot, start.T
+    preliminary: list[Outcome] = []
+    if start.coarse is not None:
+        preliminary = [solve_on(scene, instance(scene, robot, start.coarse, T), robot, T,
+                                guess, budget, progress, first_pass, start.name,
+                                stall=start.may_stall)]
+        if budget.spent:  # no time left for its own mesh: the coarse plan is the attempt's
+            return [], preliminary[0]
+        if preliminary[0].solution.success:
+            guess, robot, T = (interpolant_guess(preliminary[0].interp, preliminary[0].T),
+                               preliminary[0].robot, preliminary[0].T)
+    if start.relaxed:
+        preliminary = continuation_solves(scene, start, budget, progress, first_pass)
+        last = preliminary[-1]
+        if last.finite:
+            guess = continuation.active_guess(last.interp, last.T, len(robot.active))
+            robot, T = last.robot, last.T
+    first = solve_on(scene, instance(scene, robot, start.mesh, T), robot, T, guess, budget,
+                     progress, first_pass + len(preliminary), start.name, start.point,
+                     start.may_stall)
+    return preliminary, first
+
+
+def continuation_solves(scene: Scene, start: Start, budget: Budget,
+                        progress: Handler | None, first_pass: int) -> list[Outcome]:
+    """The relaxed NLPs' solves, each weight of `continuation.VIRTUAL_WEIGHTS` in turn from
+    the solution before, until the virtual torques are negligible, a solve fails or the
+    budget is spent (at least one solve)."""
+    na = len(start.robot.active)
+    outcomes: list[Outcome] = []
+    for weight in continuation.VIRTUAL_WEIGHTS:
+        before = outcomes[-1].solution if outcomes else None
+        point = None if before is None else (before.x, before.lam_x, before.lam_g)
+        inst = instance(scene, start.robot, start.mesh, start.T, weight)
+        outcome = relaxed_solve(scene, inst, start.robot, start.T, start.name, start.guess,
+                                point, budget, progress, first_pass + len(outcomes), weight)
+        outcomes.append(outcome)
+        if not (outcome.finite and outcome.solution.success) or budget.spent:
+            break
+        if continuation.virtual_peak(outcome.interp, na) < continuation.NEGLIGIBLE:
+            break
+    return outcomes
+
+
+def refine(scene: Scene, made: Attempt, budget: Budget, progress: Handler | None,
+           first_pass: int) -> None:
+    """Refine the mesh of the attempt's last outcome while it converged but is not
+    accurate, and stop at an artefact of the mesh (`artefact`): the next start follows.
+    `first_pass`: the plan's solves before the attempt's."""
+    refinement, tolerance = scene.transcription.refinement, scene.solver.resimulation_tolerance
+    outcomes = made.outcomes
+    while refinement.enabled and len(outcomes) <= refinement.max_passes and not budget.spent:
+        last = outcomes[-1]
+        if len(outcomes) > 1 and artefact(outcomes[-2], last) \
+                or not last.solution.success or last.accurate(tolerance):
+            return
+        mesh = refined(last.inst.mesh, last.errors, last.inst.problem.transcription.order,
+                       tolerance, refinement.max_intervals)
+        if mesh is None:
+            return
+        inst = instance(scene, last.robot, mesh, last.T)
+        made.add(solve_on(scene, inst, last.robot, last.T,
+                          interpolant_guess(last.interp, last.T), budget, progress,
+                          first_pass + len(made.passes), last.record.strategy))
+
+
+ARTEFACT_GROWTH = 2.0
+"""A refined plan whose objective exceeds its predecessor's by this factor, no more
+accurate than half its error, left an optimum that the coarser mesh made up."""
+
+
+def artefact(before: Outcome, after: Outcome) -> bool:
+    """Whether refining `before` into `after` moved away from a mesh artefact: a refined
+    solve stays at a true optimum (a pass after the first changes the objective by the
+    discretisation error), while at an artefact the objective grows pass after pass."""
+    f0, f1 = before.solution.objective, after.solution.objective
+    if not (before.solution.success and math.isfinite(f0) and math.isfinite(f1)) or f0 <= 0:
+        return False
+    error0, error1 = float(before.errors.max()), float(after.errors.max())
+    return f1 > ARTEFACT_GROWTH * f0 and not error1 < error0 / 2

@@ -1,0 +1,156 @@
+"""The plan a strategy returns: the best outcome of its attempts, sampled, checked
+(`planner.ocp.verify`) and reported with every solve and the infeasibility the attempts
+or the duration probe establish (`planner.ocp.infeasibility`)."""
+
+from __future__ import annotations
+
+import itertools
+import math
+import time
+
+import numpy as np
+
+from planner.ocp import infeasibility
+from planner.ocp.attempt import Attempt
+from planner.ocp.feedback import REPLAY_SAMPLES
+from planner.ocp.outcome import NOT_FINITE, Outcome
+from planner.ocp.result import (
+    DenseTrajectory,
+    Feedback,
+    MeshPass,
+    NlpSolution,
+    Plan,
+    SolverReport,
+    StatePolynomials,
+    Verification,
+    WaveOut,
+)
+from planner.ocp.shortest import Probe
+from planner.ocp.solve import Budget
+from planner.ocp.verify import verify
+from planner.scene import Scene
+from planner.torque import TorquePolynomial
+
+DENSE_POINTS = 2000  # about this many dense samples per plan, at least REPLAY_SAMPLES per
+# interval and a multiple of them, so that the replays' samples are among the dense ones
+
+
+def best_of(attempts: list[Attempt]) -> tuple[Outcome, Attempt]:
+    """The outcome the plan reports and its attempt: converged plans first, then the
+    smallest interval error; where the attempts agree that the task is infeasible, the
+    most informative of them."""
+    ranked = [(o, a) for a in attempts for o in a.outcomes]
+    best = min(ranked, key=lambda pair: (not pair[0].solution.success, pair[0].worst_error()))
+    if infeasibility.agreed(attempts):
+        return infeasibility.most_informative(attempts) or best
+    return best
+
+
+def plan_of(scene: Scene, attempts: list[Attempt], budget: Budget,
+            probe: Probe | None = None, probe_after: int = 0) -> Plan:
+    """The plan of the best outcome of the attempts, checked, with the infeasibility the
+    attempts or the duration probe (`probe`, which ran after the plan's first
+    `probe_after` solves) establish."""
+    best, attempt = best_of(attempts)
+    outcomes = [o for a in attempts for o in a.passes]
+    sol, interp = best.solution, best.interp
+    breaks = best.inst.mesh.breaks * best.T
+    t_dense = dense_times(breaks)
+    verification, feedback = _checks(scene, best, t_dense, budget)
+    success, note = sol.success, sol.message
+    if not best.finite:
+        success, note = False, note or "the solve produced non-finite values"
+    built = [o.inst for o in outcomes if not o.inst.cache_hit]
+    refined_by = " + mesh refinement" if best is not attempt.outcomes[0] else ""
+    plan = Plan(
+        t=breaks.tolist(), q=_finite(interp.q(breaks)), dq=_finite(interp.dq(breaks)),
+        ddq=_finite(interp.dq(breaks, derivative=1)), tau=_finite(interp.tau(breaks)),
+        dense=DenseTrajectory(t=t_dense.tolist(), q=_finite(interp.q(t_dense)),
+                              tau=_finite(interp.tau(t_dense))),
+        torque=TorquePolynomial(breaks=breaks.tolist(), coefficients=_finite(interp.tau.coeffs)),
+        states=StatePolynomials(breaks=breaks.tolist(), q=_finite(interp.q.coeffs),
+                                dq=_finite(interp.dq.coeffs)),
+        duration=best.T,
+        objective=sol.objective if math.isfinite(sol.objective) else None,
+        waves=waves_of(best),
+        solver=SolverReport(status=sol.status, success=success, message=note,
+                            iterations=budget.used,
+                            build_time=sum(i.problem.build_time for i in built),
+                            solve_time=sum(o.solution.time for o in outcomes),
+                            total_time=time.perf_counter() - budget.started,
+                            cache_hit=outcomes[0].inst.cache_hit,
+                            compiled=outcomes[0].inst.problem.compiled,
+                            initial_guess=attempt.start.guess_used,
+                            strategy=attempt.start.name + refined_by),
+        mesh_passes=_records(outcomes, probe, probe_after),
+        feedback=feedback, verification=verification, solution=_nlp_solution(best))
+    return infeasibility.annotate(plan, scene, attempts, best, attempt, probe)
+
+
+def dense_times(breaks: np.ndarray) -> np.ndarray:
+    """The plan's dense sample times [s] (about DENSE_POINTS, REPLAY_SAMPLES per interval
+    or a multiple of them, and the last break)."""
+    per = REPLAY_SAMPLES * max(1, math.ceil(DENSE_POINTS / (REPLAY_SAMPLES * len(breaks))))
+    return np.concatenate([np.linspace(a, b, per, endpoint=False)
+                           for a, b in itertools.pairwise(breaks)] + [breaks[-1:]])
+
+
+def _checks(scene: Scene, best: Outcome, t_dense: np.ndarray,
+            budget: Budget) -> tuple[Verification, Feedback | None]:
+    """The outcome's verification and feedback (`planner.ocp.verify`); none for a
+    non-finite one."""
+    if not best.finite:
+        return unverified(scene.solver.resimulation_tolerance), None
+    task = scene.task
+    return verify(best.robot, best.interp, t_dense, best.errors, best.errors_status,
+                  best.replayed, scene.solver.resimulation_tolerance, task.torque_limit,
+                  scene.solver.jit, task.position_bounds, task.velocity_bounds,
+                  task.uncertainty, scene.solver.robustness, budget.deadline)
+
+
+def waves_of(best: Outcome) -> list[WaveOut]:
+    """The waves of the outcome's robot (the co-designed ones after co-design)."""
+    return [WaveOut(joint=j, amplitude=link.wave.amplitude, frequency=link.wave.frequency,
+                    phase=link.wave.phase)
+            for j, link in enumerate(best.robot.links) if link.wave is not None]
+
+
+def _records(outcomes: list[Outcome], probe: Probe | None, after: int) -> list[MeshPass]:
+    """Every solve of the plan in the order they ran, the duration probe's included."""
+    records = [o.record for o in outcomes]
+    if probe is None:
+        return records
+    return records[:after] + probe.passes + records[after:]
+
+
+def _nlp_solution(outcome: Outcome) -> NlpSolution | None:
+    """The outcome's NLP solution, to warm-start a later plan from (None without multipliers)."""
+    sol = outcome.solution
+    if sol.lam_x is None or sol.lam_g is None or not outcome.finite:
+        return None
+    return NlpSolution(fingerprint=outcome.inst.problem.key.fingerprint(),
+                       breaks=outcome.inst.mesh.breaks.tolist(), x=sol.x.tolist(),
+                       lam_x=np.nan_to_num(sol.lam_x).tolist(),
+                       lam_g=np.nan_to_num(sol.lam_g).tolist())
+
+
+def unverified(tolerance: float) -> Verification:
+    """The verification of a plan whose solve gave non-finite values: nothing checked."""
+    return Verification(resimulation_error=None, resimulation_status=NOT_FINITE,
+                        verified=False, tolerance=tolerance, defect=None, min_sigma=None,
+                        waveless_min_sigma=None, waveless_singular_crossings=[])
+
+
+def joined(chosen: Plan, also: list[MeshPass], budget: Budget) -> Plan:
+    """The chosen plan, with the solves of the process that lost listed too, and the
+    plan's whole wall time."""
+    report = chosen.solver.model_copy(update={
+        "iterations": chosen.solver.iterations + sum(p.iterations for p in also),
+        "total_time": time.perf_counter() - budget.started})
+    return chosen.model_copy(update={"solver": report,
+                                     "mesh_passes": [*also, *chosen.mesh_passes]})
+
+
+def _finite(a: np.ndarray) -> list:
+    """Nested lists, with any non-finite entry replaced by 0 (the plan then says it failed)."""
+    return np.where(np.isfinite(a), a, 0.0).tolist()

@@ -1,0 +1,161 @@
+"""The starts a plan tries, in order: an earlier plan's (`warm_starts`), then the scene's
+own (`own_starts`; docs/planner.md, "Retries")."""
+
+from __future__ import annotations
+
+import contextlib
+import math
+from collections.abc import Iterator
+from typing import Protocol
+
+import numpy as np
+
+from planner.errors import InputError
+from planner.model import Robot
+from planner.ocp import continuation, shortest
+from planner.ocp.attempt import Attempt, Start
+from planner.ocp.guess import (
+    Guess,
+    hermite_guess,
+    interpolant_guess,
+    inverse_dynamics_guess,
+    plan_guess,
+)
+from planner.ocp.mesh import Mesh
+from planner.ocp.problem import ProblemKey
+from planner.ocp.result import Plan
+from planner.scene import DurationRange, Scene
+
+COARSE_INTERVALS = 50  # a uniform mesh finer than this is first solved on this many intervals
+
+
+class DurationProbe(Protocol):
+    """What the scene's own starts ask of the plan's duration probe
+    (`planner.ocp.duration_probe`)."""
+
+    @property
+    def too_short(self) -> bool: ...
+
+    def run(self, attempts: list[Attempt]) -> None: ...
+
+    def start(self) -> Start | None: ...
+
+
+def warm_starts(scene: Scene, robot: Robot, T: float, warm_start: Plan | None,
+                stall: bool = True) -> Iterator[Start]:
+    """The attempt an earlier plan gives, tried before the scene's own, which follow it
+    unchanged when it fails: its NLP solution, primal and dual, where it solved the same
+    problem on a mesh at least as fine as the scene's (its refined mesh is kept); else its
+    trajectory as the initial guess on the scene's own mesh, stopped when it stalls
+    (stall: as the scene's own start)."""
+    if warm_start is None:
+        return
+    guess = earlier_guess(robot, warm_start)
+    earlier, mesh = warm_start.solution, first_mesh(scene)
+    if earlier is not None:
+        solved_on = Mesh(np.asarray(earlier.breaks))
+        same = ProblemKey.of(scene, solved_on.intervals).fingerprint() == earlier.fingerprint
+        if same and solved_on.intervals >= mesh.intervals:
+            yield Start("warm start", solved_on, guess, "warm start", warm_start.duration,
+                        robot, earlier)
+            return
+    yield Start("earlier plan as the guess", mesh, guess, "warm start", T, robot,
+                may_stall=stall)
+
+
+def own_starts(scene: Scene, robot: Robot, T: float, attempts: list[Attempt],
+               probe: DurationProbe | None = None, stall: bool = True) -> Iterator[Start]:
+    """The scene's own attempts, in order, each tried while the ones before it have not
+    given a converged plan (with mesh refinement on: an accurate one): the scene's own
+    start (with refinement on, a uniform mesh of over COARSE_INTERVALS intervals solved on
+    that many first); after it the duration probe, where given (when it shows the duration
+    too short no start follows, and a time-optimal plan it found within the task's
+    durations is the next start; where the probe applies, the scene's own start may take
+    `shortest.FIRST_SHARE` of the wall time before it runs); the continuation from relaxed
+    dynamics, where it applies; then the rescues (`_rescues`). stall: the scene's own start
+    is stopped when it stalls (where no companion process solves the continuation)."""
+    mesh = first_mesh(scene)
+    guess, used = scene_guess(scene, robot, T)
+    share = shortest.FIRST_SHARE if probe is not None and shortest.applies(scene) else 1.0
+    tr = scene.transcription
+    if tr.refinement.enabled and tr.breaks is None and tr.intervals > COARSE_INTERVALS:
+        yield Start("coarse to fine", mesh, guess, used, T, robot,
+                    coarse=Mesh.uniform(COARSE_INTERVALS), may_stall=stall, time_share=share)
+    else:
+        yield Start("direct", mesh, guess, used, T, robot, may_stall=stall, time_share=share)
+    if probe is not None:
+        probe.run(attempts)
+        if probe.too_short:
+            return
+        fastest = probe.start()
+        if fastest is not None:
+            yield fastest
+    if continuation.applies(scene):
+        yield continuation_start(scene, robot, T)
+    yield from _rescues(scene, robot, T, attempts, used)
+
+
+def _rescues(scene: Scene, robot: Robot, T: float, attempts: list[Attempt],
+             used: str) -> Iterator[Start]:
+    """The last starts: a restart from the last iterate of the scene's start where that
+    neither converged nor stalled; the classical inverse dynamics as the initial guess; a
+    first mesh of twice, then of half the intervals."""
+    last = [a for a in attempts if not a.start.relaxed][-1].outcomes[-1]
+    if last.finite and not last.solution.success and last.solution.status != "Stalled":
+        yield Start("restart from the last iterate", last.inst.mesh,
+                    interpolant_guess(last.interp, last.T), "the last iterate", last.T,
+                    last.robot, continues=True)
+    if used != "inverse-dynamics" and _inverse_dynamics_applies(robot):
+        with contextlib.suppress(ValueError):
+            yield Start("inverse-dynamics start", first_mesh(scene),
+                        inverse_dynamics_guess(scene, robot, T), "inverse-dynamics", T, robot)
+    first = hermite_guess(scene, robot, T)
+    intervals = scene.transcription.intervals
+    for count in (2 * intervals, max(intervals // 2, 1)):
+        yield Start(f"first mesh of {count} intervals", Mesh.uniform(count), first,
+                    "interpolation", T, robot)
+
+
+def first_mesh(scene: Scene) -> Mesh:
+    """The scene's own first mesh: its breaks, else equal intervals."""
+    tr = scene.transcription
+    return Mesh(np.asarray(tr.breaks)) if tr.breaks else Mesh.uniform(tr.intervals)
+
+
+def continuation_start(scene: Scene, robot: Robot, T: float) -> Start:
+    """The continuation start (`planner.ocp.continuation`) on the scene's first mesh."""
+    return Start("continuation", first_mesh(scene), continuation.relaxed_guess(scene, robot, T),
+                 "relaxed dynamics", T, robot, relaxed=True)
+
+
+def _inverse_dynamics_applies(robot: Robot) -> bool:
+    """The classical inverse dynamics needs passive joints and as many active ones."""
+    return 0 < len(robot.passive) <= len(robot.active)
+
+
+def earlier_guess(robot: Robot, earlier: Plan) -> Guess:
+    """An earlier plan's trajectory as the initial guess; InputError when it is of
+    another arm."""
+    shape = (len(earlier.q[0]), len(earlier.tau[0]))
+    if shape != (robot.n, len(robot.active)):
+        raise InputError(f"warm_start: the earlier plan is of an arm with {shape[0]} joints, "
+                         f"{shape[1]} of them active; this one has {robot.n}, "
+                         f"{len(robot.active)}")
+    return plan_guess(earlier)
+
+
+def scene_guess(scene: Scene, robot: Robot, T: float) -> tuple[Guess, str]:
+    """The scene's initial guess (`solver.initial_guess`) and what it was: an inverse
+    dynamics that cannot be computed leaves the interpolation."""
+    if scene.solver.initial_guess == "inverse-dynamics":
+        try:
+            return inverse_dynamics_guess(scene, robot, T), "inverse-dynamics"
+        except ValueError as exc:
+            return hermite_guess(scene, robot, T), f"interpolation; inverse-dynamics refused: {exc}"
+    return hermite_guess(scene, robot, T), "interpolation"
+
+
+def duration_guess(scene: Scene) -> float:
+    """The duration [s] a plan starts from: the task's, or the geometric mean of its range."""
+    d = scene.task.duration
+    return math.sqrt(d.min * d.max) if isinstance(d, DurationRange) else d
