@@ -206,7 +206,6 @@ def check_plot_name(path: str | None) -> None:
 
 def cmd_plan(args: argparse.Namespace) -> int:
     from planner.ocp import plan
-    from planner.ocp.verify import unverified_reason
     from planner.scene import Scene
 
     check_plot_name(args.plot)
@@ -233,12 +232,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
               f"{len(v.waveless_singular_crossings)} waveless singular crossing(s)")
     if bar.stop:
         return INTERRUPTED
-    if result.infeasibility is not None:
-        say(args, f"infeasible: {result.infeasibility.summary}")
-    reason = unverified_reason(v)
-    if s.success and reason:
-        say(args, f"not verified: {reason}")
-    return OK if s.success and reason is None else FAILED
+    say(args, result.message or result.status or "")
+    return OK if result.status == "verified" else FAILED
 
 
 def cmd_design_wave(args: argparse.Namespace) -> int:

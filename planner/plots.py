@@ -37,7 +37,8 @@ from planner.dynamics import Dynamics
 from planner.errors import InputError
 from planner.inverse import InverseDynamicsRequest, InverseDynamicsResult
 from planner.model import Robot, Wave
-from planner.ocp.result import Plan, Verification
+from planner.ocp.result import Plan
+from planner.ocp.verification import Verification
 from planner.scene import Task
 
 Format = Literal["png", "svg"]

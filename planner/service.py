@@ -21,7 +21,7 @@ from planner.ocp import methods
 from planner.ocp.planner import plan
 from planner.ocp.result import MAX_SAMPLE_TIMES, NlpSolution, Plan, PlanSample, Progress
 from planner.ocp.transcription import AnyTranscription
-from planner.ocp.verify import unverified_reason
+from planner.ocp.verdict import unverified_reason
 from planner.scene import DurationRange, Method, Scene, Transcription
 
 METHODS: tuple[str, ...] = get_args(Method)

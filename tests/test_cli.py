@@ -135,7 +135,7 @@ def test_an_optimal_plan_that_fails_its_resimulation_check_exits_1_and_says_why(
     v = written.verification
     assert code == cli.FAILED and written.solver.success and v.verified is False
     assert len(written.mesh_passes) == 2
-    assert (f"not verified: re-integrated interval by interval, the delivered torque departs "
+    assert (f"unverified: re-integrated interval by interval, the delivered torque departs "
             f"from the plan by {v.local_error:.3g} rad (tolerance 1e-12 rad)") in err
 
 

@@ -16,7 +16,7 @@ from planner.ocp.feedback import REPLAY_SAMPLES
 from planner.ocp.interpolant import PiecewisePolynomial, bernstein, hull
 from planner.ocp.problem import ProblemKey, problem
 from planner.ocp.terms import TorqueLimit
-from planner.ocp.verify import unverified_reason
+from planner.ocp.verdict import unverified_reason
 from planner.scene import Scene
 
 METHODS = ("legendre", "radau", "hermite-simpson", "trapezoidal", "multiple-shooting")

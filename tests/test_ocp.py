@@ -16,7 +16,8 @@ from planner.ocp import planner as planner_module
 from planner.ocp import problem as problem_module
 from planner.ocp.guess import hermite_guess, inverse_dynamics_guess
 from planner.ocp.problem import ProblemKey, cached_problem, problem
-from planner.ocp.verify import coupling_along, unverified_reason
+from planner.ocp.verdict import unverified_reason
+from planner.ocp.verify import coupling_along
 from planner.scene import Scene
 
 ARM = {"links": [

@@ -16,7 +16,7 @@ from planner.ocp.interpolant import PiecewisePolynomial
 from planner.ocp.result import Plan
 from planner.ocp.robustness import models, robustness
 from planner.ocp.transcription import Interpolant
-from planner.ocp.verify import unverified_reason
+from planner.ocp.verdict import unverified_reason
 from planner.scene import Scene, Uncertainty
 from planner.simulate import SimulationRequest, run
 

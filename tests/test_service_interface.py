@@ -60,7 +60,7 @@ def test_counts_are_the_transcriptions_own(method, intervals):
 
 
 def test_the_verdicts_reason_is_the_verifications():
-    from planner.ocp.result import Verification
+    from planner.ocp.verification import Verification
 
     failed = Verification(resimulation_error=None, resimulation_status="x", defect=None,
                           min_sigma=None, waveless_min_sigma=None,

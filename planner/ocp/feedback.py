@@ -33,8 +33,8 @@ from planner.compiled import library, source_digest
 from planner.dynamics import functions
 from planner.model import Robot, Structure, parameters
 from planner.ocp.flow import Flow, flow, inputs
-from planner.ocp.result import Feedback
 from planner.ocp.transcription import Interpolant
+from planner.ocp.verification import Feedback
 
 Q_SCALE = 0.01  # [rad] angle error worth one unit of LQR cost
 DQ_SCALE = 0.1  # [rad/s] rate error worth one unit

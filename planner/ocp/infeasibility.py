@@ -28,20 +28,13 @@ import numpy as np
 
 from planner.feasibility import Issue
 from planner.ocp.attempt import Attempt
+from planner.ocp.evidence import Infeasibility, InfeasibleField, ViolatedRows
 from planner.ocp.outcome import Outcome
 from planner.ocp.problem import stages
-from planner.ocp.result import (
-    DenseTrajectory,
-    Infeasibility,
-    InfeasibleField,
-    Plan,
-    SolverReport,
-    Verification,
-    ViolatedRows,
-    WaveOut,
-)
+from planner.ocp.result import DenseTrajectory, Plan, SolverReport, WaveOut
 from planner.ocp.shortest import Probe
 from planner.ocp.solve import INFEASIBLE
+from planner.ocp.verification import Verification
 from planner.scene import DurationRange, Scene
 
 AGREEING = 2
@@ -207,6 +200,7 @@ def refused(scene: Scene, issues: list[Issue], started: float, T: float) -> Plan
     summary = f"the task is infeasible before any solve: {listed}"
     robot = scene.robot
     return Plan(
+        status="infeasible", message=f"infeasible: {summary}",
         t=[], q=[], dq=[], ddq=[], tau=[], dense=DenseTrajectory(t=[], q=[], tau=[]),
         torque=None, duration=T, objective=None,
         waves=[WaveOut(joint=j, amplitude=link.wave.amplitude, frequency=link.wave.frequency,
@@ -219,8 +213,9 @@ def refused(scene: Scene, issues: list[Issue], started: float, T: float) -> Plan
         mesh_passes=[], feedback=None,
         verification=Verification(
             resimulation_error=None, resimulation_status="not run: the task is infeasible",
-            verified=False, tolerance=scene.solver.resimulation_tolerance, defect=None,
-            min_sigma=None, waveless_min_sigma=None, waveless_singular_crossings=[]),
+            verified=False, converged=False, tolerance=scene.solver.resimulation_tolerance,
+            defect=None, min_sigma=None, waveless_min_sigma=None,
+            waveless_singular_crossings=[]),
         infeasibility=Infeasibility(
             source="checks", summary=summary,
             fields=[InfeasibleField(field=i.field, kind=i.kind, message=i.message)

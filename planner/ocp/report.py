@@ -16,17 +16,17 @@ from planner.ocp.feedback import REPLAY_SAMPLES
 from planner.ocp.outcome import NOT_FINITE, Outcome
 from planner.ocp.result import (
     DenseTrajectory,
-    Feedback,
     MeshPass,
     NlpSolution,
     Plan,
     SolverReport,
     StatePolynomials,
-    Verification,
     WaveOut,
 )
 from planner.ocp.shortest import Probe
 from planner.ocp.solve import Budget
+from planner.ocp.verdict import verdict
+from planner.ocp.verification import Feedback, Verification
 from planner.ocp.verify import verify
 from planner.scene import Scene
 from planner.torque import TorquePolynomial
@@ -56,10 +56,10 @@ def plan_of(scene: Scene, attempts: list[Attempt], budget: Budget,
     sol, interp = best.solution, best.interp
     breaks = best.inst.mesh.breaks * best.T
     t_dense = dense_times(breaks)
-    verification, feedback = _checks(scene, best, t_dense, budget)
     success, note = sol.success, sol.message
     if not best.finite:
         success, note = False, note or "the solve produced non-finite values"
+    verification, feedback = _checks(scene, best, t_dense, budget, success)
     built = [o.inst for o in outcomes if not o.inst.cache_hit]
     refined_by = " + mesh refinement" if best is not attempt.outcomes[0] else ""
     plan = Plan(
@@ -84,7 +84,15 @@ def plan_of(scene: Scene, attempts: list[Attempt], budget: Budget,
                             strategy=attempt.start.name + refined_by),
         mesh_passes=_records(outcomes, probe, probe_after),
         feedback=feedback, verification=verification, solution=_nlp_solution(best))
-    return infeasibility.annotate(plan, scene, attempts, best, attempt, probe)
+    return with_verdict(infeasibility.annotate(plan, scene, attempts, best, attempt, probe))
+
+
+def with_verdict(plan: Plan) -> Plan:
+    """The plan with its status and message (`planner.ocp.verdict`)."""
+    found = plan.infeasibility
+    status, message = verdict(plan.solver.success, plan.solver.status, plan.solver.message,
+                              plan.verification, None if found is None else found.summary)
+    return plan.model_copy(update={"status": status, "message": message})
 
 
 def dense_times(breaks: np.ndarray) -> np.ndarray:
@@ -95,17 +103,14 @@ def dense_times(breaks: np.ndarray) -> np.ndarray:
                            for a, b in itertools.pairwise(breaks)] + [breaks[-1:]])
 
 
-def _checks(scene: Scene, best: Outcome, t_dense: np.ndarray,
-            budget: Budget) -> tuple[Verification, Feedback | None]:
+def _checks(scene: Scene, best: Outcome, t_dense: np.ndarray, budget: Budget,
+            converged: bool) -> tuple[Verification, Feedback | None]:
     """The outcome's verification and feedback (`planner.ocp.verify`); none for a
     non-finite one."""
     if not best.finite:
         return unverified(scene.solver.resimulation_tolerance), None
-    task = scene.task
     return verify(best.robot, best.interp, t_dense, best.errors, best.errors_status,
-                  best.replayed, scene.solver.resimulation_tolerance, task.torque_limit,
-                  scene.solver.jit, task.position_bounds, task.velocity_bounds,
-                  task.uncertainty, scene.solver.robustness, budget.deadline)
+                  best.replayed, scene.task, scene.solver, converged, budget.deadline)
 
 
 def waves_of(best: Outcome) -> list[WaveOut]:
@@ -137,7 +142,8 @@ def _nlp_solution(outcome: Outcome) -> NlpSolution | None:
 def unverified(tolerance: float) -> Verification:
     """The verification of a plan whose solve gave non-finite values: nothing checked."""
     return Verification(resimulation_error=None, resimulation_status=NOT_FINITE,
-                        verified=False, tolerance=tolerance, defect=None, min_sigma=None,
+                        verified=False, converged=False, tolerance=tolerance, defect=None,
+                        min_sigma=None,
                         waveless_min_sigma=None, waveless_singular_crossings=[])
 
 

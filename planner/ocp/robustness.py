@@ -21,8 +21,8 @@ import numpy as np
 
 from planner.model import Robot
 from planner.ocp.feedback import replay
-from planner.ocp.result import Robustness
 from planner.ocp.transcription import Interpolant
+from planner.ocp.verification import Robustness
 from planner.scene import Uncertainty
 
 KINDS = ("mass", "inertia", "length", "amplitude")

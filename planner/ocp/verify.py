@@ -30,10 +30,11 @@ from planner.dynamics import functions
 from planner.model import Robot, Structure, parameters
 from planner.ocp.feedback import PERTURBATION, gains, growth_factor, linearise, replay
 from planner.ocp.interpolant import PiecewisePolynomial
-from planner.ocp.result import Crossing, Feedback, Verification
 from planner.ocp.robustness import robustness
+from planner.ocp.task_checks import requirements
 from planner.ocp.transcription import Interpolant
-from planner.scene import Bounds, Uncertainty
+from planner.ocp.verification import Crossing, Feedback, Verification
+from planner.scene import Bounds, SolverSettings, Task
 
 RESIM_TOL = 1e-10
 LIMIT_RTOL = 1e-6
@@ -206,54 +207,54 @@ def _feedback(robot: Robot, interp: Interpolant, torque_limit: list[float] | flo
 
 
 def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.ndarray,
-           errors_status: str, replayed: tuple[float | None, str], tolerance: float,
-           torque_limit: list[float] | float | None,
-           compiled: bool = False, position_bounds: Bounds | None = None,
-           velocity_bounds: Bounds | None = None, uncertainty: Uncertainty | None = None,
-           robust_within: float | None = None,
+           errors_status: str, replayed: tuple[float | None, str], task: Task,
+           settings: SolverSettings, converged: bool,
            deadline: float | None = None) -> tuple[Verification, Feedback | None]:
     """All checks of a plan of `robot` whose interpolant is `interp`, whose interval errors
-    [rad] are `errors` and whose open-loop replay gave `replayed`; verified when every
-    interval error is at most `tolerance` [rad] and the plan keeps the task's torque limit
-    and position and velocity bounds everywhere (`limits`) and, with `robust_within` [rad],
-    when its feedback keeps the arm that close to the plan on every model of `uncertainty`
-    (`planner.ocp.robustness`). Also the plan's feedback (None where the linearisation
-    failed). Past `deadline` (time.perf_counter() seconds), the optional checks, the
-    closed-loop replays, are skipped (`Verification.skipped`); a replay on a perturbed
-    model stopped there counts as one that did not stay within `robust_within`."""
-    error, status = replayed
-    kept = limits(robot, interp, t_dense, torque_limit, position_bounds, velocity_bounds)
+    [rad] are `errors` and whose open-loop replay gave `replayed`, against its `task` and
+    `settings` (solver.resimulation_tolerance, robustness, jit); verified when its solve
+    `converged`, every interval error is at most the tolerance, the plan keeps the task's
+    limits (`limits`) and meets its other requirements (`planner.ocp.task_checks`)
+    everywhere and, with solver.robustness, when its feedback keeps the arm that close to
+    the plan on every model of task.uncertainty (`planner.ocp.robustness`). Also the plan's
+    feedback (None where the linearisation failed). Past `deadline` (time.perf_counter()
+    seconds), the optional checks, the closed-loop replays, are skipped
+    (`Verification.skipped`); a replay on a perturbed model stopped there counts as one that
+    did not stay within the bound."""
+    tolerance, compiled = settings.resimulation_tolerance, settings.jit
+    kept = limits(robot, interp, t_dense, task.torque_limit, task.position_bounds,
+                  task.velocity_bounds)
     sigma, _ = coupling_along(robot, interp.q(t_dense))
+    asked = requirements(robot, interp, t_dense, task, sigma, tolerance)
     crossings, waveless = singular_crossings(robot, interp, t_dense)
     local = float(errors.max())
-    fb, measured = _feedback(robot, interp, torque_limit, compiled, deadline)
+    fb, measured = _feedback(robot, interp, task.torque_limit, compiled, deadline)
     robust = None
-    if uncertainty is not None and fb is not None:
-        robust = robustness(robot, interp, np.asarray(fb.gains), uncertainty, robust_within,
-                            compiled, deadline)
-    robust_ok = uncertainty is None or robust_within is None \
+    if task.uncertainty is not None and fb is not None:
+        robust = robustness(robot, interp, np.asarray(fb.gains), task.uncertainty,
+                            settings.robustness, compiled, deadline)
+    robust_ok = task.uncertainty is None or settings.robustness is None \
         or robust is not None and bool(robust.within)
+    accurate = errors_status == "completed" and local <= tolerance
     return Verification(
         local_error=local if np.isfinite(local) else None,
         interval_errors=[float(e) if np.isfinite(e) else None for e in errors],
         local_status=errors_status,
-        verified=errors_status == "completed" and local <= tolerance and not kept.violations
+        verified=converged and accurate and not kept.violations and not asked.violations
         and robust_ok,
-        tolerance=tolerance,
-        resimulation_error=error,
-        resimulation_status=status,
+        converged=converged, tolerance=tolerance,
+        resimulation_error=replayed[0], resimulation_status=replayed[1],
         defect=defect(robot, interp),
-        torque_excess=kept.torque,
-        position_excess=kept.position,
-        velocity_excess=kept.velocity,
-        limit_violations=kept.violations,
-        min_sigma=_minimum(sigma),
-        waveless_min_sigma=_minimum(waveless),
+        torque_excess=kept.torque, position_excess=kept.position,
+        velocity_excess=kept.velocity, limit_violations=kept.violations,
+        initial_error=asked.initial_error, final_error=asked.final_error,
+        tip_error=asked.tip_error, duration_excess=asked.duration_excess,
+        margin_shortfall=asked.margin_shortfall, tracking_error=asked.tracking_error,
+        task_violations=asked.violations,
+        min_sigma=_minimum(sigma), waveless_min_sigma=_minimum(waveless),
         waveless_singular_crossings=crossings,
-        sigma_min=_samples(sigma),
-        waveless_sigma_min=_samples(waveless),
-        robustness=robust,
-        **measured,
+        sigma_min=_samples(sigma), waveless_sigma_min=_samples(waveless),
+        robustness=robust, **measured,
     ), fb
 
 
@@ -266,36 +267,3 @@ def _minimum(values: np.ndarray) -> float | None:
 def _samples(values: np.ndarray) -> list[float | None]:
     """Values as a list, None where not finite."""
     return [float(v) if np.isfinite(v) else None for v in values]
-
-
-def unverified_reason(v: Verification) -> str | None:
-    """Why a plan failed its checks (accuracy, the task's limits); None when it passed (or
-    predates the checks)."""
-    if v.verified is not False:
-        return None
-    reasons = []
-    if v.local_error is None:
-        reasons.append(f"the plan's intervals could not all be re-integrated ({v.local_status})")
-    elif v.tolerance is None or v.local_error > v.tolerance \
-            or not (v.limit_violations or _fragile(v)):
-        reasons.append(
-            f"re-integrated interval by interval, the delivered torque departs from the plan "
-            f"by {v.local_error:.3g} rad (tolerance {v.tolerance:g} rad): the mesh refinement "
-            f"ran out of budget; raise transcription.refinement's max_intervals or max_passes, "
-            f"or solver.max_iter and max_wall_time")
-    if v.limit_violations:
-        reasons.append("the plan does not keep the task's limits everywhere: "
-                       + "; ".join(v.limit_violations))
-    if _fragile(v):
-        r = v.robustness
-        assert r is not None  # _fragile says so
-        worst = "diverges" if r.worst_tracking_error is None else \
-            f"departs from the plan by up to {r.worst_tracking_error:.3g} rad"
-        reasons.append(f"with its feedback on the perturbed model {r.worst_model!r} the arm "
-                       f"{worst} (solver.robustness {r.bound:g} rad)")
-    return "; and ".join(reasons)
-
-
-def _fragile(v: Verification) -> bool:
-    """Whether the plan failed its robustness bound."""
-    return v.robustness is not None and v.robustness.within is False
