@@ -255,10 +255,6 @@ def _reach(scene: Scene) -> list[Issue]:
         return [Issue("task.tip_target", "reach",
                       f"{where}, nearer than the arm folds: at least {nearest:g} m (a "
                       f"link's least radius less the other links' largest)")]
-    bounded = scene.task.position_bounds is not None or any(
-        v is not None for v in scene.task.final.q)
-    if not bounded:
-        return []
     theta = np.append(np.linspace(-math.pi, math.pi, REACH_DIRECTIONS, endpoint=False),
                       math.atan2(target.y, target.x))
     reachable = extent(scene, theta)
@@ -269,7 +265,8 @@ def _reach(scene: Scene) -> list[Issue]:
         return []
     return [Issue("task.tip_target", "reach within bounds",
                   f"{where}, out of the tip's reach with the final angles within their "
-                  f"bounds (task.position_bounds, task.final.q): in the direction "
+                  f"bounds (task.position_bounds, task.final.q; a whole turn where neither "
+                  f"bounds them): in the direction "
                   f"{math.degrees(theta[worst]):.1f} deg the tip's extent is at most "
                   f"{reachable[worst]:.4g} m and the target's {towards:.4g} m")]
 

@@ -40,7 +40,7 @@ from planner.errors import InputError
 from planner.model import Robot, Structure, parameters
 from planner.profiles import PassiveMotion, SampledProfile
 from planner.schema import REQUEST as _STRICT
-from planner.schema import JointState
+from planner.schema import Duration, JointState
 
 RESOLUTION = 1e-8
 """Smallest sigma_min(M_pa) / max_i M_ii the integration follows. The entries of M carry
@@ -74,7 +74,7 @@ class InverseDynamicsRequest(BaseModel):
 
     robot: Robot
     passive_motion: PassiveMotion
-    duration: float = Field(gt=0.0, le=1e4, description="T [s]")
+    duration: Duration = Field(description="T [s], within [0.01, 10000] s")
     active_initial: JointState = Field(description=ACTIVE_INITIAL)
     samples: int = Field(default=201, ge=2, le=100_000,
                          description="output samples, evenly spaced over [0, T]")

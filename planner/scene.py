@@ -13,8 +13,8 @@ from pydantic import BaseModel, Field, model_validator
 
 from planner.model import Robot
 from planner.profiles import PassiveMotion
+from planner.schema import DURATION_MAX, DURATION_MIN, Angle, JointState, Rate
 from planner.schema import REQUEST as _STRICT
-from planner.schema import Angle, JointState, Rate
 
 
 class State(BaseModel):
@@ -26,13 +26,21 @@ class State(BaseModel):
     dq: list[Rate | None]
 
 
+MARGIN_MIN, MARGIN_MAX = 1e-6, 1e3
+"""[kg m^2] The coupling margins a task may state: below 1e-6 a margin is below the
+rounding of M_pa's singular values for the arms the service takes, and its rows lose their
+scale (docs/planner.md, "Limits and failures")."""
+TORQUE_MAX = 1e6
+"""[N m] The largest torque limit a task may state."""
+
+
 class DurationRange(BaseModel):
     """Bounds [s] of a free final time."""
 
     model_config = _STRICT
 
-    min: float = Field(gt=0.0)
-    max: float = Field(gt=0.0)
+    min: float = Field(ge=DURATION_MIN, le=DURATION_MAX)
+    max: float = Field(ge=DURATION_MIN, le=DURATION_MAX)
 
     @model_validator(mode="after")
     def _ordered(self) -> DurationRange:
@@ -116,13 +124,16 @@ class Task(BaseModel):
 
     model_config = _STRICT
 
-    duration: float | DurationRange = Field(description="fixed T [s] or bounds of a free T")
+    duration: float | DurationRange = Field(
+        description=f"fixed T [s] or bounds of a free T, each within [{DURATION_MIN:g}, "
+                    f"{DURATION_MAX:g}] s")
     initial: JointState = Field(description="the state at t = 0, one entry per joint")
     final: State
     tracking: Tracking | None = None
     tip_target: TipTarget | None = None
     torque_limit: list[float] | float | None = Field(
-        default=None, description="|tau| bound [N m], per active joint or one for all; held "
+        default=None, description=f"|tau| bound [N m] in [0, {TORQUE_MAX:g}], per active joint "
+                                  "or one for all; held "
                                   "by the delivered torque polynomial on the whole of every "
                                   "interval, not only at its nodes")
     position_bounds: Bounds | None = Field(
@@ -133,7 +144,8 @@ class Task(BaseModel):
                                   "every interval")
     objective: Objective = Objective()
     coupling_margin: float | None = Field(
-        default=None, gt=0.0, description="sigma_min(M_pa) >= margin along the path")
+        default=None, ge=MARGIN_MIN, le=MARGIN_MAX,
+        description="[kg m^2] sigma_min(M_pa) >= margin along the path")
     co_design: WaveCoDesign | None = None
     uncertainty: Uncertainty | None = Field(
         default=None, description="model errors the plan's verification replays its "
@@ -147,13 +159,18 @@ class Task(BaseModel):
 
     @model_validator(mode="after")
     def _positive(self) -> Task:
-        if isinstance(self.duration, float) and self.duration <= 0.0:
-            raise ValueError(f"duration: must be greater than 0 s (got {self.duration:g})")
+        if isinstance(self.duration, float) and not \
+                DURATION_MIN <= self.duration <= DURATION_MAX:
+            raise ValueError(f"duration: must be within [{DURATION_MIN:g}, {DURATION_MAX:g}] s "
+                             f"(got {self.duration:g})")
         limits = self.torque_limit if isinstance(self.torque_limit, list) else [self.torque_limit]
         for k, limit in enumerate(limits):
+            where = f".{k}" if isinstance(self.torque_limit, list) else ""
             if limit is not None and limit < 0.0:
-                where = f".{k}" if isinstance(self.torque_limit, list) else ""
                 raise ValueError(f"torque_limit{where}: must not be negative (got {limit:g} N m)")
+            if limit is not None and limit > TORQUE_MAX:
+                raise ValueError(f"torque_limit{where}: must be at most {TORQUE_MAX:g} N m "
+                                 f"(got {limit:g} N m)")
         return self
 
 
@@ -227,7 +244,8 @@ class SolverSettings(BaseModel):
     max_iter: int = Field(default=500, ge=1, le=100000,
                           description="Ipopt iterations of one solve (a plan may run several: "
                                       "mesh passes, retries)")
-    tol: float = Field(default=1e-8, gt=0.0)
+    tol: float = Field(default=1e-8, ge=1e-12, le=1.0,
+                       description="the NLP solver's convergence tolerance")
     max_wall_time: float = Field(default=60.0, gt=0.0,
                                  description="[s] the whole plan: every solve, mesh pass and "
                                              "retry")
@@ -260,11 +278,12 @@ class SolverSettings(BaseModel):
                     "a verified plan may have on the uncertainty's corner models (none: "
                     "reported, not required)")
     resimulation_tolerance: float = Field(
-        default=1e-3, gt=0.0,
+        default=1e-3, ge=1e-9, le=1.0,
         description="[rad] largest error of a verified plan when each interval is "
                     "re-integrated from the plan's own state with the delivered torque: above "
                     "it the NLP's trajectory is not a motion of the robot (too coarse a mesh "
-                    "for it), and the mesh refinement goes on")
+                    "for it), and the mesh refinement goes on; at least 1e-9 rad, above the "
+                    "re-integration's own error (CVODES at 1e-10)")
 
 
 class Scene(BaseModel):

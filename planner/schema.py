@@ -23,6 +23,13 @@ STATE_MAX = 1e6
 motion (1e6 rad is 159,155 turns), and small enough that sin and cos keep ten significant
 digits and every product in the dynamics stays finite."""
 
+DURATION_MIN, DURATION_MAX = 1e-2, 1e4
+"""[s] The durations a request may state: a motion shorter than 10 ms asks torques beyond
+any arm's (they grow as 1 / T^2) and holds a computation as long as a sensible one, and one
+longer than 10^4 s is no single motion."""
+Duration = Annotated[float, Field(ge=DURATION_MIN, le=DURATION_MAX)]
+"""A motion's duration T [s] of a request."""
+
 Angle = Annotated[float, Field(ge=-STATE_MAX, le=STATE_MAX)]
 """A joint angle [rad] of a request, |q| <= STATE_MAX."""
 Rate = Annotated[float, Field(ge=-STATE_MAX, le=STATE_MAX)]

@@ -356,7 +356,7 @@ def test_inverse_dynamics_field_errors(api):
     request = inverse_request(gravity=0.0)
     request["duration"] = 0
     assert errors_of(api.post("/v1/inverse-dynamics", json=request)) == [
-        (["body", "duration"], "Input should be greater than 0")]
+        (["body", "duration"], "Input should be greater than or equal to 0.01")]
 
 
 def test_a_closed_loop_simulation_names_a_misshapen_feedback_at_its_field(api):

@@ -321,3 +321,25 @@ def test_attempts_that_do_not_agree_leave_the_verdict_but_name_the_one_that_foun
     assert not infeasibility.agreed([first, other, restart])
     third, _ = _attempt("first mesh of 25 intervals", "Restoration_Failed")
     assert infeasibility.agreed([first, other, third])
+
+
+def test_a_tip_just_beyond_the_reach_in_its_own_direction_is_refused_with_free_final_angles():
+    # the wavy link reaches least where its radius dips: a target 2.7 mm beyond the arm's
+    # extent in its direction (found here by brute force) is refused before any solve,
+    # though it is nearer than the sum of the largest radii
+    scene = with_task(BASE, final={"q": [None, None], "dq": [0.0, 0.0]})
+    robot = scene.robot
+    theta = (-np.pi / 2 - 0.3) / 3  # where the wave of joint 1 (n = 3, phase 0.3) dips
+    q = np.linspace(-np.pi, np.pi, 400_001)
+    extent = 0.0
+    for link in robot.links:
+        w = link.wave
+        r = link.length + (0.0 if w is None else w.amplitude * np.sin(w.frequency * q + w.phase))
+        extent += float((r * np.cos(q - theta)).max())
+    target = (extent + 2.7e-3) * np.array([np.cos(theta), np.sin(theta)])
+    assert np.hypot(*target) < feasibility.reach(robot)
+    aimed = with_task(scene, tip_target={"x": float(target[0]), "y": float(target[1])})
+    assert fields(aimed) == [("task.tip_target", "reach within bounds")]
+    within = (extent - 2.7e-3) * np.array([np.cos(theta), np.sin(theta)])
+    assert fields(with_task(scene, tip_target={"x": float(within[0]),
+                                               "y": float(within[1])})) == []

@@ -159,7 +159,7 @@ def edited(**changes) -> dict:
 
 
 def test_messages_of_bad_requests():
-    assert message(edited(duration=0.0)) == "Input should be greater than 0"
+    assert message(edited(duration=0.0)) == "Input should be greater than or equal to 0.01"
     assert message(edited(active_initial={"q": [0.0, 1.0], "dq": [0.0]})) == (
         "Value error, active_initial: q and dq need 1 entry each, one per active joint")
     assert message(edited(passive_motion={"profile": "beta", "start": [0, 0],

@@ -19,8 +19,15 @@ def _bounds(lower: list, upper: list) -> dict:
 
 
 @pytest.mark.parametrize("task, loc, msg", [
-    ({"duration": 0}, ["duration"], "must be greater than 0 s (got 0)"),
-    ({"duration": -1}, ["duration"], "must be greater than 0 s (got -1)"),
+    ({"duration": 0}, ["duration"], "must be within [0.01, 10000] s (got 0)"),
+    ({"duration": -1}, ["duration"], "must be within [0.01, 10000] s (got -1)"),
+    ({"duration": 1e-100}, ["duration"], "must be within [0.01, 10000] s (got 1e-100)"),
+    ({"duration": 1e-300}, ["duration"], "must be within [0.01, 10000] s (got 1e-300)"),
+    ({"coupling_margin": 1e-300}, ["coupling_margin"],
+     "Input should be greater than or equal to 0.000001"),
+    ({"coupling_margin": 1e-12}, ["coupling_margin"],
+     "Input should be greater than or equal to 0.000001"),
+    ({"torque_limit": 1e300}, ["torque_limit"], "must be at most 1e+06 N m (got 1e+300 N m)"),
     ({"torque_limit": -2.5}, ["torque_limit"], "must not be negative (got -2.5 N m)"),
     ({"torque_limit": [-1.0]}, ["torque_limit", 0], "must not be negative (got -1 N m)"),
     ({"position_bounds": _bounds([0.0, 1.0], [1.0, 0.5])}, ["position_bounds", "lower", 1],
@@ -29,11 +36,23 @@ def _bounds(lower: list, upper: list) -> dict:
      "must not exceed upper.0 (2 > -2)"),
 ])
 def test_an_unplannable_task_is_a_field_error(api, task, loc, msg):
+    # durations and margins beyond what the planner can carry are refused at their field
+    # (a duration of 1e-100 s had killed its worker four times; a margin of 1e-300 had
+    # turned the two-link plan infeasible)
     scene = two_link_scene()
     scene["task"].update(task)
     r = api.post("/v1/plans", json=scene)
     assert r.status_code == 422, r.text
     assert [(e["loc"], e["msg"]) for e in r.json()["errors"]] == [(["body", "task", *loc], msg)]
+
+
+def test_a_duration_range_below_the_shortest_duration_is_a_field_error(api):
+    scene = two_link_scene()
+    scene["task"]["duration"] = {"min": 1e-320, "max": 1.0}
+    r = api.post("/v1/plans", json=scene)
+    assert r.status_code == 422, r.text
+    errors = [(e["loc"][-1], e["msg"]) for e in r.json()["errors"]]
+    assert ("min", "Input should be greater than or equal to 0.01") in errors
 
 
 @pytest.mark.parametrize("task", [

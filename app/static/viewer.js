@@ -396,16 +396,18 @@
   function renderSummary(job) {
     const { plan } = job;
     const s = plan.solver, v = plan.verification;
+    const status = plan.status ?? (v.verified ? "verified" : "not verified");
     const rows = [
-      ["solver", s.status, s.success ? "good" : "bad"],
-      ["message", s.message],
+      ["status", status, status === "verified" ? "good" : "bad"],
+      ["message", plan.message ?? s.message],
+      ["last solve", `${s.status}: ${s.message}`, s.success ? "good" : "bad"],
       ["iterations", String(s.iterations)],
       ["objective", objectiveText(plan.objective, state.submitted.task)],
       ["duration T", `${fmt(plan.duration)} s`],
       ["time", `build ${s.build_time.toFixed(2)} s · solve ${s.solve_time.toFixed(2)} s`],
       ["re-simulation", v.resimulation_error === null ? v.resimulation_status : `${fmt(v.resimulation_error, 3)} rad`,
         v.verified === true ? "good" : v.verified === false ? "bad" : undefined],
-      ["verified", v.verified == null ? "not recorded" : v.verified ? `yes (tolerance ${v.tolerance} rad)` : `no: error above ${v.tolerance} rad`],
+      ["verified", v.verified == null ? "not recorded" : v.verified ? `yes (tolerance ${v.tolerance} rad)` : "no (the message says why)"],
       ["defect", v.defect === null ? "–" : `${fmt(v.defect, 3)} N m s`],
       ["min σ_min", fmt(v.min_sigma, 3) + " (with waves)"],
       ["waveless min", fmt(v.waveless_min_sigma, 3)],

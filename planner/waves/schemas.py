@@ -11,7 +11,7 @@ from planner.inverse import ACTIVE_INITIAL, check_motion, check_prescribable
 from planner.model import Robot
 from planner.profiles import PassiveMotion
 from planner.schema import REQUEST as _STRICT
-from planner.schema import Angle, JointState
+from planner.schema import Angle, Duration, JointState
 from planner.waves.screening import SCREEN_STEPS, coarse_points, phases_per_joint
 
 MAX_SCREENING = 5_000_000
@@ -35,7 +35,7 @@ class Motion(BaseModel):
     model_config = _STRICT
 
     passive_motion: PassiveMotion
-    duration: float = Field(gt=0.0, le=1e4, description="T [s]")
+    duration: Duration = Field(description="T [s], within [0.01, 10000] s")
     active_initial: JointState = Field(description=ACTIVE_INITIAL)
 
 
