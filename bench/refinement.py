@@ -24,7 +24,7 @@ from planner.examples import example
 from planner.ocp import plan
 from planner.ocp import planner as planner_module
 from planner.scene import Scene
-from planner.suite import tasks
+from testbed.suites.ordinary import tasks
 
 DOC = harness.DOCS / "benchmarks.md"
 SECTION = "Mesh refinement on the two-link example"
