@@ -595,7 +595,6 @@ def crossing_zeros(scene: Scene) -> np.ndarray:
     return np.empty(0) if zeros is None else zeros
 
 
-
 # --------------------------------------------------------------------------- stored witnesses
 
 

@@ -143,14 +143,16 @@ class StoredRecords(Generic[R]):
                    say: Callable[[str], None] = print) -> None:
         """Draw the tasks of `seeds` that need records, solving those not stored (`afresh`:
         every one), and write what they found beside the stored records of other seeds."""
+        drawn: dict[Key, list[R]] = {}
         with self.using("afresh" if afresh else "stored"):
-            for seed in seeds:
-                for key in self.keys(seed):
-                    name, _ = self.draw(key)
-                    say(f"{seed} {name}: {len(self.found.get(key, []))} record(s)")
-        kept = {k: v for k, v in self.stored().items() if k[0] not in seeds}
-        drawn = {k: v for k, v in self.found.items() if k[0] in seeds}
-        self.path.write_text(text(self.description, {**kept, **drawn}))
+            for key in (key for seed in seeds for key in self.keys(seed)):
+                self.found.pop(key, None)
+                name, _ = self.draw(key)
+                drawn[key] = self.found.get(key, [])
+                say(f"{key[0]} {name}: {len(drawn[key])} record(s)")
+        records = {k: v for k, v in self.stored().items() if k[0] not in seeds}
+        records.update((k, v) for k, v in drawn.items() if v)
+        self.path.write_text(text(self.description, records))
         self._stored = None
 
     def check(self) -> list[str]:
@@ -163,21 +165,26 @@ class StoredRecords(Generic[R]):
             return [f"{self.path.name} does not read: {error}"]
         problems = [] if text(self.description, stored) == self.path.read_text() else [
             f"{self.path.name} is not as regenerate writes it (edited by hand?)"]
-        expected = set()
-        for seed in sorted({*self.seeds, *(k[0] for k in stored)}):
-            for key in self.keys(seed):
-                expected.add(key)
-                self.found.pop(key, None)
-                try:
-                    with self.using("stored-only"):
-                        name, _ = self.draw(key)
-                except Missing as missing:
-                    problems.append(str(missing))
-                    continue
-                if self.found.get(key, []) != stored.get(key, []):
-                    problems.append(f"{name} of seed {seed}: its draw found "
-                                    f"{len(self.found.get(key, []))} of its "
-                                    f"{len(stored.get(key, []))} stored records")
-        problems += [f"task {k}: stored, but its draw needs no record"
-                     for k in sorted(set(stored) - expected)]
-        return problems
+        expected = [key for seed in sorted({*self.seeds, *(k[0] for k in stored)})
+                    for key in self.keys(seed)]
+        saved, self.found = self.found, {}  # what the draws below find, apart
+        try:
+            for key in expected:
+                problems += self._check_draw(key, stored.get(key, []))
+        finally:
+            self.found = saved
+        return problems + [f"task {k}: stored, but its draw needs no record"
+                           for k in sorted(set(stored) - set(expected))]
+
+    def _check_draw(self, key: Key, stored: list[R]) -> list[str]:
+        """What is wrong with the draw of task `key` from the stored records alone."""
+        try:
+            with self.using("stored-only"):
+                name, _ = self.draw(key)
+        except Missing as missing:
+            return [str(missing)]
+        found = self.found.get(key, [])
+        if found != stored:
+            return [f"{name} of seed {key[0]}: its draw found {len(found)} of its "
+                    f"{len(stored)} stored records"]
+        return []
