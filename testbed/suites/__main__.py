@@ -52,7 +52,7 @@ def main(argv: list[str] | None = None) -> int:
     again.add_argument("--suite", choices=sorted(STORED), action="append",
                        help="the suite (repeatable; default: every one)")
     again.add_argument("--seed", type=int, action="append", default=[],
-                       help="a seed to draw (repeatable; default: the suite's stored seeds)")
+                       help="a seed to draw (repeatable; default: the suite's SEED and HELD_OUT)")
     again.add_argument("--afresh", action="store_true",
                        help="solve every record again, not only those no longer drawn")
     args = parser.parse_args(argv)
