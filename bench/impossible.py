@@ -1,7 +1,7 @@
 """Impossible tasks: how many end `infeasible` with evidence, how soon, and within what
 share of the budget.
 
-The generated impossible suite (`planner.impossible_suite`: durations and duration ranges
+The generated impossible suite (`testbed.suites.impossible`: durations and duration ranges
 below the shortest one, unreachable tips, zero torque, contradictory bounds) on its own
 seed and its held-out ones, default settings (a 60 s budget), one plan each as a service
 worker runs it (both cores: a companion process where the planner forks one). Reported
@@ -20,10 +20,10 @@ import argparse
 import time
 
 from bench import harness
-from planner import impossible_suite
-from planner.hard_suite import category
 from planner.ocp import plan
 from planner.ocp.result import Plan
+from testbed.suites import impossible as impossible_suite
+from testbed.suites.hard import category
 
 DOC = harness.DOCS / "benchmarks.md"
 SECTION = "Impossible tasks: said infeasible, and how soon"
@@ -87,7 +87,7 @@ def main(argv: list[str]) -> int:
                        ("quarter", "within a quarter of the budget"), ("share", "share"),
                        ("median", "median wall [s]"), ("max", "max wall [s]")]
     text = "\n\n".join([
-        f"The generated impossible suite (`planner.impossible_suite`, {args.count} tasks a "
+        f"The generated impossible suite (`testbed.suites.impossible`, {args.count} tasks a "
         f"seed; seeds {', '.join(args.seeds.split(','))}), default settings and a "
         f"{BUDGET:g} s budget, one plan "
         f"each in one process that may fork its companion. {quick} of {len(rows)} "

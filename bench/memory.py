@@ -1,7 +1,7 @@
 """Memory of motion: a plan started from its neighbour's against the same plan from scratch.
 
 Bases: the built-in plan examples and the first task of every hard-suite category
-(`planner.hard_suite`, its own seed). Each base is planned cold; a verified base gets
+(`testbed.suites.hard`, its own seed). Each base is planned cold; a verified base gets
 `--variants` neighbours at each goal distance d of MOVES: every given final angle moved by a
 uniform draw from [-d, d], one of them by exactly ±d, a tip target by d times the arm's
 reach (NumPy generator seeded by the base's index, the variant and d), so that
@@ -29,9 +29,9 @@ import numpy as np
 from bench import harness
 from planner import feasibility
 from planner.examples import examples
-from planner.hard_suite import CATEGORIES, category, hard_tasks
 from planner.ocp import Plan, plan
 from planner.scene import Scene
+from testbed.suites.hard import CATEGORIES, category, hard_tasks
 
 DOC = harness.DOCS / "benchmarks.md"
 SECTION = "Memory of motion: plans started from a neighbour"

@@ -23,7 +23,7 @@ from bench import harness
 from planner.examples import example
 from planner.ocp import plan
 from planner.scene import Scene
-from planner.suite import tasks
+from testbed.suites.ordinary import tasks
 
 DOC = harness.DOCS / "benchmarks.md"
 SECTION = "Mesh refinement on the two-link example"

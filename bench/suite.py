@@ -1,7 +1,7 @@
-"""The task suite (planner.suite): how often a plan verifies, and how long a verified plan
-takes, against the same planner with mesh refinement off, without retries or with fatrop
-instead of Ipopt, and its peers on the same 50 intervals: a plain CasADi Opti script
-(bench/peers/opti.py, Legendre degree 3), rockit (bench/peers/rockit.py: direct
+"""The task suite (testbed.suites.ordinary): how often a plan verifies, and how long a
+verified plan takes, against the same planner with mesh refinement off, without retries or
+with fatrop instead of Ipopt, and its peers on the same 50 intervals: a plain CasADi Opti
+script (bench/peers/opti.py, Legendre degree 3), rockit (bench/peers/rockit.py: direct
 collocation with Ipopt, multiple shooting with fatrop) and opty (bench/peers/opty.py,
 midpoint, in its own virtualenv `.venv-opty`).
 
@@ -27,8 +27,8 @@ missing is skipped, with the reason printed and written.
 `--seed` other than the suite's own writes its own section and CSV (suite-seed-N.csv):
 tasks the planner was not tuned on.
 
-`--suite hard` runs `planner.hard_suite` (its own seed, and the two of
-`planner.hard_suite.HELD_OUT`) and reports per task what the solves cost as Ipopt counts
+`--suite hard` runs `testbed.suites.hard` (its own seed, and the two of
+`testbed.suites.hard.HELD_OUT`) and reports per task what the solves cost as Ipopt counts
 it: iterations, restoration-phase iterations, KKT factorizations, CPU time (this process
 and its children) and wall time; and per configuration the share verified and the median,
 90th percentile and maximum time to a verified plan. It writes hard-suite.csv (or
@@ -62,9 +62,9 @@ from pydantic import ValidationError
 from bench import harness
 from bench.examples import BEFORE
 from bench.scenes import fixed_duration
-from planner import hard_suite
 from planner.scene import DurationRange, Scene
-from planner.suite import COUNT, SEED, tasks
+from testbed.suites import hard as hard_suite
+from testbed.suites.ordinary import COUNT, SEED, tasks
 
 CONFIGS = {
     "undertow": "default settings",
@@ -534,7 +534,7 @@ def _task_table(rows: list[dict]) -> str:
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench suite", description=__doc__)
     parser.add_argument("--suite", choices=SUITES, default="default",
-                        help="default: planner.suite; hard: planner.hard_suite")
+                        help="default: testbed.suites.ordinary; hard: testbed.suites.hard")
     parser.add_argument("--count", type=int, default=None,
                         help=f"tasks (default {COUNT}; hard: {hard_suite.COUNT})")
     parser.add_argument("--seed", type=int, default=None,
@@ -610,10 +610,11 @@ def main(argv: list[str]) -> int:
     if own:
         _plot(rows, configs)
     text = "\n\n".join(part for part in [
-        f"{args.count} rest-to-rest tasks of `planner.suite` (seed {args.seed}): 2, 3 and 4 "
-        "links, every passive/active split with at least as many active as passive joints, "
-        "waves on about half of the active joints, g = 0 and g = 9.81 in turn, moves of up "
-        "to 0.6 rad per joint across a waveless singularity where M_pa is square; 2 s, "
+        f"{args.count} rest-to-rest tasks of `testbed.suites.ordinary` (seed {args.seed}): "
+        "2, 3 and 4 links, every passive/active split with at least as many active as "
+        "passive joints, waves on about half of the active joints, g = 0 and g = 9.81 in "
+        "turn, moves of up to 0.6 rad per joint across a waveless singularity where M_pa is "
+        "square; 2 s, "
         "|tau| <= 20 N m, effort objective. A plan is verified when its solver succeeded and "
         "every interval, re-integrated from the plan's own state with the torque its "
         "transcription delivers, lands within 1e-3 rad, within the same cap of "
@@ -789,7 +790,7 @@ def report_hard(args, argv: list[str], configs: list[str], rows: list[dict],
     by_kind = [hard_summary(ours, k, "category") for k in kinds]
     cap = f"{WALL_TIME:g} s" + (" (lowered by --cap)" if args.cap is not None else "")
     text = "\n\n".join(part for part in [
-        f"{len({r['task'] for r in rows})} tasks of `planner.hard_suite` (seed {args.seed}"
+        f"{len({r['task'] for r in rows})} tasks of `testbed.suites.hard` (seed {args.seed}"
         + (f", categories {args.categories}" if args.categories else "") + "), every "
         f"configuration capped at {cap} a task. Time to a verified plan is the wall time of "
         "the whole plan, unverified tasks counted as never in the median, 90th percentile "

@@ -220,7 +220,7 @@ def _plan_examples() -> list[Example]:
     The seed arm in a horizontal plane: without gravity a passive joint turns only by the
     coupling to the active ones (the passive base keeps the angular momentum at zero), and
     the waveless det M_pa changes sign on the way; the hard suite's kind of task
-    (planner/hard_suite.py, "seed-g0-cross"), verified in about 60 iterations.
+    ("seed-g0-cross", docs/benchmarks.md, "The hard suite"), verified in about 60 iterations.
 
     The seed arm's: with q0 = q2 = 0 the waveless M_01 and M_21 go as cos(q1), so det M_pa
     changes sign where link 1 is horizontal; gravity holds the passive links near rest and

@@ -22,7 +22,7 @@ from planner.ocp.monitor import STALL_FLOOR, STALL_WINDOW, IterationMonitor
 from planner.ocp.outcome import interpolant
 from planner.ocp.solve import Budget, solve
 from planner.scene import Scene
-from planner.suite import singular_configuration
+from testbed.suites.ordinary import singular_configuration
 
 
 @pytest.fixture(scope="module")

@@ -20,10 +20,10 @@ from planner.examples import (
     two_link,
     two_link_start,
 )
-from planner.hard_suite import crosses
 from planner.inverse import InverseDynamicsRequest
 from planner.scene import Scene
 from planner.waves import WaveDesignRequest
+from testbed.suites.hard import crosses
 
 MODELS = {"inverse-dynamics": InverseDynamicsRequest, "wave-design": WaveDesignRequest,
           "coupling": CouplingRequest}

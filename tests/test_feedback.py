@@ -18,7 +18,7 @@ from planner.ocp.accuracy import SAMPLES, interval_errors
 from planner.ocp.feedback import PERTURBATION, growth_factor, linearise, replay
 from planner.ocp.flow import Flow, flow, inputs
 from planner.scene import Scene
-from planner.suite import tasks
+from testbed.suites.ordinary import tasks
 
 
 def planned(sc: Scene):

@@ -1,4 +1,4 @@
-"""The hard suite (planner.hard_suite): reproducible, every category, feasible by
+"""The hard suite (testbed.suites.hard): reproducible, every category, feasible by
 construction as far as can be checked without a solve, and a bounds task's bounds held by
 a stored witness and left by the unbounded plan. One solve: a stored witness solved again
 (about 2 s)."""
@@ -10,11 +10,13 @@ import math
 import numpy as np
 import pytest
 
-from planner import hard_suite
 from planner.coupling_block import along
 from planner.dynamics import Dynamics
 from planner.examples import seed_arm
-from planner.hard_suite import (
+from planner.ocp.verify import BOUND_TOL
+from planner.scene import DurationRange
+from testbed.suites import hard as hard_suite
+from testbed.suites.hard import (
     BOUND_MARGIN,
     CATEGORIES,
     COUNT,
@@ -34,8 +36,6 @@ from planner.hard_suite import (
     hard_tasks,
     segment,
 )
-from planner.ocp.verify import BOUND_TOL
-from planner.scene import DurationRange
 
 
 @pytest.fixture(scope="module", params=[SEED, *HELD_OUT])
@@ -139,7 +139,7 @@ def _bounds_tasks(bounded):
     for name, scene in bounded:
         ends = np.array(scene.task.initial.q), np.array(scene.task.final.q)
         found = [w for seed in (SEED, *HELD_OUT)
-                 if (w := hard_suite._stored((seed, hard_suite.index_of(name)), *ends))
+                 if (w := hard_suite.stored_witness((seed, hard_suite.index_of(name)), *ends))
                  is not None]
         assert len(found) == 1, f"{name}: no stored witness"
         out.append((name, scene, found[0]))

@@ -1,4 +1,4 @@
-"""The impossible suite (planner.impossible_suite): reproducible, every category, each task
+"""The impossible suite (testbed.suites.impossible): reproducible, every category, each task
 impossible by construction: proven by a check before any solve, or a duration at most
 SHORT[1] of its stored reference shortest duration. No solve: the references are stored."""
 
@@ -7,10 +7,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from planner import feasibility, impossible_suite
-from planner.hard_suite import category
-from planner.impossible_suite import CATEGORIES, COUNT, HELD_OUT, SEED, SHORT, impossible_tasks
+from planner import feasibility
 from planner.scene import DurationRange
+from testbed.suites import impossible as impossible_suite
+from testbed.suites.hard import category
+from testbed.suites.impossible import CATEGORIES, COUNT, HELD_OUT, SEED, SHORT, impossible_tasks
 
 CHECKS = {"unreachable-tip": {"reach"}, "zero-torque": {"zero torque"},
           "contradictory-bounds": {"bounds", "velocity reach", "reach within bounds"}}
@@ -59,9 +60,9 @@ def test_a_short_task_asks_for_at_most_its_share_of_a_stored_reference(suite):
         if not category(name).startswith("short"):
             continue
         task = scene.task
-        ref = impossible_suite._stored((seed, int(name.rsplit("-", 1)[1])),
-                                       np.array(task.initial.q), np.array(task.final.q),
-                                       float(task.torque_limit))  # type: ignore[arg-type]
+        ref = impossible_suite.stored_reference(
+            (seed, int(name.rsplit("-", 1)[1])), np.array(task.initial.q),
+            np.array(task.final.q), float(task.torque_limit))  # type: ignore[arg-type]
         assert ref is not None and ref.shortest is not None, name
         d = task.duration
         longest = d.max if isinstance(d, DurationRange) else d

@@ -12,7 +12,7 @@ import pytest
 from bench import suite
 from bench.peers import rockit
 from planner.model import parameters
-from planner.suite import SEED, tasks
+from testbed.suites.ordinary import SEED, tasks
 
 TASK = 1  # 2 links, active then passive, g = 9.81: a few seconds with either method
 

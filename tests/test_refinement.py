@@ -12,7 +12,7 @@ from planner.ocp import plan
 from planner.ocp.mesh import Mesh
 from planner.ocp.refine import INTERVAL_STEPS, MAX_SPLIT, SAFETY, refined
 from planner.scene import Scene
-from planner.suite import tasks
+from testbed.suites.ordinary import tasks
 
 
 def non_uniform(N: int) -> list[float]:

@@ -7,7 +7,7 @@ from pydantic import ValidationError
 
 from planner.ocp import plan
 from planner.scene import Scene
-from planner.suite import tasks
+from testbed.suites.ordinary import tasks
 
 
 def test_fatrop_and_ipopt_reach_the_same_verified_optimum():

@@ -1,7 +1,7 @@
 """A generated suite of impossible planning tasks: how plainly and how early the planner
 says that a task cannot be done.
 
-Drawn from a seed like `planner.suite` and `planner.hard_suite`, each task named by its
+Drawn from a seed like `testbed.suites.ordinary` and `testbed.suites.hard`, each task named by its
 category (`<category>-<index>`), one of:
 
 - `short-duration`: a random 2- to 4-link arm (any mix of passive and active joints, g = 0
@@ -26,28 +26,28 @@ solves (from the planner's interpolation guess, and from the unlimited motion st
 `planner.ocp.shortest`), each within REFERENCE_WALL_TIME in one process; a share of at
 most 0.7 of it leaves room for local optima of those solves. A move whose reference
 solves give no verified plan is drawn again. References cost solves: those of SEED and
-HELD_OUT within COUNT are stored (`planner.impossible_suite_references`, written by
-`python -m planner.impossible_suite [SEED ...]`, which solves the seeds given, all stored
-ones by default, and keeps the others); any other is solved when its task is drawn.
+HELD_OUT within COUNT are stored (REFERENCE_FILE, data/impossible-references.json, written
+by `python -m testbed.suites regenerate --suite impossible`); any other is solved when its
+task is drawn.
 
     impossible_tasks(count, seed) -> list of (name, Scene)
+    task_of((seed, index)) -> (name, Scene)
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
+from pydantic import model_validator
 
 from planner import feasibility
-from planner.hard_suite import guess_peak
 from planner.model import Robot
 from planner.scene import Scene
-from planner.stored_records import module_text
-from planner.suite import random_robot
+from testbed.suites.hard import guess_peak, one_process
+from testbed.suites.ordinary import random_robot
+from testbed.suites.records import DATA, Key, Record, StoredRecords, close
 
 SEED = 20261126
 HELD_OUT = (16180339, 14142135)
@@ -64,11 +64,11 @@ RANGE_START = (0.3, 0.8)  # a short range's shortest end as a share of its longe
 REFERENCE_RANGE = (0.02, 20.0)  # [s] the reference time-optimal solves' duration range
 REFERENCE_WALL_TIME = 300.0  # [s] each reference solve's budget
 TRIES = 20
-REFERENCE_FILE = Path(__file__).with_name("impossible_suite_references.py")
+SHORT_CATEGORIES = ("short-duration", "short-range")
+"""The categories whose tasks draw references."""
 
 
-@dataclass(frozen=True)
-class Reference:
+class Reference(Record):
     """The reference solves of a short task's move: its torque limit [N m], start and goal
     [rad], the shortest verified duration they found [s] (None: none verified) and their
     Ipopt iterations."""
@@ -78,6 +78,14 @@ class Reference:
     goal: tuple[float, ...]
     shortest: float | None
     iterations: int
+
+    @model_validator(mode="after")
+    def _consistent(self) -> Reference:
+        if len(self.start) != len(self.goal) or self.limit <= 0.0 or self.iterations < 0 \
+                or (self.shortest is not None and self.shortest <= 0.0):
+            raise ValueError("start and goal of different numbers of joints, or a limit, "
+                             "a shortest duration or iterations not positive")
+        return self
 
 
 def _kinds(rng: np.random.Generator, n: int) -> str:
@@ -114,29 +122,11 @@ def _proven(scene: Scene) -> bool:
 
 # --------------------------------------------------------------------------- references
 
-_use_stored = True
-_solved: dict[tuple[int, int], list[Reference]] = {}
 
-
-def _stored(key: tuple[int, int] | None, start: np.ndarray, goal: np.ndarray,
-            limit: float) -> Reference | None:
-    if key is None or not _use_stored:
-        return None
-    from planner.impossible_suite_references import REFERENCES
-
-    for record in REFERENCES.get(key, []):
-        if len(record["start"]) == len(start) \
-                and np.allclose(record["start"], start, rtol=0.0, atol=1e-9) \
-                and np.allclose(record["goal"], goal, rtol=0.0, atol=1e-9) \
-                and record["limit"] == limit:
-            return _reference(record)
-    return None
-
-
-def _reference(record: dict[str, Any]) -> Reference:
-    """A stored record as a Reference."""
-    return Reference(**{**record, "start": tuple(record["start"]),
-                        "goal": tuple(record["goal"])})
+def stored_reference(key: Key | None, start, goal, limit: float) -> Reference | None:
+    """The stored reference of task `key` (seed, index) for this move and limit, if any."""
+    return REFERENCES.lookup(key, lambda r: r.limit == limit and close(r.start, start)
+                             and close(r.goal, goal))
 
 
 def time_optimal(robot: Robot, start, goal, limit: float) -> Scene:
@@ -150,7 +140,6 @@ def time_optimal(robot: Robot, start, goal, limit: float) -> Scene:
 def _solve_reference(robot: Robot, start: np.ndarray, goal: np.ndarray,
                      limit: float) -> Reference:
     """The least verified duration of the two reference solves (see the module)."""
-    from planner.hard_suite import one_process
     from planner.ocp import plan
     from planner.ocp.planner import shortest_duration
 
@@ -171,24 +160,25 @@ def _solve_reference(robot: Robot, start: np.ndarray, goal: np.ndarray,
         iterations += sum(p.iterations for p in probe.passes)
         if probe.shortest is not None:
             found.append(probe.shortest)
-    return Reference(limit, tuple(start.tolist()), tuple(goal.tolist()),
-                     min(found) if found else None, iterations)
+    return Reference(limit=limit, start=tuple(start.tolist()), goal=tuple(goal.tolist()),
+                     shortest=min(found) if found else None, iterations=iterations)
 
 
 def reference(robot: Robot, start: np.ndarray, goal: np.ndarray, limit: float,
-              key: tuple[int, int] | None = None) -> Reference:
+              key: Key | None = None) -> Reference:
     """The reference shortest duration of a move under a torque limit: stored for the
-    tasks of `key` (seed, index) in `planner.impossible_suite_references`, else solved."""
-    found = _stored(key, start, goal, limit) or _solve_reference(robot, start, goal, limit)
-    if key is not None and found not in _solved.setdefault(key, []):
-        _solved[key].append(found)
+    tasks of `key` (seed, index) in REFERENCE_FILE, else solved."""
+    found = stored_reference(key, start, goal, limit)
+    if found is None:
+        found = _solve_reference(robot, start, goal, limit)
+    REFERENCES.keep(key, found)
     return found
 
 
 # --------------------------------------------------------------------------- tasks
 
 
-def _short(rng: np.random.Generator, gravity: float, key: tuple[int, int] | None,
+def _short(rng: np.random.Generator, gravity: float, key: Key | None,
            ranged: bool) -> Scene:
     for _ in range(TRIES):
         robot = _arm(rng, (2, 4), gravity)
@@ -279,8 +269,8 @@ def _contradictory(rng: np.random.Generator, gravity: float, index: int) -> Scen
 
 
 def _task(kind: str, rng: np.random.Generator, gravity: float, index: int,
-          key: tuple[int, int] | None) -> Scene:
-    if kind in ("short-duration", "short-range"):
+          key: Key | None) -> Scene:
+    if kind in SHORT_CATEGORIES:
         return _short(rng, gravity, key, kind == "short-range")
     if kind == "unreachable-tip":
         return _unreachable_tip(rng, gravity, index)
@@ -306,42 +296,25 @@ def impossible_tasks(count: int = COUNT, seed: int = SEED) -> list[tuple[str, Sc
     return [impossible_task(index, seed) for index in range(count)]
 
 
+def task_of(key: Key) -> tuple[str, Scene]:
+    """The task whose random draws come from `key` (seed, index)."""
+    return impossible_task(key[1], key[0])
+
+
 # --------------------------------------------------------------------------- stored
 
-_DOCSTRING = """What the reference solves of the impossible suite's short tasks found, for the tasks
-of planner.impossible_suite.SEED and HELD_OUT within COUNT: per (seed, index), per move
-drawn, `planner.impossible_suite.Reference` as a dict. Written by `python -m
-planner.impossible_suite`; not edited by hand."""
+
+def reference_keys(seed: int) -> list[Key]:
+    """(seed, index) of the tasks of `seed` within COUNT that draw references: the short
+    ones."""
+    return [(seed, i) for i in range(COUNT) if CATEGORIES[i % len(CATEGORIES)] in SHORT_CATEGORIES]
 
 
-def write_references(seeds: tuple[int, ...] = (SEED, *HELD_OUT), count: int = COUNT) -> None:
-    """Solve the references of the short tasks of `seeds` within `count` afresh and store
-    them in REFERENCE_FILE beside the stored ones of other seeds."""
-    global _use_stored
-    from planner.impossible_suite_references import REFERENCES
-
-    _solved.clear()
-    for key, records in REFERENCES.items():
-        if key[0] not in seeds:
-            _solved[key] = [_reference(record) for record in records]
-    _use_stored = False
-    try:
-        for seed in seeds:
-            for index in range(count):
-                name, _ = impossible_task(index, seed)
-                for found in _solved.get((seed, index), []):
-                    print(seed, name, f"shortest {found.shortest}, "
-                          f"{found.iterations} iterations", flush=True)
-    finally:
-        _use_stored = True
-    stored = {key: [asdict(r) for r in found] for key, found in _solved.items()}
-    REFERENCE_FILE.write_text(module_text(_DOCSTRING, "REFERENCES", stored))
-
-
-if __name__ == "__main__":
-    import sys
-
-    from planner import impossible_suite
-
-    impossible_suite.write_references(tuple(int(s) for s in sys.argv[1:])
-                                      or (SEED, *HELD_OUT))
+REFERENCE_FILE = DATA / "impossible-references.json"
+REFERENCES = StoredRecords(
+    REFERENCE_FILE, Reference,
+    "What the reference solves of the impossible suite's short tasks found "
+    "(testbed.suites.impossible.Reference), per task (seed, index), per move its draw tried. "
+    "Written by `python -m testbed.suites regenerate --suite impossible`; not edited by hand.",
+    seeds=(SEED, *HELD_OUT), keys=reference_keys, draw=task_of)
+"""The stored references of the short tasks of SEED and HELD_OUT within COUNT."""

@@ -1,17 +1,17 @@
 """A generated suite of hard planning tasks: where plans take hundreds of iterations.
 
-Beside `planner.suite` (ordinary tasks), drawn from a seed the same way, each task named by
-its category (`<category>-<index>`), one of:
+Beside `testbed.suites.ordinary` (ordinary tasks), drawn from a seed the same way, each
+task named by its category (`<category>-<index>`), one of:
 
 - `seed-g0-cross`, `seed-g9.81-cross`: the seed's 4-link arm with its waves
   (`planner.examples.seed_arm(True)`: passive joints 0 and 2, waves on 1 and 3) in a
   horizontal (g = 0) and a vertical plane, rest to rest across a waveless coupling
   singularity: det M_pa of the arm without waves has opposite signs at the start and the
-  goal, which lie about a singular configuration (`planner.suite.singular_configuration`)
+  goal, which lie about a singular configuration (`testbed.suites.ordinary.singular_configuration`)
   with every joint moved by up to MOVE = 1.5 rad;
 - `seed-swing`: the seed arm in gravity, one active joint swung by SWING = 2 rad, the
   other joints moved by up to 0.5 rad;
-- `links-5to8`: random 5- to 8-link arms (`planner.suite.random_robot`) with mixed joints
+- `links-5to8`: random 5- to 8-link arms (`testbed.suites.ordinary.random_robot`) with mixed joints
   (at least one passive, no more passive than active; as many passive as active for half
   of the even numbers of links), across a waveless singularity where M_pa is square, every
   joint moved by up to LINKS_MOVE = 0.8 rad;
@@ -55,12 +55,14 @@ Every task is feasible by construction as far as can be checked before a solve (
 `check`): start and goal within their bounds, sigma_min(M_pa) at the start and the goal at
 least the margin, the tip target within reach; a bounds task has, besides, a witness (a
 verified plan within its bounds). Witnesses cost solves: those of the tasks of SEED and
-HELD_OUT within COUNT are stored (`planner.hard_suite_witnesses`, written by `python -m
-planner.hard_suite`), any other is solved when its task is drawn (seconds to minutes).
+HELD_OUT within COUNT and EXTRA_COUNT are stored (WITNESS_FILE, data/hard-witnesses.json,
+written by `python -m testbed.suites regenerate --suite hard`), any other is solved when its
+task is drawn (seconds to minutes).
 Everything else is the scene's default (Legendre degree 3 on 50 intervals, Ipopt, 60 s).
 
     hard_tasks(count, seed) -> list of (name, Scene)
     category_tasks(name, count, seed) -> list of (name, Scene)
+    task_of((seed, index)) -> (name, Scene)
 
 SEED is the suite's own seed, HELD_OUT two seeds for tasks the planner was not tuned on.
 """
@@ -68,23 +70,21 @@ SEED is the suite's own seed, HELD_OUT two seeds for tasks the planner was not t
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import math
 import os
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from pydantic import model_validator
 
 from planner.coupling_block import along, zeros_along
 from planner.dynamics import Dynamics
 from planner.examples import SEED_WAVES, seed_arm
 from planner.model import Robot, Wave
 from planner.scene import DurationRange, Scene
-from planner.stored_records import module_text
-from planner.suite import random_robot, singular_configuration
+from testbed.suites.ordinary import random_robot, singular_configuration
+from testbed.suites.records import DATA, Key, Record, StoredRecords, close
 
 if TYPE_CHECKING:
     from planner.ocp.result import Plan
@@ -240,8 +240,36 @@ def _co_design_ok(robot: Robot, start, goal, margin: float) -> bool:
                 and np.all(np.sign(witness.det) == np.sign(first)))
 
 
+def _torque_limited(rng: np.random.Generator, gravity: float) -> Scene:
+    """A `torque-limit` task (see the module)."""
+    robot = _seed_robot(gravity)
+    start, goal = _crossing(rng, robot, 1.0)
+    hold = max(holding_torque(robot, start), holding_torque(robot, goal))
+    plain = _scene(robot, start, goal)
+    slow = ROOM * guess_peak(plain, TIME_OPTIMAL[1])
+    limit = round(max(2 * hold, slow, 1.0) + rng.uniform(0.5, 2.0), 2)
+    shortest = TIME_OPTIMAL[0]
+    while guess_peak(plain, shortest) < ROOM * limit:
+        shortest /= 2
+    return _scene(robot, start, goal, torque_limit=limit,
+                  duration={"min": round(shortest, 4), "max": TIME_OPTIMAL[1]},
+                  objective={"effort": 1e-2, "time": 1.0})
+
+
+def _co_designed(rng: np.random.Generator, gravity: float) -> Scene:
+    """A `co-design` task (see the module)."""
+    robot = _seed_robot(gravity)
+    for _ in range(TRIES):
+        start, goal = _crossing(rng, robot, 1.0)
+        if _co_design_ok(robot, start, goal, MARGIN):
+            freq = [SEED_WAVES[j].frequency for j in robot.active]
+            return _scene(robot, start, goal, coupling_margin=MARGIN,
+                          co_design={"amplitude_max": AMPLITUDE_MAX, "frequency": freq})
+    raise RuntimeError("no co-design crossing found")
+
+
 def _task(category: str, rng: np.random.Generator, gravity: float,
-          key: tuple[int, int] | None = None) -> Scene:
+          key: Key | None = None) -> Scene:
     """A task of `category`; `gravity` for the categories that alternate it; `key` (seed,
     index) names a bounds task's stored witness."""
     if category in ("seed-g0-cross", "seed-g9.81-cross"):
@@ -258,18 +286,7 @@ def _task(category: str, rng: np.random.Generator, gravity: float,
         robot = _random_arm(rng, (5, 8), gravity)
         return _scene(robot, *_moved(rng, robot, LINKS_MOVE))
     if category == "torque-limit":
-        robot = _seed_robot(gravity)
-        start, goal = _crossing(rng, robot, 1.0)
-        hold = max(holding_torque(robot, start), holding_torque(robot, goal))
-        plain = _scene(robot, start, goal)
-        slow = ROOM * guess_peak(plain, TIME_OPTIMAL[1])
-        limit = round(max(2 * hold, slow, 1.0) + rng.uniform(0.5, 2.0), 2)
-        shortest = TIME_OPTIMAL[0]
-        while guess_peak(plain, shortest) < ROOM * limit:
-            shortest /= 2
-        return _scene(robot, start, goal, torque_limit=limit,
-                      duration={"min": round(shortest, 4), "max": TIME_OPTIMAL[1]},
-                      objective={"effort": 1e-2, "time": 1.0})
+        return _torque_limited(rng, gravity)
     if category == "free-time":
         robot = _random_arm(rng, (2, 4), gravity)
         start, goal = _moved(rng, robot, 1.0)
@@ -289,20 +306,13 @@ def _task(category: str, rng: np.random.Generator, gravity: float,
         robot = _random_arm(rng, (5, 5), gravity)
         return _bounded(rng, robot, lambda: _moved(rng, robot, LINKS_MOVE), key)
     if category == "co-design":
-        robot = _seed_robot(gravity)
-        for _ in range(TRIES):
-            start, goal = _crossing(rng, robot, 1.0)
-            if _co_design_ok(robot, start, goal, MARGIN):
-                freq = [SEED_WAVES[j].frequency for j in robot.active]
-                return _scene(robot, start, goal, coupling_margin=MARGIN,
-                              co_design={"amplitude_max": AMPLITUDE_MAX, "frequency": freq})
-        raise RuntimeError("no co-design crossing found")
+        return _co_designed(rng, gravity)
     raise ValueError(f"unknown category {category!r}")
 
 
 def _bounded(rng: np.random.Generator, robot: Robot,
              move: Callable[[], tuple[np.ndarray, np.ndarray]],
-             key: tuple[int, int] | None) -> Scene:
+             key: Key | None) -> Scene:
     """A bounds task of `robot`: a move drawn by `move` until its unbounded plan verifies,
     with position and velocity bounds on about three quarters of the joints from its
     witness (`witnessed`)."""
@@ -324,14 +334,19 @@ def _bounded(rng: np.random.Generator, robot: Robot,
 # --------------------------------------------------------------------------- witnesses
 
 
-@dataclass(frozen=True)
-class Envelope:
+class Envelope(Record):
     """A plan's range of angles [rad] and largest |rate| [rad/s], per joint: on its dense
     samples and at every interval's exact extrema, as its verification checks bounds."""
 
     q_min: tuple[float, ...]
     q_max: tuple[float, ...]
     rate_max: tuple[float, ...]
+
+    @model_validator(mode="after")
+    def _per_joint(self) -> Envelope:
+        if not len(self.q_min) == len(self.q_max) == len(self.rate_max):
+            raise ValueError("q_min, q_max and rate_max of different numbers of joints")
+        return self
 
     @classmethod
     def of(cls, plan: Plan) -> Envelope:
@@ -341,12 +356,11 @@ class Envelope:
         q_ext, dq_ext = q_of.extrema(), dq_of.extrema()
         q = np.vstack([q_of(t), q_ext.low, q_ext.high])
         rate = np.abs(np.vstack([dq_of(t), dq_ext.low, dq_ext.high]))
-        return cls(tuple(q.min(0).tolist()), tuple(q.max(0).tolist()),
-                   tuple(rate.max(0).tolist()))
+        return cls(q_min=tuple(q.min(0).tolist()), q_max=tuple(q.max(0).tolist()),
+                   rate_max=tuple(rate.max(0).tolist()))
 
 
-@dataclass(frozen=True)
-class Witnessed:
+class Witnessed(Record):
     """What the solves of a bounds task found: the envelope of the unbounded plan of its
     move (`free`; None: that plan did not verify, and the task draws another move), the
     scale of the cuts whose bounds a verified plan keeps (one of CUT_SCALES) and that
@@ -359,6 +373,18 @@ class Witnessed:
     scale: float
     witness: Envelope | None
     iterations: int
+
+    @model_validator(mode="after")
+    def _consistent(self) -> Witnessed:
+        joints = {len(self.start), len(self.goal)} | {
+            len(e.q_min) for e in (self.free, self.witness) if e is not None}
+        if len(joints) > 1:
+            raise ValueError("start, goal and envelopes of different numbers of joints")
+        if (self.free is None) != (self.witness is None) or self.scale not in CUT_SCALES \
+                or self.iterations < 0:
+            raise ValueError("a witness without an unbounded plan (or none with one), a scale "
+                             "not of CUT_SCALES or negative iterations")
+        return self
 
 
 def bounds_of(start, goal, free: Envelope, bounded, speed_cut: float,
@@ -413,65 +439,46 @@ def _witness(scene: Scene) -> tuple[Envelope | None, int]:
     return (Envelope.of(found) if ok else None), found.solver.iterations
 
 
-_use_stored = True
 _found: dict[tuple, Witnessed] = {}  # solved in this process, by move, joints and cuts
-_solved: dict[tuple[int, int], list[Witnessed]] = {}  # the same by (seed, index), in order
 
 
-def _stored(key: tuple[int, int] | None, start: np.ndarray, goal: np.ndarray) -> Witnessed | None:
-    """The stored witness of task `key` for this move, if any."""
-    if key is None or not _use_stored:
-        return None
-    from planner.hard_suite_witnesses import WITNESSES
-
-    for record in WITNESSES.get(key, []):
-        if np.allclose(record["start"], start, rtol=0.0, atol=1e-9) \
-                and np.allclose(record["goal"], goal, rtol=0.0, atol=1e-9):
-            return Witnessed(**{**record, "start": tuple(record["start"]),
-                                "goal": tuple(record["goal"]),
-                                "free": _envelope(record["free"]),
-                                "witness": _envelope(record["witness"])})
-    return None
-
-
-def _envelope(data: dict | None) -> Envelope | None:
-    return None if data is None else Envelope(**{k: tuple(v) for k, v in data.items()})
+def stored_witness(key: Key | None, start, goal) -> Witnessed | None:
+    """The stored witness of task `key` (seed, index) for this move, if any."""
+    return WITNESSES.lookup(key, lambda w: close(w.start, start) and close(w.goal, goal))
 
 
 def witnessed(robot: Robot, start: np.ndarray, goal: np.ndarray, bounded: np.ndarray,
-              cuts: tuple[float, float], key: tuple[int, int] | None = None) -> Witnessed:
+              cuts: tuple[float, float], key: Key | None = None) -> Witnessed:
     """The witness of a bounds task: the unbounded plan of the move, then plans within the
     bounds of its envelope cut by `cuts` (speed, excursion) times each of CUT_SCALES
     until one verifies (`bounds_of`); stored for the tasks of `key` (seed, index) in
-    `planner.hard_suite_witnesses`, else solved (and kept for this process)."""
-    stored = _stored(key, start, goal)
-    if stored is not None:
-        if key is not None and stored not in _solved.setdefault(key, []):
-            _solved[key].append(stored)
-        return stored
-    memo = (robot.gravity, tuple(start), tuple(goal), tuple(bounded), cuts)
-    if memo not in _found:
-        _found[memo] = _solve_witness(robot, start, goal, bounded, cuts)
-    if key is not None and _found[memo] not in _solved.setdefault(key, []):
-        _solved[key].append(_found[memo])
-    return _found[memo]
+    WITNESS_FILE, else solved (and kept for this process)."""
+    found = stored_witness(key, start, goal)
+    if found is None:
+        memo = (robot.gravity, tuple(start), tuple(goal), tuple(bounded), cuts)
+        if memo not in _found:
+            _found[memo] = _solve_witness(robot, start, goal, bounded, cuts)
+        found = _found[memo]
+    WITNESSES.keep(key, found)
+    return found
 
 
 def _solve_witness(robot: Robot, start: np.ndarray, goal: np.ndarray, bounded: np.ndarray,
                    cuts: tuple[float, float]) -> Witnessed:
-    ends = tuple(np.asarray(start).tolist()), tuple(np.asarray(goal).tolist())
+    ends = {"start": tuple(np.asarray(start).tolist()), "goal": tuple(np.asarray(goal).tolist())}
     free, iterations = _witness(_scene(robot, start, goal))
     if free is None:
-        return Witnessed(*ends, None, 0.0, None, iterations)
+        return Witnessed(**ends, free=None, scale=0.0, witness=None, iterations=iterations)
     for scale in CUT_SCALES:
         if scale == 0.0:
-            return Witnessed(*ends, free, 0.0, free, iterations)
+            return Witnessed(**ends, free=free, scale=0.0, witness=free, iterations=iterations)
         position, velocity = bounds_of(start, goal, free, bounded, *(scale * c for c in cuts))
         witness, spent = _witness(_scene(robot, start, goal, position_bounds=position,
                                          velocity_bounds=velocity))
         iterations += spent
         if witness is not None:
-            return Witnessed(*ends, free, scale, witness, iterations)
+            return Witnessed(**ends, free=free, scale=scale, witness=witness,
+                             iterations=iterations)
     raise AssertionError("CUT_SCALES ends with 0")
 
 
@@ -489,29 +496,43 @@ def index_of(name: str) -> int:
     return number
 
 
+def hard_task(index: int, seed: int = SEED) -> tuple[str, Scene]:
+    """Task `index` of the suite of `seed`, named "<category>-<index>": of category
+    CYCLE[index % 12], gravity alternating by round where its category leaves it open."""
+    kind = CYCLE[index % len(CYCLE)]
+    gravity = GRAVITY if (index // len(CYCLE)) % 2 else 0.0
+    rng = np.random.default_rng([seed, index])
+    return f"{kind}-{index:02d}", _task(kind, rng, gravity, (seed, index))
+
+
+def category_task(name: str, number: int, seed: int = SEED) -> tuple[str, Scene]:
+    """Task `number` of the extra category `name` (one of EXTRA_CATEGORIES) of `seed`,
+    named "<name>-<number>", gravity alternating between 0 and GRAVITY."""
+    label = f"{name}-{number:02d}"
+    index = index_of(label)
+    rng = np.random.default_rng([seed, index])
+    return label, _task(name, rng, GRAVITY if number % 2 else 0.0, (seed, index))
+
+
 def category_tasks(name: str, count: int = EXTRA_COUNT,
                    seed: int = SEED) -> list[tuple[str, Scene]]:
-    """`count` tasks of the extra category `name` (one of EXTRA_CATEGORIES), named
-    "<name>-<i>", gravity alternating between 0 and GRAVITY; task i depends on (seed, i)
-    alone."""
-    out = []
-    for i in range(count):
-        index = index_of(f"{name}-{i:02d}")
-        out.append((f"{name}-{i:02d}", _task(name, np.random.default_rng([seed, index]),
-                                              GRAVITY if i % 2 else 0.0, (seed, index))))
-    return out
+    """`count` tasks of the extra category `name`; task i depends on (seed, i) alone."""
+    return [category_task(name, number, seed) for number in range(count)]
 
 
 def hard_tasks(count: int = COUNT, seed: int = SEED) -> list[tuple[str, Scene]]:
     """`count` tasks named "<category>-<index>"; task i depends on (seed, i) alone, so a
     shorter suite is the start of a longer one."""
-    out = []
-    for index in range(count):
-        kind = CYCLE[index % len(CYCLE)]
-        gravity = GRAVITY if (index // len(CYCLE)) % 2 else 0.0  # alternating by round
-        out.append((f"{kind}-{index:02d}",
-                    _task(kind, np.random.default_rng([seed, index]), gravity, (seed, index))))
-    return out
+    return [hard_task(index, seed) for index in range(count)]
+
+
+def task_of(key: Key) -> tuple[str, Scene]:
+    """The task whose random draws come from `key` (seed, index): of the suite below
+    EXTRA_INDEX, of an extra category beyond."""
+    seed, index = key
+    if index < EXTRA_INDEX:
+        return hard_task(index, seed)
+    return category_task(EXTRA_CATEGORIES[index // EXTRA_INDEX - 1], index % EXTRA_INDEX, seed)
 
 
 # --------------------------------------------------------------------------- checks
@@ -574,37 +595,23 @@ def crossing_zeros(scene: Scene) -> np.ndarray:
     return np.empty(0) if zeros is None else zeros
 
 
-
 # --------------------------------------------------------------------------- stored witnesses
 
-WITNESS_FILE = Path(__file__).with_name("hard_suite_witnesses.py")
-_DOCSTRING = """What the witness solves of the hard suite's bounds tasks found, for the tasks of
-planner.hard_suite.SEED and HELD_OUT within COUNT: per (seed, index), per move drawn,
-`planner.hard_suite.Witnessed` as a dict. Written by `python -m planner.hard_suite`; not
-edited by hand."""
+
+def witness_keys(seed: int) -> list[Key]:
+    """(seed, index) of the tasks of `seed` that draw witnesses: the bounds tasks within
+    COUNT and the EXTRA_COUNT of every extra category (each a bounds category)."""
+    suite = [(seed, i) for i in range(COUNT) if CYCLE[i % len(CYCLE)] == "bounds"]
+    return suite + [(seed, index_of(f"{name}-{number:02d}"))
+                    for name in EXTRA_CATEGORIES for number in range(EXTRA_COUNT)]
 
 
-def write_witnesses(seeds: tuple[int, ...] = (SEED, *HELD_OUT), count: int = COUNT,
-                    afresh: bool = False) -> None:
-    """Store in WITNESS_FILE the witnesses of the bounds tasks of `seeds` within `count`
-    and of the extra categories' EXTRA_COUNT: those stored already as they are (`afresh`:
-    every one solved again), the others solved."""
-    global _use_stored
-    _use_stored = not afresh
-    try:
-        for seed in seeds:
-            drawn = hard_tasks(count, seed) + [
-                task for name in EXTRA_CATEGORIES for task in category_tasks(name, seed=seed)]
-            for name, _ in drawn:
-                print(seed, name, flush=True)
-    finally:
-        _use_stored = True
-    records = {key: [dataclasses.asdict(found) for found in found_list]
-               for key, found_list in _solved.items()}
-    WITNESS_FILE.write_text(module_text(_DOCSTRING, "WITNESSES", records))
-
-
-if __name__ == "__main__":
-    from planner import hard_suite
-
-    hard_suite.write_witnesses()
+WITNESS_FILE = DATA / "hard-witnesses.json"
+WITNESSES = StoredRecords(
+    WITNESS_FILE, Witnessed,
+    "What the witness solves of the hard suite's bounds tasks found "
+    "(testbed.suites.hard.Witnessed), per task (seed, index), per move its draw tried. "
+    "Written by `python -m testbed.suites regenerate --suite hard`; not edited by hand.",
+    seeds=(SEED, *HELD_OUT), keys=witness_keys, draw=task_of)
+"""The stored witnesses of the bounds tasks of SEED and HELD_OUT within COUNT and
+EXTRA_COUNT."""
