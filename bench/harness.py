@@ -29,7 +29,8 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from planner.ocp.problem import IPOPT_OPTIONS, ProblemKey, cached_problem, problem
+from planner.ocp.problem import ProblemKey, cached_problem, problem
+from planner.ocp.solvers.ipopt import IPOPT_OPTIONS
 from planner.scene import Scene
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -72,7 +73,7 @@ def build_instrumented(scene: Scene) -> tuple[float, CpuTimed]:
 
 @contextlib.contextmanager
 def ipopt_options(options: dict) -> Iterator[None]:
-    """NLPs built within use `planner.ocp.problem.IPOPT_OPTIONS` updated with `options`; the
+    """NLPs built within use `planner.ocp.solvers.ipopt.IPOPT_OPTIONS` updated with `options`; the
     cache of built NLPs is cleared on entry and on exit (a solver holds its options)."""
     saved = dict(IPOPT_OPTIONS)
     IPOPT_OPTIONS.update(options)

@@ -1,6 +1,6 @@
 """Ipopt settings of the planner: MUMPS' ordering and scaling, the barrier update.
 
-For each reference scene and each variant of `planner.ocp.problem.IPOPT_OPTIONS`
+For each reference scene and each variant of `planner.ocp.solvers.ipopt.IPOPT_OPTIONS`
 (`mumps_pivot_order`: Ipopt's automatic choice, AMD, PORD, METIS; `mumps_scaling`:
 MUMPS' automatic choice (77) or none (0); `mu_strategy`: adaptive or monotone; the
 adaptive update's `mu_oracle`: quality-function or probing), the NLP is built with those
@@ -27,7 +27,8 @@ import time
 from bench import harness
 from bench.scenes import make_scene
 from planner.ocp import plan
-from planner.ocp.problem import IPOPT_OPTIONS, ProblemKey, problem
+from planner.ocp.problem import ProblemKey, problem
+from planner.ocp.solvers.ipopt import IPOPT_OPTIONS
 
 DOC = harness.DOCS / "benchmarks.md"
 SECTION = "Ipopt settings"

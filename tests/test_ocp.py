@@ -2,20 +2,31 @@
 
 from __future__ import annotations
 
+import inspect
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from planner.dynamics import Dynamics
+from planner.dynamics import Dynamics, functions
 from planner.examples import example
 from planner.model import Robot
-from planner.ocp import Plan, plan
+from planner.ocp import Plan, methods, plan
 from planner.ocp import guess as guess_module
+from planner.ocp import key as key_module
 from planner.ocp import planner as planner_module
-from planner.ocp import problem as problem_module
+from planner.ocp.assembly import assemble
+from planner.ocp.boundary import boundary_cost
+from planner.ocp.formulation import formulation_sources
 from planner.ocp.guess import hermite_guess, inverse_dynamics_guess
-from planner.ocp.problem import ProblemKey, cached_problem, problem
+from planner.ocp.layout import Layout
+from planner.ocp.parameters import parameters
+from planner.ocp.problem import ProblemKey, build, cached_problem, problem
+from planner.ocp.stage_function import stage_function
+from planner.ocp.stages import stages
+from planner.ocp.terms import terms_of
+from planner.ocp.transcription import Model
 from planner.ocp.verdict import unverified_reason
 from planner.ocp.verify import coupling_along
 from planner.scene import Scene
@@ -105,8 +116,15 @@ def test_a_compiled_nlp_is_named_by_the_code_that_built_it(monkeypatch):
     key = ProblemKey.of(scene(N=10))
     assert key.digest() == ProblemKey.of(scene(N=10, duration=2.0)).digest()  # numbers: same
     before = key.digest()
-    monkeypatch.setattr(problem_module, "formulation_hash", lambda: "other code")
+    monkeypatch.setattr(key_module, "formulation_hash", lambda: "other code")
     assert key.digest() != before
+
+
+def test_the_code_that_builds_an_nlp_is_in_its_digest():
+    builders = (ProblemKey, terms_of, parameters, stage_function, stages, boundary_cost, build,
+                assemble, Layout, Model, methods.create, functions)
+    where = {Path(str(inspect.getsourcefile(inspect.unwrap(b)))).resolve() for b in builders}
+    assert where <= set(formulation_sources())
 
 
 def test_unused_features_build_no_constraints():

@@ -46,7 +46,7 @@ from planner.model import Structure, parameters
 from planner.ocp.accuracy import SAMPLES, interval_errors
 from planner.ocp.guess import hermite_guess
 from planner.ocp.interpolant import PiecewisePolynomial
-from planner.ocp.solve import fatrop_status
+from planner.ocp.solvers.fatrop import FATROP
 from planner.ocp.transcription import Interpolant
 from planner.ocp.verify import open_loop
 from planner.scene import Scene
@@ -154,7 +154,7 @@ def solve(scene: Scene, method: str = "collocation", solver: str = "ipopt",
               "build_time": built["build_time"] + total - solve_time, "solve_time": solve_time,
               "cpu_time": float(stats.get("t_proc_total", math.nan)),
               "iterations": int(stats.get("iter_count", 0)),
-              "status": fatrop_status(stats) if solver == "fatrop"
+              "status": FATROP.status(stats) if solver == "fatrop"
               else str(stats.get("return_status", "?")),
               "success": bool(stats.get("success")),
               "objective": float(sol.value(ocp.objective))}

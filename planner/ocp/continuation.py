@@ -15,6 +15,7 @@ import numpy as np
 
 from planner.model import Robot
 from planner.ocp.guess import Guess, hermite_guess, interpolant_guess
+from planner.ocp.solvers import SOLVERS
 from planner.ocp.transcription import Interpolant
 from planner.scene import Scene
 
@@ -26,10 +27,12 @@ NEGLIGIBLE = 1e-6
 
 def applies(scene: Scene) -> bool:
     """Whether the task has passive joints and an implicit transcription (the relaxed NLP
-    adds its virtual torques to the implicit dynamics rows)."""
+    adds its virtual torques to the implicit dynamics rows), and its solver starts from
+    given primal and dual values (each relaxed solve from the one before)."""
     tr = scene.transcription
     return bool(scene.robot.passive) and tr.form == "implicit" \
-        and tr.method != "multiple-shooting" and scene.solver.name == "ipopt"
+        and tr.method != "multiple-shooting" \
+        and SOLVERS[scene.solver.name].warm_options is not None
 
 
 def relaxed_guess(scene: Scene, robot: Robot, T: float) -> Guess:

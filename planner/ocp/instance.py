@@ -8,9 +8,11 @@ import numpy as np
 
 from planner.model import Robot, parameters
 from planner.ocp.guess import Guess
+from planner.ocp.key import ProblemKey
+from planner.ocp.layout import torques
 from planner.ocp.mesh import Mesh
-from planner.ocp.problem import Problem, ProblemKey, cached_problem, problem, torques
-from planner.ocp.terms import Numeric
+from planner.ocp.problem import Problem, cached_problem, problem
+from planner.ocp.terms import Numeric, terms_of
 from planner.scene import DurationRange, Scene
 
 
@@ -77,7 +79,7 @@ def parameters_of(scene: Scene, prob: Problem, robot: Robot, mesh: Mesh, T: floa
     table[N, local["weights"].start:local["weights"].start + terminal_w.size] = terminal_w
     table[:, local["boundary"]] = _boundary_durations(prob, mesh)[:, None]
     num = Numeric(scene, robot, T, mesh, prob.transcription, prob.key, virtual_weight)
-    for term in prob.key.terms():
+    for term in terms_of(prob.key):
         head[common[term.name]] = term.common_values(num)
         if term.name in local:
             table[:, local[term.name]] = term.local_values(num)

@@ -124,3 +124,21 @@ def split(parts: tuple[Part, ...], w: Sym) -> dict[str, Sym]:
     for part, start in zip(parts, _offsets(parts).values(), strict=True):
         out[part.name] = ca.reshape(w[start:start + part.size], part.rows, len(part.positions))
     return out
+
+
+def torques(layout: Layout) -> tuple[list[np.ndarray], list[float], list[np.ndarray], list[float]]:
+    """The torque columns of a stage and of the terminal in time order, with their positions
+    (local indices into the stage's / the terminal's variables)."""
+    def columns(parts: tuple[Part, ...]) -> tuple[list[np.ndarray], list[float]]:
+        found, start = [], 0
+        for part in parts:
+            if part.kind == "tau":
+                for j, at in enumerate(part.positions):
+                    found.append((at, start + j * part.rows + np.arange(part.rows)))
+            start += part.size
+        found.sort(key=lambda item: item[0])
+        return [idx for _, idx in found], [at for at, _ in found]
+
+    stage, stage_at = columns(layout.stage)
+    terminal, terminal_at = columns(layout.terminal)
+    return stage, stage_at, terminal, terminal_at

@@ -1,4 +1,5 @@
-"""One Ipopt solve of an NLP instance, within the plan's iteration and wall-time budget."""
+"""One solve of an NLP instance by its solver (`planner.ocp.solvers`), within the plan's
+iteration and wall-time budget."""
 
 from __future__ import annotations
 
@@ -12,21 +13,11 @@ import numpy as np
 
 from planner.ocp.instance import Instance
 from planner.ocp.monitor import STALL_WINDOW, Handler
+from planner.ocp.solvers import SOLVERS
 
 _STOP_STATUS = {"cancelled": "User_Requested_Stop", "max_iter": "Maximum_Iterations_Exceeded",
                 "max_wall_time": "Maximum_WallTime_Exceeded", "stalled": "Stalled"}
-_FATROP_STATUS = {"SOLVER_RET_SUCCESS": "Solve_Succeeded",
-                  "SOLVER_RET_LIMITED": "Maximum_Iterations_Exceeded",
-                  "SOLVER_RET_NAN": "Invalid_Number_Detected",
-                  "SOLVER_RET_INFEASIBLE": "Infeasible_Problem_Detected"}
-"""fatrop's unified return statuses, named as Ipopt names the same outcome."""
-
-
-def fatrop_status(stats: dict) -> str:
-    """fatrop's outcome in a solver's statistics, named as Ipopt names it."""
-    unified = str(stats.get("unified_return_status", "unknown"))
-    return _FATROP_STATUS.get(unified, f"fatrop: {unified} (return flag "
-                                       f"{stats.get('return_status', '?')})")
+"""Why the iteration monitor stopped a solve, as a status."""
 _MESSAGES = {"User_Requested_Stop": "the solve was cancelled",
              "Maximum_Iterations_Exceeded": "the iteration limit was reached",
              "Maximum_WallTime_Exceeded": "the wall-time limit was reached",
@@ -173,7 +164,8 @@ def solve(inst: Instance, x0: np.ndarray, budget: Budget, handler: Handler | Non
     except RuntimeError as exc:  # an evaluation error: the last iterate Ipopt reached
         out, error = None, str(exc).strip().splitlines()[-1]
     elapsed = time.perf_counter() - started
-    monitored = prob.key.solver == "ipopt"  # fatrop calls no iteration callback
+    kind = SOLVERS[prob.key.solver]
+    monitored = kind.monitored  # else its statistics count its iterations
     stats = solver.stats() if out is not None or not monitored else {}
     iterations = max(monitor.calls - 1, 0) if monitored else int(stats.get("iter_count", 0))
     budget.used += iterations
@@ -181,8 +173,7 @@ def solve(inst: Instance, x0: np.ndarray, budget: Budget, handler: Handler | Non
         x = monitor.last_x if monitor.last_x is not None else np.asarray(x0, float)
         return Solution(x, None, None, monitor.last_f, "Error", False, error, iterations,
                         elapsed)
-    status = _STOP_STATUS.get(monitor.reason, stats.get("return_status", "Error")) \
-        if monitored else fatrop_status(stats)
+    status = _STOP_STATUS.get(monitor.reason) or kind.status(stats)
     success = bool(stats.get("success", False)) and not monitor.reason
     objective = float(out["f"])
     return Solution(np.array(out["x"]).ravel(), np.array(out["lam_x"]).ravel(),

@@ -11,21 +11,19 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Generic
+from typing import Generic
 
 import casadi as ca
 import numpy as np
 
 from planner.dynamics import derive, functions
 from planner.model import Robot, Structure
+from planner.ocp.key import ProblemKey
 from planner.ocp.mesh import Mesh
 from planner.ocp.transcription import AnyTranscription, StagePiece
 from planner.ocp.verify import coupling_along
 from planner.scene import Scene
 from planner.symbolic import Sym
-
-if TYPE_CHECKING:
-    from planner.ocp.problem import ProblemKey
 
 
 @dataclass(frozen=True)
@@ -380,3 +378,8 @@ TERMS: tuple[Term, ...] = (Effort(), Time(), Smoothness(), Tracking(), TipTarget
                            CouplingMargin(), TorqueLimit(), StateBounds("q", "position_bounds"),
                            StateBounds("dq", "velocity_bounds"))
 """Every term, in the order their costs and rows enter the NLP."""
+
+
+def terms_of(key: ProblemKey) -> list[Term]:
+    """The objective and constraint terms a key asks for, in `TERMS` order."""
+    return [term for term in TERMS if term.wanted(key)]
