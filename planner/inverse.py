@@ -33,8 +33,8 @@ from pydantic import BaseModel, Field, model_validator
 from scipy.integrate import solve_ivp
 
 from planner import budget
-from planner.coupling import check_split
 from planner.coupling_block import along, measures
+from planner.coupling_request import check_split
 from planner.dynamics import derive, functions
 from planner.errors import InputError
 from planner.model import Robot, Structure, parameters

@@ -12,8 +12,10 @@ import pytest
 from conftest import point_mass_dynamics
 from pydantic import ValidationError
 
-from planner.coupling import MAX_POINTS, MAX_RESULTS, MAX_SINGULAR, CouplingRequest, analyse
+from planner.coupling import MAX_RESULTS, CouplingRequest, analyse
 from planner.coupling_block import blocks, measures
+from planner.coupling_request import MAX_POINTS
+from planner.coupling_singularities import MAX_SINGULAR
 from planner.model import Robot
 
 L0, L1, M1, I1 = 0.5, 0.4, 0.5, 0.005
