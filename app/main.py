@@ -86,15 +86,21 @@ def create_app(settings: Settings | None = None, solve: SolveFunction | None = N
     for router in (dynamics.router, plans.router, batches.router, examples.router,
                    plots.router, samples.router, workers.router):
         app.include_router(router, dependencies=secured)
+    _add_middleware(app, settings)
+    app.openapi = lambda: document(app)  # type: ignore[method-assign]  # FastAPI's documented override of its schema
+    app.router.routes.extend(viewer.routes())
+    return app
+
+
+def _add_middleware(app: FastAPI, settings: Settings) -> None:
+    """The app's middleware, innermost first: a request passes the request id, the metrics,
+    the API key, the body limit and the catch-all for unexpected errors, in that order."""
     app.add_middleware(errors.UnexpectedErrorMiddleware)
     app.add_middleware(BodyLimitMiddleware, limit=settings.max_body_bytes,
                        timeout=settings.read_timeout)
     app.add_middleware(ApiKeyMiddleware, key=settings.api_key)
     app.add_middleware(MetricsMiddleware, metrics=app.state.metrics)
     app.add_middleware(RequestIdMiddleware)
-    app.openapi = lambda: document(app)  # type: ignore[method-assign]  # FastAPI's documented override of its schema
-    app.router.routes.extend(viewer.routes())
-    return app
 
 
 async def _store_unavailable(request: Request, exc: StoreUnavailable) -> JSONResponse:

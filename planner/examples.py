@@ -214,50 +214,49 @@ PLAN_ARM: dict[str, Any] = {"links": [
 """Two links, passive shoulder, wavy active elbow; g = 0 (the planner's test arm)."""
 
 
+_HORIZONTAL_PLAN: dict[str, Any] = {
+    "robot": {**VERTICAL_SEED_ARM, "gravity": 0.0},
+    "task": {"duration": 2.0,
+             "initial": {"q": [-0.48, 1.22, 0.02, -1.47], "dq": [0.0] * 4},
+             "final": {"q": [0.18, 2.19, -1.03, -0.45], "dq": [0.0] * 4},
+             "objective": {"effort": 1.0}},
+    "transcription": {"method": "legendre", "intervals": 50, "degree": 3},
+    "solver": {"max_iter": 1000, "max_wall_time": 60.0},
+}
+"""The seed arm in a horizontal plane: without gravity a passive joint turns only by the
+coupling to the active ones (the passive base keeps the angular momentum at zero), and
+the waveless det M_pa changes sign on the way; the hard suite's kind of task
+("seed-g0-cross", docs/benchmarks.md, "The hard suite"), verified in about 60 iterations."""
+
+_HANGING_PLAN: dict[str, Any] = {
+    "robot": VERTICAL_SEED_ARM,
+    "task": {"duration": 1.6, "initial": {"q": [0.0, 1.45, 0.0, -0.8], "dq": [0.0] * 4},
+             "final": {"q": [0.0, 1.70, 0.0, -0.8], "dq": [0.0] * 4},
+             "coupling_margin": 0.005, "objective": {"effort": 1.0}},
+    "transcription": {"method": "legendre", "intervals": 50, "degree": 3},
+    "solver": {"max_iter": 1000, "max_wall_time": 60.0},
+}
+"""The seed arm's: with q0 = q2 = 0 the waveless M_01 and M_21 go as cos(q1), so det M_pa
+changes sign where link 1 is horizontal; gravity holds the passive links near rest and
+Ipopt converges in about ten iterations (docs/benchmarks.md, "seed-hang")."""
+
+_CROSSING_PLAN: dict[str, Any] = {
+    "robot": PLAN_ARM,
+    "task": {"duration": 2.0, "initial": {"q": [0.0, 0.8], "dq": [0.0, 0.0]},
+             "final": {"q": [0.0, 1.75], "dq": [0.0, 0.0]}, "coupling_margin": 0.01,
+             "objective": {"effort": 1.0}},
+    "transcription": {"method": "legendre", "intervals": 40, "degree": 3},
+    "solver": {"max_iter": 1000, "max_wall_time": 60.0},
+}
+"""The two-link arm's starts and ends at rest; without the wave
+M_pa = I2 + m2 l1 l2 cos(q0 - q1) changes sign between the two configurations, with it
+the determinant keeps its sign. With a passive shoulder, g = 0 and the margin, nearby end
+states lead Ipopt to spurious local optima (docs/planner.md, "Passive joints and the
+coupling margin"); this one converges to a verified plan in under a hundred iterations."""
+
+
 def _plan_examples() -> list[Example]:
-    """Optimal-control plans (kind "plan", scenes for planner.ocp.plan), the headline first.
-
-    The seed arm in a horizontal plane: without gravity a passive joint turns only by the
-    coupling to the active ones (the passive base keeps the angular momentum at zero), and
-    the waveless det M_pa changes sign on the way; the hard suite's kind of task
-    ("seed-g0-cross", docs/benchmarks.md, "The hard suite"), verified in about 60 iterations.
-
-    The seed arm's: with q0 = q2 = 0 the waveless M_01 and M_21 go as cos(q1), so det M_pa
-    changes sign where link 1 is horizontal; gravity holds the passive links near rest and
-    Ipopt converges in about ten iterations (docs/benchmarks.md, "seed-hang").
-    The two-link arm's starts and ends at rest; without the wave
-    M_pa = I2 + m2 l1 l2 cos(q0 - q1) changes sign between the two configurations, with it
-    the determinant keeps its sign.
-    With a passive shoulder, g = 0 and the margin, nearby end states lead Ipopt to
-    spurious local optima (docs/planner.md, "Passive joints and the coupling margin");
-    this one converges to a verified plan in under a hundred iterations.
-    """
-    rest = [0.0, 0.0]
-    crossing = {
-        "robot": PLAN_ARM,
-        "task": {"duration": 2.0, "initial": {"q": [0.0, 0.8], "dq": rest},
-                 "final": {"q": [0.0, 1.75], "dq": rest}, "coupling_margin": 0.01,
-                 "objective": {"effort": 1.0}},
-        "transcription": {"method": "legendre", "intervals": 40, "degree": 3},
-        "solver": {"max_iter": 1000, "max_wall_time": 60.0},
-    }
-    horizontal = {
-        "robot": {**VERTICAL_SEED_ARM, "gravity": 0.0},
-        "task": {"duration": 2.0,
-                 "initial": {"q": [-0.48, 1.22, 0.02, -1.47], "dq": [0.0] * 4},
-                 "final": {"q": [0.18, 2.19, -1.03, -0.45], "dq": [0.0] * 4},
-                 "objective": {"effort": 1.0}},
-        "transcription": {"method": "legendre", "intervals": 50, "degree": 3},
-        "solver": {"max_iter": 1000, "max_wall_time": 60.0},
-    }
-    hanging = {
-        "robot": VERTICAL_SEED_ARM,
-        "task": {"duration": 1.6, "initial": {"q": [0.0, 1.45, 0.0, -0.8], "dq": [0.0] * 4},
-                 "final": {"q": [0.0, 1.70, 0.0, -0.8], "dq": [0.0] * 4},
-                 "coupling_margin": 0.005, "objective": {"effort": 1.0}},
-        "transcription": {"method": "legendre", "intervals": 50, "degree": 3},
-        "solver": {"max_iter": 1000, "max_wall_time": 60.0},
-    }
+    """Optimal-control plans (kind "plan", scenes for planner.ocp.plan), the headline first."""
     return [
         Example(name="seed-arm-horizontal-plan",
                 title="Seed arm, horizontal plane: across a waveless singularity",
@@ -268,18 +267,18 @@ def _plan_examples() -> list[Example]:
                             "singular, which the classical inverse dynamics cannot pass. The "
                             "planner never inverts M_pa; the result lists the crossings and "
                             "sigma_min(M_pa) with and without the waves along the plan.",
-                kind="plan", request=horizontal),
+                kind="plan", request=_HORIZONTAL_PLAN),
         Example(name="seed-arm-plan", title="Seed arm: rest to rest through a singularity",
                 description="The seed's 4-link arm in a vertical plane, its passive links 0 "
                             "and 2 hanging at rest: active link 1 swings across the "
                             "horizontal, where the waveless coupling is singular, keeping "
                             "sigma_min(M_pa) >= 0.005; the passive links come back to rest.",
-                kind="plan", request=hanging),
+                kind="plan", request=_HANGING_PLAN),
         Example(name="two-link-plan", title="Two-link arm: rest to rest through a singularity",
                 description="Feed-forward torques that move a passive shoulder and a wavy elbow "
                             "through configurations where the waveless coupling is singular, "
                             "keeping sigma_min(M_pa) >= 0.01; the result lists the crossings.",
-                kind="plan", request=crossing),
+                kind="plan", request=_CROSSING_PLAN),
     ]
 
 

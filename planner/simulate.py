@@ -134,8 +134,7 @@ def simulate(robot: Robot, breakpoints, coeffs, x0, samples_per_interval: int = 
     """
     s = Structure.of(robot)
     p = parameters(robot, s)
-    tk = np.asarray(breakpoints, float)
-    coeffs = np.asarray(coeffs, float)
+    tk, coeffs = np.asarray(breakpoints, float), np.asarray(coeffs, float)
     K, degree = coeffs.shape[0], coeffs.shape[1] - 1
     pieces = 1 if deadline is None else samples_per_interval
     per_call = samples_per_interval // pieces
