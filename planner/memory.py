@@ -4,7 +4,7 @@
 An earlier plan can seed a scene when it has the same *shape*: the same number of joints,
 the same passive ones, waves on the same joints, the same final-state entries left free, and
 a tip target in both or neither. Its trajectory is then an initial guess of the right size,
-and where its NLP is the same problem (`planner.ocp.problem.ProblemKey`), its solution
+and where its NLP is the same problem (`planner.ocp.key.ProblemKey`), its solution
 starts the solver primal and dual.
 
 Among the plans of the same shape the nearest is the one at the least `distance`, a length

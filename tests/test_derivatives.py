@@ -31,8 +31,8 @@ import pytest
 from planner.ocp import problem as problem_module
 from planner.ocp.assembly import Blocks, Derivatives
 from planner.ocp.instance import instance
+from planner.ocp.key import ProblemKey
 from planner.ocp.mesh import Mesh
-from planner.ocp.problem import ProblemKey
 from planner.scene import Scene
 
 N = 3

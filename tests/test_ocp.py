@@ -20,9 +20,10 @@ from planner.ocp.assembly import assemble
 from planner.ocp.boundary import boundary_cost
 from planner.ocp.formulation import formulation_sources
 from planner.ocp.guess import hermite_guess, inverse_dynamics_guess
+from planner.ocp.key import ProblemKey
 from planner.ocp.layout import Layout
 from planner.ocp.parameters import parameters
-from planner.ocp.problem import ProblemKey, build, cached_problem, problem
+from planner.ocp.problem import build, cached_problem, problem
 from planner.ocp.stage_function import stage_function
 from planner.ocp.stages import stages
 from planner.ocp.terms import terms_of
