@@ -18,7 +18,7 @@ from planner.ocp.robustness import models, robustness
 from planner.ocp.transcription import Interpolant
 from planner.ocp.verdict import unverified_reason
 from planner.scene import Scene, Uncertainty
-from planner.simulate import SimulationRequest, run
+from planner.simulate import SimulationRequest, run, simulate
 
 
 def _scene(**changes) -> Scene:
@@ -127,3 +127,37 @@ def test_a_feedback_of_the_wrong_shape_is_refused_at_its_field(planned: tuple[Sc
             "robot": scene.robot.model_dump(mode="json"), "torque": result.torque.model_dump(),
             "initial": {"q": result.q[0], "dq": result.dq[0]},
             "feedback": {"gains": result.feedback.gains[1:], "q": result.q, "dq": result.dq}})
+
+
+def test_the_replays_saturate_at_the_torque_limit_and_say_what_the_feedback_asked(
+        planned: tuple[Scene, Plan]):
+    scene, result = planned
+    interp, robot = _interp(result), scene.robot
+    K = np.asarray(result.feedback.gains)
+    start = np.concatenate([result.q[0], result.dq[0]])
+    kicked = (start + 0.2)[None, :]  # far off the plan: the feedback asks for much
+    (error, _, end, asked), = replay(robot, interp, kicked, K, ends=True)
+    assert asked > np.abs(np.asarray(result.tau)).max()
+    # a limit above what it asks changes nothing
+    (same, _, end_same, _), = replay(robot, interp, kicked, K, ends=True,
+                                     limit=np.full(len(robot.active), 2 * asked))
+    assert same == error and np.array_equal(end_same, end)
+    # a limit of 0 leaves the free motion, integrated here by planner.simulate on its own
+    (_, _, stopped, _), = replay(robot, interp, kicked, K, ends=True,
+                                 limit=np.zeros(len(robot.active)))
+    breaks = np.asarray(result.t)
+    free = simulate(robot, breaks, np.zeros((len(breaks) - 1, 1, len(robot.active))),
+                    kicked[0])
+    assert np.allclose(stopped, np.concatenate([free.q[-1], free.dq[-1]]), atol=1e-6)
+
+
+def test_a_limited_plan_reports_the_largest_torque_its_feedback_commands_on_the_models():
+    scene = _scene()
+    data = scene.model_dump(exclude_unset=True)
+    unlimited = plan(scene)
+    data["task"]["torque_limit"] = 1.02 * float(np.abs(np.asarray(unlimited.tau)).max())
+    limited = plan(Scene.model_validate(data))
+    report = limited.verification.robustness
+    assert limited.status == "verified" and report is not None
+    assert report.largest_torque >= float(np.abs(np.asarray(limited.dense.tau)).max())
+    assert report.saturated == (report.largest_torque > data["task"]["torque_limit"])

@@ -150,12 +150,14 @@ def gains(lin: Linearisation, h: np.ndarray, tau_scale: float) -> Feedback | Non
 @dataclass(frozen=True)
 class _Reference:
     """What a replay follows: per interval k, the plan's state at its start planned[k]
-    (2n,), its angles q_plan[k] (REPLAY_SAMPLES, n) at the comparison points, the
+    (2n,), its angles q_plan[k] (REPLAY_SAMPLES, n) and torques tau_plan[k]
+    (REPLAY_SAMPLES + 1, na) at the interval's start and comparison points, the
     integrator's parameters params[:, k] and, where given, the gains K[k] (na, 2n)."""
 
     breaks: np.ndarray
     planned: np.ndarray
     q_plan: np.ndarray
+    tau_plan: np.ndarray
     params: np.ndarray
     K: np.ndarray | None
     na: int
@@ -163,46 +165,52 @@ class _Reference:
 
 def replay(robot: Robot, interp: Interpolant, starts: np.ndarray, K: np.ndarray | None,
            tol: float = REPLAY_TOL, compiled: bool = False, ends: bool = False,
-           deadline: float | None = None) -> list[tuple]:
+           deadline: float | None = None, limit: np.ndarray | None = None) -> list[tuple]:
     """Replays from each of `starts` (R, 2n) under the plan's torque and, with gains
-    K (N, na, 2n), the feedback: per start, max |q_sim - q_plan| [rad] over REPLAY_SAMPLES
-    points per interval and "completed", or None and where CVODES failed (compiled: the
-    dynamics compiled to C); ends: and the final state (2n,) (None where it failed). Each
-    start is replayed on its own: one that diverges leaves the others' replays whole. Past
-    `deadline` (time.perf_counter() seconds) a replay stops at its next interval (None, and
-    where it stopped): CVODES can take seconds per interval on a diverging motion."""
+    K (N, na, 2n), the feedback, the actuators saturating at `limit` (na,) [N m] where
+    given: per start, max |q_sim - q_plan| [rad] over REPLAY_SAMPLES points per interval and
+    "completed", or None and where CVODES failed (compiled: the dynamics compiled to C);
+    ends: also the final state (2n,) (None where it failed) and the largest torque the
+    plan and its feedback command [N m] (before the saturation; at each interval's start
+    and comparison points). Each start is replayed on its own: one that diverges leaves
+    the others' replays whole. Past `deadline` (time.perf_counter() seconds) a replay stops
+    at its next interval (None, and where it stopped): CVODES can take seconds per
+    interval on a diverging motion."""
     s = Structure.of(robot)
     N, degree = interp.tau.coeffs.shape[0], interp.tau.coeffs.shape[1] - 1
     integrate = flow(s, degree, REPLAY_SAMPLES, 1, tol, compiled)
     breaks = interp.q.breaks
-    fractions = np.arange(1, REPLAY_SAMPLES + 1) / REPLAY_SAMPLES
+    fractions = np.arange(0, REPLAY_SAMPLES + 1) / REPLAY_SAMPLES
     t = (breaks[:-1, None] + np.diff(breaks)[:, None] * fractions[None, :]).ravel()
-    ref = _Reference(breaks, np.hstack([interp.q(breaks), interp.dq(breaks)]),
-                     interp.q(t).reshape(N, REPLAY_SAMPLES, -1), inputs(robot, interp)[1], K,
-                     len(s.active_idx))
+    q_at = interp.q(t).reshape(N, REPLAY_SAMPLES + 1, -1)[:, 1:]
+    ref = _Reference(breaks, np.hstack([interp.q(breaks), interp.dq(breaks)]), q_at,
+                     interp.tau(t).reshape(N, REPLAY_SAMPLES + 1, -1),
+                     inputs(robot, interp, limit)[1], K, len(s.active_idx))
     done = [_replay_from(integrate, np.asarray(start, float), ref, s.n, deadline)
             for start in starts]
-    return done if ends else [(error, status) for error, status, _ in done]
+    return done if ends else [(error, status) for error, status, _, _ in done]
 
 
 def _replay_from(integrate: Flow, x: np.ndarray, ref: _Reference, n: int,
-                 deadline: float | None = None) -> tuple[float | None, str, np.ndarray | None]:
-    """One replay from the state x (2n,) along `ref`, stopped past `deadline`, and its
-    final state."""
-    worst = 0.0
+                 deadline: float | None = None
+                 ) -> tuple[float | None, str, np.ndarray | None, float]:
+    """One replay from the state x (2n,) along `ref`, stopped past `deadline`: its error,
+    status, final state and the largest torque commanded so far [N m]."""
+    worst, peak = 0.0, 0.0
     for k in range(len(ref.breaks) - 1):
         if deadline is not None and perf_counter() > deadline:
             return None, (f"stopped at t = {ref.breaks[k]:.6g} s: the plan's wall-time "
-                          "budget (solver.max_wall_time) ran out"), None
+                          "budget (solver.max_wall_time) ran out"), None, peak
         u = np.zeros(ref.na) if ref.K is None else -ref.K[k] @ (x - ref.planned[k])
+        peak = max(peak, float(np.abs(ref.tau_plan[k] + u[None, :]).max(initial=0.0)))
         where = f"between t = {ref.breaks[k]:.6g} s and t = {ref.breaks[k + 1]:.6g} s"
         try:
             states = integrate(x[:, None], ref.params[:, k:k + 1],
                                np.repeat(u[:, None], REPLAY_SAMPLES, axis=1))
         except RuntimeError:
-            return None, f"CVODES failed {where}", None
+            return None, f"CVODES failed {where}", None, peak
         if not np.all(np.isfinite(states)):
-            return None, f"the state became non-finite {where}", None
+            return None, f"the state became non-finite {where}", None, peak
         worst = max(worst, float(np.abs(states[:n].T - ref.q_plan[k]).max()))
         x = states[:, -1]
-    return worst, "completed", x
+    return worst, "completed", x, peak

@@ -1,13 +1,16 @@
-"""The flow of the dynamics across the intervals of a plan, by CVODES, all intervals at once.
+"""The flow of the dynamics across the intervals of a plan, by CVODES, all intervals at
+once.
 
-On interval k, in normalised time s = (t - t_k) / h_k in [0, 1], the arm follows
-M ddq + h = B (tau_k(s) + u), tau_k the plan's torque polynomial and u a constant torque
-offset [N m] (0 for the plan itself, a feedback correction otherwise). The integrator is
-mapped over intervals, each started from its own state: one call re-integrates every
-interval of a plan. CVODES integrates by Adams-Moulton with functional iteration, as
-`planner.simulate` does by default: the arms are not stiff, and on plans of the seed arm
-the interval check and the replays take a quarter to a half of BDF's time
-(`python -m bench verification`). Where Adams fails, BDF with Newton iteration takes over.
+On interval k, in normalised time s = (t - t_k) / h_k in [0, 1], the arm follows M ddq +
+h = B sat(tau_k(s) + u), tau_k the plan's torque polynomial, u a constant torque offset
+[N m] (0 for the plan itself, a feedback correction otherwise) and sat the actuators'
+saturation at the task's torque limit L, min(max(., -L), L) (L = inf: none). The
+integrator is mapped over intervals, each started from its own state: one call
+re-integrates every interval of a plan. CVODES integrates by Adams-Moulton with
+functional iteration, as `planner.simulate` does by default: the arms are not stiff, and
+on plans of the seed arm the interval check and the replays take a quarter to a half of
+BDF's time (`python -m bench verification`). Where Adams fails, BDF with Newton
+iteration takes over.
 """
 
 from __future__ import annotations
@@ -41,9 +44,11 @@ def _dae(s: Structure, degree: int) -> ca.Function:
     sn, h = ca.SX.sym("s"), ca.SX.sym("h")
     coeffs = ca.SX.sym("c", (degree + 1) * na)
     p = ca.SX.sym("p", s.n_params)
-    tau = sum(coeffs[j * na:(j + 1) * na] * sn**j for j in range(degree + 1)) + u
+    limit = ca.SX.sym("limit", na)
+    wanted = sum(coeffs[j * na:(j + 1) * na] * sn**j for j in range(degree + 1)) + u
+    tau = ca.fmin(ca.fmax(wanted, -limit), limit)
     none = ca.SX(0, 1)
-    return ca.Function("flow_ode", [sn, x, none, ca.vertcat(p, coeffs, h), u],
+    return ca.Function("flow_ode", [sn, x, none, ca.vertcat(p, coeffs, h, limit), u],
                        [h * f(x, tau, p), none, none, none], ca.dyn_in(), ca.dyn_out())
 
 
@@ -106,9 +111,10 @@ def flow(s: Structure, degree: int, outputs: int, batch: int, tol: float = TOL,
          compiled: bool = False) -> Flow:
     """The flow of `batch` intervals at once. Per interval: x0 (2n) -> xf (2n x outputs) at
     s = 1/outputs, 2/outputs, ..., 1 with p = [robot parameters, torque coefficients
-    (degree + 1 by na, power-major), h] and u the torque offset, na x outputs (one per
-    output interval). compiled: the right-hand side compiled to C (about twice as fast)
-    once it is on disk, interpreted while it is built in the background."""
+    (degree + 1 by na, power-major), h, torque limits (na; inf: none)] and u the torque
+    offset, na x outputs (one per output interval). compiled: the right-hand side compiled
+    to C (about twice as fast) once it is on disk, interpreted while it is built in the
+    background."""
     ready = compiled and _compiled_dae(s, degree) is not None
     return _flow(s, degree, outputs, batch, tol, ready)
 
@@ -132,14 +138,17 @@ def _integrator(s: Structure, degree: int, outputs: int, tol: float,
                           "disable_internal_warnings": True, **METHODS[method]})
 
 
-def inputs(robot: Robot, interp: Interpolant) -> tuple[np.ndarray, np.ndarray]:
+def inputs(robot: Robot, interp: Interpolant,
+           limit: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The plan's state at the start of every interval (2n x N) and the integrator's p of
-    every interval (columns)."""
+    every interval (columns), the torque saturated at `limit` (na,) [N m] (None: not)."""
     breaks = interp.q.breaks
     starts = np.hstack([interp.q(breaks[:-1]), interp.dq(breaks[:-1])]).T
     coeffs = interp.tau.coeffs  # (N, m, na)
     N = coeffs.shape[0]
     p = parameters(robot, Structure.of(robot))
+    na = coeffs.shape[2]
+    sat = np.full(na, np.inf) if limit is None else np.broadcast_to(limit, (na,))
     params = np.vstack([np.repeat(p[:, None], N, axis=1), coeffs.reshape(N, -1).T,
-                        np.diff(breaks)[None, :]])
+                        np.diff(breaks)[None, :], np.repeat(sat[:, None], N, axis=1)])
     return starts, params

@@ -59,23 +59,26 @@ def _scaled(robot: Robot, scale: dict[str, float]) -> Robot:
 
 def robustness(robot: Robot, interp: Interpolant, K: np.ndarray, uncertainty: Uncertainty,
                bound: float | None, compiled: bool = False,
-               deadline: float | None = None) -> Robustness:
+               deadline: float | None = None, limit: np.ndarray | None = None) -> Robustness:
     """The plan `interp` of `robot` with gains K (N, na, 2n) replayed on every corner model
-    of `uncertainty`; `bound` [rad]: the largest worst tracking error it may have; a replay
-    still running past `deadline` (time.perf_counter() seconds) stops (as one diverged)."""
+    of `uncertainty`, the actuators saturating at `limit` (na,) [N m] where given; `bound`
+    [rad]: the largest worst tracking error it may have; a replay still running past
+    `deadline` (time.perf_counter() seconds) stops (as one diverged)."""
     breaks = interp.q.breaks
     start = np.concatenate([interp.q(breaks[:1])[0], interp.dq(breaks[:1])[0]])
     goal = np.concatenate([interp.q(breaks[-1:])[0], interp.dq(breaks[-1:])[0]])
     tracking: list[float] = []
     final: list[float] = []
     alone: list[float] = []
-    labels = []
+    labels, peak = [], 0.0
     for label, model in models(robot, uncertainty):
-        (error, _, end), = replay(model, interp, start[None, :], K, compiled=compiled,
-                                  ends=True, deadline=deadline)
-        (_, _, drift), = replay(model, interp, start[None, :], None, compiled=compiled,
-                                ends=True, deadline=deadline)
+        (error, _, end, commanded), = replay(model, interp, start[None, :], K,
+                                             compiled=compiled, ends=True, deadline=deadline,
+                                             limit=limit)
+        (_, _, drift, _), = replay(model, interp, start[None, :], None, compiled=compiled,
+                                   ends=True, deadline=deadline, limit=limit)
         labels.append(label)
+        peak = max(peak, commanded)
         tracking.append(np.inf if error is None else error)
         final.append(np.inf if end is None else float(np.abs(end - goal).max()))
         alone.append(np.inf if drift is None else float(np.abs(drift - goal).max()))
@@ -86,5 +89,6 @@ def robustness(robot: Robot, interp: Interpolant, K: np.ndarray, uncertainty: Un
         worst_tracking_error=worst_tracking if np.isfinite(worst_tracking) else None,
         worst_final_error=max(final) if np.isfinite(max(final)) else None,
         open_loop_final_error=max(alone) if np.isfinite(max(alone)) else None,
-        worst_model=labels[worst], bound=bound,
+        worst_model=labels[worst], bound=bound, largest_torque=peak,
+        saturated=None if limit is None else bool(np.any(peak > limit)),
         within=None if bound is None else bool(worst_tracking <= bound))

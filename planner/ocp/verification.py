@@ -44,6 +44,15 @@ class Robustness(Out):
                                   "stored before the field existed)")
     worst_model: str = Field(description="the model of the worst tracking error, e.g. "
                                          "\"mass+ length-\"")
+    largest_torque: float | None = Field(
+        default=None, description="[N m] the largest torque the plan with its feedback "
+                                  "commands on the models (before the actuators' saturation "
+                                  "at task.torque_limit, which the replays apply); None in "
+                                  "plans stored before the field existed")
+    saturated: bool | None = Field(
+        default=None, description="the feedback asked for more than task.torque_limit on "
+                                  "some model, and the actuators saturated there (None "
+                                  "without a limit)")
     bound: float | None = Field(description="[rad] solver.robustness, if set")
     within: bool | None = Field(description="worst_tracking_error within bound (None "
                                             "without a bound)")

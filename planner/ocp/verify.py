@@ -124,6 +124,11 @@ def _beyond(pp: PiecewisePolynomial, t: np.ndarray, lower: np.ndarray,
     return np.maximum(over[where, cols], 0.0), values[where, cols], times[where, cols]
 
 
+def _limit_array(limit: list[float] | float | None, na: int) -> np.ndarray | None:
+    """The torque limit (na,) [N m] of every active joint (None without one)."""
+    return None if limit is None else np.broadcast_to(np.asarray(limit, float), (na,))
+
+
 def _bound_array(values: list[float | None]) -> np.ndarray:
     return np.array([np.nan if v is None else v for v in values], dtype=float)
 
@@ -201,7 +206,8 @@ def _feedback(robot: Robot, interp: Interpolant, torque_limit: list[float] | flo
     start = np.concatenate([interp.q(breaks[:1])[0], interp.dq(breaks[:1])[0]])
     (closed, _), (perturbed, _) = replay(robot, interp,
                                          np.stack([start, start + PERTURBATION]), K,
-                                         compiled=compiled, deadline=deadline)
+                                         compiled=compiled, deadline=deadline,
+                                         limit=_limit_array(torque_limit, len(robot.active)))
     return fb, {"growth_factor": growth, "closed_loop_error": closed,
                 "perturbed_closed_loop_error": perturbed, "perturbation": PERTURBATION}
 
@@ -232,7 +238,8 @@ def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.nd
     robust = None
     if task.uncertainty is not None and fb is not None:
         robust = robustness(robot, interp, np.asarray(fb.gains), task.uncertainty,
-                            settings.robustness, compiled, deadline)
+                            settings.robustness, compiled, deadline,
+                            _limit_array(task.torque_limit, len(robot.active)))
     robust_ok = task.uncertainty is None or settings.robustness is None \
         or robust is not None and bool(robust.within)
     accurate = errors_status == "completed" and local <= tolerance
