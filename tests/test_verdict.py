@@ -159,3 +159,35 @@ def test_a_plan_whose_solve_did_not_converge_is_not_verified_however_good_it_loo
     assert v.verified is False and v.task_violations == [] and v.limit_violations == []
     assert unverified_reason(v) == ("its last solve did not converge, so the returned iterate "
                                     "is no solution of the task's NLP")
+
+
+@pytest.fixture(scope="module")
+def two_link() -> tuple[dict, float]:
+    """The two-link example's request and the peak of its delivered torque [N m]."""
+    import copy
+
+    from planner.examples import example
+
+    request = copy.deepcopy(example("two-link-plan").request)
+    own = plan(Scene.model_validate(request))
+    assert own.status == "verified"
+    return request, float(np.abs(np.asarray(own.dense.tau)).max())
+
+
+@pytest.mark.parametrize("factor", [1.02, 1.5, 10.0])
+def test_a_limit_the_unlimited_plan_keeps_never_makes_the_task_infeasible(two_link, factor):
+    # under a limit above its own plan's peak torque the example had been held infeasible
+    # by two starts that agreed (after 17 to 31 s); it is verified now
+    request, peak = two_link
+    request = {**request, "task": {**request["task"], "torque_limit": factor * peak}}
+    result = plan(Scene.model_validate(request))
+    assert result.status == "verified", result.message
+
+
+@pytest.mark.parametrize("margin", [1e-4, 1e-6])
+def test_a_looser_coupling_margin_never_makes_the_task_infeasible(two_link, margin):
+    request, _ = two_link
+    assert request["task"]["coupling_margin"] > margin
+    request = {**request, "task": {**request["task"], "coupling_margin": margin}}
+    result = plan(Scene.model_validate(request))
+    assert result.status == "verified", result.message

@@ -9,7 +9,7 @@ import math
 from dataclasses import dataclass
 
 from planner.model import Robot
-from planner.ocp import continuation
+from planner.ocp import continuation, shortest
 from planner.ocp.guess import Guess, interpolant_guess
 from planner.ocp.instance import instance
 from planner.ocp.mesh import Mesh
@@ -48,6 +48,9 @@ class Start:
     continues: bool = False
     """It goes on from where an earlier attempt stopped (its last iterate), so its verdict
     is no independent witness of that attempt's."""
+    limits_later: bool = False
+    """Solve the task without its torque limit and velocity bounds first, from the guess,
+    and start the task's own solve from that plan (`unlimited_solve`)."""
 
 
 @dataclass
@@ -90,15 +93,20 @@ def _first_solves_within(scene: Scene, start: Start, budget: Budget,
                          first_pass: int) -> tuple[list[Outcome], Outcome]:
     guess, robot, T = start.guess, start.robot, start.T
     preliminary: list[Outcome] = []
+    if start.limits_later:
+        free = unlimited_solve(scene, start, budget, progress, first_pass)
+        preliminary.append(free)
+        if free.solution.success:
+            guess = interpolant_guess(free.interp, free.T)
     if start.coarse is not None:
-        preliminary = [solve_on(scene, instance(scene, robot, start.coarse, T), robot, T,
-                                guess, budget, progress, first_pass, start.name,
-                                stall=start.may_stall)]
+        coarse = solve_on(scene, instance(scene, robot, start.coarse, T), robot, T, guess,
+                          budget, progress, first_pass + len(preliminary), start.name,
+                          stall=start.may_stall)
         if budget.spent:  # no time left for its own mesh: the coarse plan is the attempt's
-            return [], preliminary[0]
-        if preliminary[0].solution.success:
-            guess, robot, T = (interpolant_guess(preliminary[0].interp, preliminary[0].T),
-                               preliminary[0].robot, preliminary[0].T)
+            return preliminary, coarse
+        preliminary.append(coarse)
+        if coarse.solution.success:
+            guess, robot, T = interpolant_guess(coarse.interp, coarse.T), coarse.robot, coarse.T
     if start.relaxed:
         preliminary = continuation_solves(scene, start, budget, progress, first_pass)
         last = preliminary[-1]
@@ -109,6 +117,20 @@ def _first_solves_within(scene: Scene, start: Start, budget: Budget,
                      progress, first_pass + len(preliminary), start.name, start.point,
                      start.may_stall)
     return preliminary, first
+
+
+def unlimited_solve(scene: Scene, start: Start, budget: Budget, progress: Handler | None,
+                    first_pass: int) -> Outcome:
+    """The task without its torque limit and velocity bounds (`shortest.unlimited`) at the
+    start's duration, on its first mesh, from its guess: a solve from an interpolated guess
+    under limits can wander along the bounds for hundreds of iterations (the two-link
+    example under a limit 1.5 times its own peak torque ended Infeasible_Problem_Detected
+    after 836), while the unlimited optimum converges in tens and often keeps the limits."""
+    free = shortest.unlimited(scene, start.T)
+    mesh = start.coarse if start.coarse is not None else start.mesh
+    return solve_on(free, instance(free, start.robot, mesh, start.T), start.robot, start.T,
+                    start.guess, budget, progress, first_pass,
+                    f"{start.name}: the task without its limits", stall=start.may_stall)
 
 
 def continuation_solves(scene: Scene, start: Start, budget: Budget,

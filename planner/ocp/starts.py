@@ -68,7 +68,8 @@ def own_starts(scene: Scene, robot: Robot, T: float, attempts: list[Attempt],
     """The scene's own attempts, in order, each tried while the ones before it have not
     given a converged plan (with mesh refinement on: an accurate one): the scene's own
     start (with refinement on, a uniform mesh of over COARSE_INTERVALS intervals solved on
-    that many first); after it the duration probe, where given (when it shows the duration
+    that many first; with a torque limit or velocity bounds, the task without them solved
+    first: `attempt.unlimited_solve`); after it the duration probe, where given (when it shows the duration
     too short no start follows, and a time-optimal plan it found within the task's
     durations is the next start; where the probe applies, the scene's own start may take
     `shortest.FIRST_SHARE` of the wall time before it runs); the continuation from relaxed
@@ -78,11 +79,14 @@ def own_starts(scene: Scene, robot: Robot, T: float, attempts: list[Attempt],
     guess, used = scene_guess(scene, robot, T)
     share = shortest.FIRST_SHARE if probe is not None and shortest.applies(scene) else 1.0
     tr = scene.transcription
+    later = shortest.applies(scene)
     if tr.refinement.enabled and tr.breaks is None and tr.intervals > COARSE_INTERVALS:
         yield Start("coarse to fine", mesh, guess, used, T, robot,
-                    coarse=Mesh.uniform(COARSE_INTERVALS), may_stall=stall, time_share=share)
+                    coarse=Mesh.uniform(COARSE_INTERVALS), may_stall=stall, time_share=share,
+                    limits_later=later)
     else:
-        yield Start("direct", mesh, guess, used, T, robot, may_stall=stall, time_share=share)
+        yield Start("direct", mesh, guess, used, T, robot, may_stall=stall, time_share=share,
+                    limits_later=later)
     if probe is not None:
         probe.run(attempts)
         if probe.too_short:

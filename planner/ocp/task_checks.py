@@ -19,8 +19,9 @@ STATE_TOL = 1e-6
 STATE_TOL max(1, |v|) [rad, rad/s]."""
 TIP_TOL = 1e-6
 """[m] A planned final tip meets its target when this close to it."""
-DURATION_RTOL = 1e-9
-"""A planned duration within its range up to this relative rounding."""
+DURATION_RTOL = 1e-6
+"""A planned duration within its range up to this relative tolerance (Ipopt relaxes a
+variable's bounds by 1e-8 of them)."""
 MARGIN_RTOL = 1e-6
 """sigma_min(M_pa) keeps the margin m when it is at least m (1 - MARGIN_RTOL)."""
 
