@@ -65,12 +65,12 @@ def warm_starts(scene: Scene, robot: Robot, T: float, warm_start: Plan | None,
 
 def own_starts(scene: Scene, robot: Robot, T: float, attempts: list[Attempt],
                probe: DurationProbe | None = None, stall: bool = True) -> Iterator[Start]:
-    """The scene's own attempts, in order, each tried while the ones before it have not
-    given a converged plan (with mesh refinement on: an accurate one): the scene's own
-    start (with refinement on, a uniform mesh of over COARSE_INTERVALS intervals solved on
-    that many first; with a torque limit or velocity bounds, the task without them solved
-    first: `attempt.unlimited_solve`); after it the duration probe, where given (when it
-    shows the duration too short no start follows, and a time-optimal plan it found within the task's
+    """The scene's own attempts, in order, each tried while the ones before it have not given a
+    converged plan (with mesh refinement on: an accurate one): the scene's own start (with
+    refinement on, a uniform mesh of over COARSE_INTERVALS intervals solved on that many
+    first; with a torque limit or velocity bounds, the task without them solved first:
+    `attempt.unlimited_solve`); after it the duration probe, where given (when it shows the
+    duration too short no start follows, and a time-optimal plan it found within the task's
     durations is the next start; where the probe applies, the scene's own start may take
     `shortest.FIRST_SHARE` of the wall time before it runs); the continuation from relaxed
     dynamics, where it applies; then the rescues (`_rescues`). stall: the scene's own start
