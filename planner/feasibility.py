@@ -24,7 +24,11 @@ service answers 422 naming the field. The checks:
 - **zero torque**: a torque limit of 0 on every active joint leaves only the free motion
   from the initial state (a state at rest without gravity stays there); the task is
   infeasible when that motion misses the given final state by more than `FREE_TOL` at
-  the duration (every duration of a range).
+  the duration (every duration of a range);
+- **energy**: under a torque limit the arm's energy changes at a bounded rate
+  (`planner.energy_bound`); a final state whose energy (its potential energy alone where
+  its rates are free; every final angle given) lies beyond what the longest duration lets
+  the actuators reach is infeasible.
 
 Contradictory bounds within one field (lower above upper, a duration range with min above
 max, a negative torque limit) are refused by the scene's validators already.
@@ -38,6 +42,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from planner import coupling_block
+from planner.dynamics import Dynamics
+from planner.energy_bound import energy_reach
 from planner.model import Robot
 from planner.scene import Bounds, Scene
 
@@ -67,8 +73,46 @@ def check(scene: Scene) -> list[Issue]:
     """Every reason the scene's task is infeasible that is known before a solve (empty:
     none is known; see the module)."""
     issues = _bounds(scene) + _velocity_reach(scene)
-    issues += _margin(scene) + _reach(scene) + _zero_torque(scene)
+    issues += _margin(scene) + _reach(scene) + _zero_torque(scene) + _energy(scene)
     return issues
+
+
+ENERGY_RTOL = 1e-9
+"""Relative rounding allowed to an energy beyond its bound."""
+
+
+def _energy(scene: Scene) -> list[Issue]:
+    """The final state's energy beyond what the torque limit lets the actuators reach in
+    the longest duration (`planner.energy_bound`); not with wave co-design (the waves, and
+    so the initial energy, are not known before the solve)."""
+    task, robot = scene.task, scene.robot
+    if task.torque_limit is None or task.co_design is not None \
+            or any(v is None for v in task.final.q):
+        return []
+    limit = np.broadcast_to(np.asarray(task.torque_limit, float), (len(robot.active),))
+    T = task.duration_span[1]
+    reach = energy_reach(robot, task.initial.q, task.initial.dq, limit, T)
+    rates_given = all(v is not None for v in task.final.dq)
+    kinetic, potential = Dynamics(robot).energy(
+        task.final.q, [0.0 if v is None else v for v in task.final.dq])
+    needed = potential + (kinetic if rates_given else 0.0)
+    start = sum(Dynamics(robot).energy(task.initial.q, task.initial.dq))
+    scale = ENERGY_RTOL * max(1.0, abs(needed), abs(start))
+    what = "the final state's energy" if rates_given else \
+        "the final angles' potential energy (rates free: the energy is at least that)"
+    if needed > reach.highest + scale:
+        return [Issue("task.torque_limit", "energy",
+                      f"{what} is {needed - start:.4g} J above the initial state's, and under "
+                      f"this limit the actuators can add at most {reach.highest - start:.4g} J "
+                      f"in {T:g} s (planner.energy_bound: power at most {reach.power:.4g} "
+                      f"sqrt(2 K) W)")]
+    if rates_given and needed < reach.lowest - scale:
+        return [Issue("task.torque_limit", "energy",
+                      f"{what} is {start - needed:.4g} J below the initial state's, and under "
+                      f"this limit the actuators can take at most {start - reach.lowest:.4g} J "
+                      f"in {T:g} s (planner.energy_bound: power at most {reach.power:.4g} "
+                      f"sqrt(2 K) W)")]
+    return []
 
 
 def _lower_upper(bounds: Bounds, joint: int) -> tuple[float, float]:
