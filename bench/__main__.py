@@ -107,20 +107,17 @@ def main(argv: list[str]) -> int:
         if argv[:1] != ["list"]:
             print(__doc__)
         return listing() if argv else 2
-    if argv[0] == "headline":
-        from bench import headline
-
-        return headline.main(argv[1:])
     name, (shared, rest) = argv[0], harness.shared_arguments(argv[1:])
-    if name not in BENCHES:
+    module = "bench.headline" if name == "headline" else BENCHES.get(name, ("",))[0]
+    if not module:
         print(f"no benchmark called {name!r}; `python -m bench list` lists them", file=sys.stderr)
         return 2
     if shared.smoke:
         from bench import smoke
 
-        return smoke.run(name, BENCHES[name][0], rest, shared.out)
+        return smoke.run(name, module, rest, shared.out)
     with harness.outputs_to(shared.out) if shared.out else contextlib.nullcontext():
-        return importlib.import_module(BENCHES[name][0]).main(rest) or 0
+        return importlib.import_module(module).main(rest) or 0
 
 
 if __name__ == "__main__":
