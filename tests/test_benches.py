@@ -26,10 +26,12 @@ from bench.harness import ROOT
 
 SLOW_AFTER = 20.0
 """[s] A small mode that takes longer on this 2-core machine is `slow`."""
-SLOW = frozenset({"faults", "peer_opty", "queue_engine", "reliability", "scale_out", "stress",
-                  "suite", "time_vs_error"})
+SLOW = frozenset({"container", "faults", "iteration_cost", "peer_opty", "pickup",
+                  "planner_internals", "queue_engine", "reliability", "replan", "scale_out",
+                  "seed_iterations", "stress", "suite"})
 """The benchmarks whose small mode takes over SLOW_AFTER (bench/smoke.py says what they
-run)."""
+run): live servers and clusters, faults and their recovery, compiled NLPs (jit), peers
+in processes of their own, the horizontal seed arm."""
 TIMEOUT = 900.0  # [s] a small mode still running then has hung
 
 
@@ -49,8 +51,9 @@ def test_small_mode_runs_and_writes_its_results_elsewhere(name: str, tmp_path: P
         pytest.skip(reason)
     run = subprocess.run([sys.executable, "-m", "bench", name, "--smoke", "--out", str(tmp_path)],
                          cwd=ROOT, capture_output=True, text=True, timeout=TIMEOUT, check=False)
-    output = "\n".join((run.stdout + run.stderr).splitlines()[-30:])
-    assert run.returncode == 0, f"python -m bench {name} --smoke ended {run.returncode}:\n{output}"
+    if run.returncode != 0:
+        output = "\n".join((run.stdout + run.stderr).splitlines()[-30:])
+        pytest.fail(f"python -m bench {name} --smoke ended {run.returncode}:\n{output}")
     written = _written(tmp_path)
     assert any(p.suffix == ".md" for p in written), f"no document section written: {written}"
     for path in written:
