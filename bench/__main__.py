@@ -92,21 +92,21 @@ BENCHES = {
 """Every benchmark: its module (with main(argv)) and what it measures."""
 
 
-def listing() -> int:
+def listing() -> None:
     """Every benchmark: its name, the commit of its last committed run, what it measures."""
     from bench import runs
 
     width = max(map(len, BENCHES))
     for name, (_, what) in BENCHES.items():
         print(f"{name:<{width}}  {runs.last_run(name):<18}  {what}")
-    return 0
 
 
 def main(argv: list[str]) -> int:
     if not argv or argv[0] in ("list", "-h", "--help"):
         if argv[:1] != ["list"]:
             print(__doc__)
-        return listing() if argv else 2
+        listing()
+        return 0 if argv else 2
     name, (shared, rest) = argv[0], harness.shared_arguments(argv[1:])
     module = "bench.headline" if name == "headline" else BENCHES.get(name, ("",))[0]
     if not module:

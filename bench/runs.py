@@ -4,8 +4,8 @@ A benchmark's results are the files it writes under bench/results/ and docs/img/
 (`RESULTS`, patterns relative to the checkout); a run is committed with them, and nothing
 else changes them, so the last commit that touched them is the last committed run (a
 moved document does not change it). A benchmark none of whose results is committed (it
-writes a document section alone) ran last where its section's manifest line, "Regenerate:
-`python -m bench NAME ...`", last changed.
+writes a document section alone, or its results were never committed) ran last where its
+section's manifest line, "Regenerate: `python -m bench NAME ...`", last changed.
 """
 
 from __future__ import annotations
@@ -78,6 +78,6 @@ def result_files(name: str) -> list[Path]:
 def last_run(name: str) -> str:
     """The commit of benchmark `name`'s last committed run, as "hash date", or "never"."""
     files = result_files(name)
-    if files:
-        return committed(files)
-    return _git_log("-G", f"Regenerate: `python -m bench {name}[ `]", "--", "docs") or "never"
+    found = _git_log("--", *map(str, files)) if files else ""
+    return (found or _git_log("-G", f"Regenerate: `python -m bench {name}[ `]", "--", "docs")
+            or "never")
