@@ -1,9 +1,18 @@
-"""`python -m bench NAME [options]` runs the benchmark NAME; `python -m bench list` lists them."""
+"""`python -m bench NAME [options]` runs the benchmark NAME; `python -m bench list` lists them
+with the commit of each one's last committed run; `python -m bench headline` writes the
+headline table of docs/benchmarks.md from the committed results.
+
+Every benchmark also takes `--smoke` (its smallest inputs, outputs to a temporary folder:
+`bench.smoke`) and `--out DIR` (its outputs under DIR instead of docs/ and bench/results/).
+"""
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import sys
+
+from bench import harness
 
 BENCHES = {
     "build": ("bench.build", "building an NLP against the number of links, now and at an "
@@ -83,17 +92,32 @@ BENCHES = {
 """Every benchmark: its module (with main(argv)) and what it measures."""
 
 
+def listing() -> None:
+    """Every benchmark: its name, the commit of its last committed run, what it measures."""
+    from bench import runs
+
+    width = max(map(len, BENCHES))
+    for name, (_, what) in BENCHES.items():
+        print(f"{name:<{width}}  {runs.last_run(name):<18}  {what}")
+
+
 def main(argv: list[str]) -> int:
     if not argv or argv[0] in ("list", "-h", "--help"):
-        width = max(map(len, BENCHES))
-        for name, (_, what) in BENCHES.items():
-            print(f"{name:<{width}}  {what}")
+        if argv[:1] != ["list"]:
+            print(__doc__)
+        listing()
         return 0 if argv else 2
-    name, rest = argv[0], argv[1:]
-    if name not in BENCHES:
+    name, (shared, rest) = argv[0], harness.shared_arguments(argv[1:])
+    module = "bench.headline" if name == "headline" else BENCHES.get(name, ("",))[0]
+    if not module:
         print(f"no benchmark called {name!r}; `python -m bench list` lists them", file=sys.stderr)
         return 2
-    return importlib.import_module(BENCHES[name][0]).main(rest) or 0
+    if shared.smoke:
+        from bench import smoke
+
+        return smoke.run(name, module, rest, shared.out)
+    with harness.outputs_to(shared.out) if shared.out else contextlib.nullcontext():
+        return importlib.import_module(module).main(rest) or 0
 
 
 if __name__ == "__main__":

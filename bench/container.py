@@ -7,7 +7,7 @@ and after each of `len(PLANS)` plans of the built-in examples, one at a time: th
 memory a user sees grows as each worker builds and caches the NLPs of the plans it ran.
 Writes the section "Measured footprint" of docs/deploy.md and bench/results/container.csv.
 
-    python -m bench container
+    python -m bench container [--plans 4]
 """
 
 from __future__ import annotations
@@ -49,8 +49,9 @@ def memory_mib(container: str) -> float:
                             "MB": 1e6 / 2**20, "GB": 1e9 / 2**20}[unit]
 
 
-def measure() -> tuple[dict, list[dict]]:
-    """Image facts and the memory readings of one container's life."""
+def measure(plans: tuple[str, ...]) -> tuple[dict, list[dict]]:
+    """Image facts and the memory readings of one container's life, idle and after each of
+    `plans` (built-in examples)."""
     image = json.loads(docker("image", "inspect", IMAGE))[0]
     port = free_port()
     container = docker("run", "-d", "--rm", "-p", f"127.0.0.1:{port}:8000",
@@ -71,7 +72,7 @@ def measure() -> tuple[dict, list[dict]]:
             time.sleep(SETTLE)
             rows.append({"moment": "idle", "memory": memory_mib(container), "example": "–",
                          "plan": "–"})
-            for k, name in enumerate(PLANS, 1):
+            for k, name in enumerate(plans, 1):
                 scene = http.get(f"/v1/examples/{name}").json()["request"]
                 job = http.post("/v1/plans?wait=30", json=scene).json()
                 while job.get("status") in ("queued", "running"):
@@ -87,14 +88,17 @@ def measure() -> tuple[dict, list[dict]]:
 
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench container", description=__doc__)
-    parser.parse_args(argv)
+    parser.add_argument("--plans", type=int, default=len(PLANS),
+                        help="plan the first this many of the examples")
+    args = parser.parse_args(argv)
+    plans = PLANS[:args.plans]
     started, note = time.perf_counter(), harness.machine_note()
-    facts, rows = measure()
+    facts, rows = measure(plans)
     text = "\n\n".join([
         (f"Image `{facts['image']}` built by `.ci/docker` ({facts['created']} UTC): "
          f"{facts['size_mb']:.0f} MB. One container with `UNDERTOW_WORKERS=2` (default "
          "`UNDERTOW_WORKER_MEMORY_MB`); memory as `docker stats` reports it, "
-         f"{SETTLE:g} s after /healthz first answers and after each of {len(PLANS)} plans of "
+         f"{SETTLE:g} s after /healthz first answers and after each of {len(plans)} plans of "
          "the built-in examples (`POST /v1/plans`, each to its end before the next). The "
          "idle figure is the server alone: its workers start with the first plan and each "
          "loads CasADi; each plan then adds the NLP its worker builds and keeps for the next "

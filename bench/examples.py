@@ -7,7 +7,7 @@ this checkout's Python environment). Reported: Ipopt's iterations, whether the p
 verifies by each version's own check (before: the whole-horizon replay within 1e-3 rad;
 now: every interval within 1e-3 rad), and the median wall time of a plan.
 
-    python -m bench examples [--before 893832c] [--repeats 5]
+    python -m bench examples [--before 893832c] [--repeats 5] [--examples NAME,...]
 """
 
 from __future__ import annotations
@@ -54,9 +54,12 @@ def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench examples", description=__doc__)
     parser.add_argument("--before", default=BEFORE)
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--examples", default=None,
+                        help="comma-separated names (default: every plan example)")
     args = parser.parse_args(argv)
     started, note = time.perf_counter(), harness.machine_note()
-    plans = [e for e in examples() if e.kind == "plan"]
+    plans = [e for e in examples() if e.kind == "plan"
+             and (args.examples is None or e.name in args.examples.split(","))]
     rows = []
     with harness.checkout(args.before) as old:
         for example in plans:

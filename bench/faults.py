@@ -27,7 +27,7 @@ A job counts as lost when the server no longer knows it (404) or when it is stil
 running after the recovery's deadline. Writes the section "Reliability: process and store
 faults" of docs/stability.md and bench/results/faults.csv.
 
-    python -m bench faults [--tries 5] [--postgres]
+    python -m bench faults [--tries 5] [--postgres] [--probes N]
 """
 
 from __future__ import annotations
@@ -379,13 +379,15 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--tries", type=int, default=5)
     parser.add_argument("--postgres", action="store_true",
                         help="the PostgreSQL probes (a server, two worker nodes) instead")
+    parser.add_argument("--probes", type=int, default=None,
+                        help="run the first this many probes (default all)")
     args = parser.parse_args(argv)
     if args.postgres:
         from bench import faults_postgres
 
-        return faults_postgres.main(argv, args.tries)
+        return faults_postgres.main(argv, args.tries, args.probes)
     started, note, rows = time.perf_counter(), harness.machine_note(), []
-    for name, probe, kind in PROBES:
+    for name, probe, kind in PROBES[:args.probes]:
         tries = args.tries if kind == "process" else max(1, args.tries // 2)
         rows.append({"probe": name, **run(probe, tries)})
         print(rows[-1], flush=True)

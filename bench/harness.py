@@ -4,11 +4,13 @@ A benchmark is a module of this package with `main(argv)`, registered in
 `bench.__main__.BENCHES` and run as `python -m bench NAME [options]`. It writes its rows
 as CSV under bench/results/ and its table (and plot) into a section of a document under
 docs/, which ends with the manifest: the command that regenerates it, the commit of the
-code measured and the machine.
+code measured and the machine. Every output goes through `output`, so that a run given
+another folder (`--out DIR`, or `--smoke`: `bench.smoke`) writes there instead.
 """
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import csv
 import json
@@ -38,6 +40,37 @@ RESULTS = ROOT / "bench" / "results"
 DOCS = ROOT / "docs"
 PYTHON = sys.executable
 _TIMEOUT = "timeout after"  # how a child's failure says it was stopped
+_outputs: list[Path] = []  # the folder every output goes to instead of ROOT, while one is set
+
+
+def output(path: Path) -> Path:
+    """Where an output meant for `path` (under ROOT: docs/, bench/results/) is written: the
+    path itself, or its place under the folder `outputs_to` set; its folder exists."""
+    target = _outputs[-1] / Path(path).resolve().relative_to(ROOT) if _outputs else Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    return target
+
+
+@contextlib.contextmanager
+def outputs_to(folder: Path) -> Iterator[Path]:
+    """Within, every output (`output`) goes under `folder`, laid out as under ROOT."""
+    _outputs.append(Path(folder).resolve())
+    try:
+        yield _outputs[-1]
+    finally:
+        _outputs.pop()
+
+
+def shared_arguments(argv: Sequence[str]) -> tuple[argparse.Namespace, list[str]]:
+    """The options every benchmark takes, `--smoke` and `--out DIR`, and the arguments left
+    for the benchmark's own parser."""
+    parser = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
+    parser.add_argument("--smoke", action="store_true",
+                        help="the smallest inputs (bench.smoke), outputs to a temporary folder")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="write the outputs under this folder instead of docs/ and "
+                             "bench/results/")
+    return parser.parse_known_args(list(argv))
 
 
 class CpuTimed:
@@ -217,8 +250,7 @@ def read_csv(path: Path) -> list[dict]:
 def write_csv(path: Path, rows: Sequence[dict]) -> None:
     """Rows as CSV, every key of any row a column (empty where a row has none, as rows kept
     from a run before a column existed); floats with 6 significant digits."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "w", newline="") as f:
+    with open(output(path), "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(dict.fromkeys(k for r in rows for k in r)))
         writer.writeheader()
         for row in rows:
@@ -244,7 +276,7 @@ def table(rows: Sequence[dict], columns: Sequence[tuple[str, str]]) -> str:
 
 def write_section(path: Path, heading: str, text: str) -> None:
     """Replace (or append) the `## heading` section of a Markdown file with text."""
-    path.parent.mkdir(parents=True, exist_ok=True)
+    path = output(path)
     doc = path.read_text() if path.exists() else ""
     block = f"## {heading}\n\n{text.strip()}\n"
     pattern = re.compile(rf"^## {re.escape(heading)}\n.*?(?=^## |\Z)", re.DOTALL | re.MULTILINE)

@@ -13,7 +13,7 @@ CPU time to a verified plan (unverified counted as never) of both, and how often
 plan ends at the cold plan's optimum (objectives within `SAME` relative), at a lower or at a
 higher objective.
 
-    python -m bench memory [--variants 2] [--moves 0.02,0.05,0.1,0.2,0.3]
+    python -m bench memory [--variants 2] [--moves 0.02,0.05,0.1,0.2,0.3] [--bases 12]
 """
 
 from __future__ import annotations
@@ -89,9 +89,10 @@ def _optimum(warm: Plan, cold: Plan) -> str:
     return "lower" if a < b else "higher"
 
 
-def run(variants: int, moves: tuple[float, ...]) -> list[dict]:
+def run(variants: int, moves: tuple[float, ...], count: int | None = None) -> list[dict]:
+    """The rows of the first `count` bases (default all)."""
     rows = []
-    for index, (name, scene) in enumerate(bases()):
+    for index, (name, scene) in enumerate(bases()[:count]):
         base, elapsed, _ = _timed(scene, None)
         print({"base": name, "verified": _verified(base), "time": elapsed}, flush=True)
         if not _verified(base):
@@ -147,10 +148,12 @@ def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench memory", description=__doc__)
     parser.add_argument("--variants", type=int, default=2)
     parser.add_argument("--moves", default=",".join(str(m) for m in MOVES))
+    parser.add_argument("--bases", type=int, default=None,
+                        help="plan around the first this many bases (default all)")
     args = parser.parse_args(argv)
     moves = tuple(float(m) for m in args.moves.split(","))
     started, note = time.perf_counter(), harness.machine_note()
-    rows = run(args.variants, moves)
+    rows = run(args.variants, moves, args.bases)
     harness.write_csv(harness.RESULTS / "memory.csv", rows)
     table = summary(rows)
     text = "\n\n".join([

@@ -10,7 +10,7 @@ Reported per plan: verified, wall and CPU time (this process and its companion p
 iterations, the strategy that produced the plan; per example: verified share, median time
 to a verified plan (unverified counted as never), maximum.
 
-    python -m bench moved_goals [--variants 3]
+    python -m bench moved_goals [--variants 3] [--examples NAME,...]
 """
 
 from __future__ import annotations
@@ -36,10 +36,12 @@ INTERVALS = (50, 100)  # besides each example's own
 
 
 
-def variants(count: int) -> list[tuple[str, int, int, dict]]:
-    """(example, intervals, variant, request) of the generated set."""
+def variants(count: int, names: list[str] | None = None) -> list[tuple[str, int, int, dict]]:
+    """(example, intervals, variant, request) of the generated set (of the examples
+    `names`, default every plan example)."""
     out = []
-    for example in (e for e in examples() if e.kind == "plan"):
+    for example in (e for e in examples() if e.kind == "plan"
+                    and (names is None or e.name in names)):
         own = example.request["transcription"]["intervals"]
         for intervals in sorted({own, *INTERVALS}):
             for variant in range(1, count + 1):
@@ -63,9 +65,9 @@ def _inside_margin(scene: Scene) -> bool:
     return sigma is not None and sigma < margin
 
 
-def run(count: int) -> list[dict]:
+def run(count: int, names: list[str] | None = None) -> list[dict]:
     rows = []
-    for name, intervals, variant, request in variants(count):
+    for name, intervals, variant, request in variants(count, names):
         scene = Scene.model_validate(request)
         row = {"example": name, "intervals": intervals, "variant": variant}
         if _inside_margin(scene):
@@ -98,9 +100,11 @@ def _summary(rows: list[dict], name: str) -> dict:
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench moved_goals", description=__doc__)
     parser.add_argument("--variants", type=int, default=3)
+    parser.add_argument("--examples", default=None,
+                        help="comma-separated names (default: every plan example)")
     args = parser.parse_args(argv)
     started, note = time.perf_counter(), harness.machine_note()
-    rows = run(args.variants)
+    rows = run(args.variants, args.examples.split(",") if args.examples else None)
     harness.write_csv(harness.RESULTS / "moved_goals.csv", rows)
     names = sorted({r["example"] for r in rows})
     summary = [_summary([r for r in rows if r["example"] == n], n) for n in names]

@@ -10,7 +10,7 @@ each retry strategy recovers on the task suite's failures.
    applies, a first mesh of twice and of half the intervals) and with the default retries.
 
     python -m bench refinement [--parts intervals,retries] [--seeds 20261123,1,2,3,4,5]
-        [--intervals 20,30,...]
+        [--intervals 20,30,...] [--count 48] [--max-iter N]
 """
 
 from __future__ import annotations
@@ -30,6 +30,8 @@ SECTION = "Mesh refinement on the two-link example"
 RETRIES_SECTION = "Retries on the suite's failures"
 SEEDS = "20261123,1,2,3,4,5"
 INTERVALS = "20,30,40,50,60,80,100,120"
+OWN_STARTS = ("direct", "coarse to fine")
+"""The names of a scene's own first start, one of which every plan tries first."""
 
 
 def _with(scene: Scene, **changes: dict) -> Scene:
@@ -74,22 +76,22 @@ def _retries(N: int) -> dict[str, str]:
 
 
 def _alone(scene: Scene, name: str) -> dict | None:
-    """The task planned with the direct attempt and then only the retry starting as
-    `name`; None when that retry does not apply to it."""
-    result = plan(_with(scene, solver={"retries": 4}), starts={*FIRST_STARTS, name})
-    tried = any(p.strategy == name for p in result.mesh_passes)
-    return _one(result) if tried else None
+    """The task planned with its own first start and then only the retry starting as
+    `name` (`plan`'s `starts`); None when that retry does not apply to it (no solve of
+    the plan belongs to it)."""
+    result = plan(_with(scene, solver={"retries": 4}), starts={*OWN_STARTS, name})
+    return _one(result) if any(p.strategy == name for p in result.mesh_passes) else None
 
 
-FIRST_STARTS = ("direct", "coarse to fine")
-"""The scene's own first start, under either of its names."""
-
-
-def retries_table(seeds: list[int]) -> list[dict]:
-    """Every suite task that retries-off leaves unverified, with each retry alone."""
+def retries_table(seeds: list[int], count: int | None, max_iter: int | None) -> list[dict]:
+    """Every one of the first `count` suite tasks (default all) of each seed that
+    retries-off leaves unverified, with each retry alone; `max_iter`: every solve's
+    iteration limit instead of the task's own."""
     rows = []
     for seed in seeds:
-        for name, scene in tasks(seed=seed):
+        for name, scene in tasks(seed=seed)[:count]:
+            if max_iter is not None:
+                scene = _with(scene, solver={"max_iter": max_iter})
             first = _one(plan(_with(scene, solver={"retries": 0})))
             if first["verified"]:
                 continue
@@ -123,11 +125,12 @@ def _intervals_section(values: list[int], argv: list[str], started: float, note:
     harness.write_section(DOC, SECTION, text)
 
 
-def _retries_section(seeds: list[int], argv: list[str], started: float, note: str) -> None:
-    failures = retries_table(seeds)
+def _retries_section(seeds: list[int], count: int | None, max_iter: int | None,
+                     argv: list[str], started: float, note: str) -> None:
+    failures = retries_table(seeds, count, max_iter)
     if failures:
         harness.write_csv(harness.RESULTS / "refinement_retries.csv", failures)
-    count = len(seeds) * len(tasks())
+    count = len(seeds) * len(tasks()[:count])
     recovered = {label: sum(r[label] == "yes" for r in failures)
                  for label in ("restart", "inverse dynamics", "twice the intervals",
                                "half the intervals", "all retries")}
@@ -153,6 +156,10 @@ def main(argv: list[str]) -> int:
                         help="comma-separated, from: intervals, retries")
     parser.add_argument("--seeds", default=SEEDS)
     parser.add_argument("--intervals", default=INTERVALS)
+    parser.add_argument("--count", type=int, default=None,
+                        help="the first this many suite tasks of each seed (default all)")
+    parser.add_argument("--max-iter", type=int, default=None,
+                        help="every retries solve's iteration limit (default: the task's)")
     args = parser.parse_args(argv)
     parts = args.parts.split(",")
     if "intervals" in parts:
@@ -160,5 +167,6 @@ def main(argv: list[str]) -> int:
         _intervals_section([int(n) for n in args.intervals.split(",")], argv, started, note)
     if "retries" in parts:
         started, note = time.perf_counter(), harness.machine_note()
-        _retries_section([int(s) for s in args.seeds.split(",")], argv, started, note)
+        _retries_section([int(s) for s in args.seeds.split(",")], args.count, args.max_iter,
+                         argv, started, note)
     return 0

@@ -12,7 +12,7 @@ x final angle of the passive joint) over the same two-link scene, followed by GE
 /v1/batches/{id} until every member has ended. Writes the section "Scale-out on one
 PostgreSQL" of docs/bench-service.md; exits 1 when a plan is lost or a member fails.
 
-    taskset -c 1 python -m bench scale_out [--plans 40]
+    taskset -c 1 python -m bench scale_out [--plans 40] [--durations 10]
 """
 
 from __future__ import annotations
@@ -112,9 +112,10 @@ def throughput(server: postgres.PostgresServer, folder: Path, nodes: int, scene:
             "solve_p50": statistics.median(solves)}
 
 
-def batch(server: postgres.PostgresServer, folder: Path) -> dict:
-    """One 50-member sweep on 2 nodes: POST latency, time to the last member, GET latency."""
-    request = {"base": QUICK, "grid": GRID}
+def batch(server: postgres.PostgresServer, folder: Path, durations: int) -> dict:
+    """One sweep on 2 nodes over the first `durations` durations of GRID (50 members with
+    all 10): POST latency, time to the last member, GET latency."""
+    request = {"base": QUICK, "grid": {**GRID, "duration": GRID["duration"][:durations]}}
     with deployment(server, folder, 2, None) as (url, store), \
             httpx.Client(base_url=url, timeout=60) as http:
         stop = time.monotonic() + DEADLINE
@@ -195,6 +196,8 @@ def report(rows: list[dict], sweep: dict, plans: int) -> tuple[str, bool]:
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench scale_out", description=__doc__)
     parser.add_argument("--plans", type=int, default=40)
+    parser.add_argument("--durations", type=int, default=len(GRID["duration"]),
+                        help="the batch sweep's first this many durations (5 members each)")
     args = parser.parse_args(argv)
     reason = postgres.missing()
     if reason is not None:
@@ -213,7 +216,7 @@ def main(argv: list[str]) -> int:
                 print(rows[-1], flush=True)
         folder = Path(tmp) / "batch"
         folder.mkdir()
-        sweep = batch(server, folder)
+        sweep = batch(server, folder, args.durations)
         print(sweep, flush=True)
     text, ok = report(rows, sweep, args.plans)
     text += (f"\n\nRun on CPU(s) {', '.join(map(str, affinity))} of this machine.\n\n"

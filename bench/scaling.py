@@ -106,8 +106,7 @@ def plot(rows: list[dict], label: str, path: Path) -> None:
     ax2.legend(fontsize=8)
     ax2.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    fig.savefig(harness.output(path), dpi=110)
     plt.close(fig)
 
 

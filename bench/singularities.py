@@ -91,7 +91,7 @@ def plot_maps(name: str, arms, base, axes, spans, runs, labels) -> None:
         ax.legend(loc="lower right", fontsize=8)
         ax.set_xlabel(f"q{axes[0]} ({labels[0]}) [rad]")
         ax.set_ylabel(f"q{axes[1]} ({labels[1]}) [rad]")
-    fig.savefig(IMG / f"singularity_{name}_map.png", dpi=110)
+    fig.savefig(harness.output(IMG / f"singularity_{name}_map.png"), dpi=110)
 
 
 def plot_runs(name: str, title: str, runs) -> None:
@@ -119,7 +119,7 @@ def plot_runs(name: str, title: str, runs) -> None:
     top.set_title(title)
     top.legend(fontsize=7, ncol=2)
     bottom.legend(fontsize=7)
-    fig.savefig(IMG / f"singularity_{name}_inverse.png", dpi=110)
+    fig.savefig(harness.output(IMG / f"singularity_{name}_inverse.png"), dpi=110)
 
 
 def run_table(key: str, runs) -> list[str]:
@@ -170,7 +170,6 @@ def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench singularities", description=__doc__)
     parser.parse_args(argv)
     started, note = time.perf_counter(), harness.machine_note()
-    IMG.mkdir(parents=True, exist_ok=True)
     two, seed = cases("two-link"), cases("seed-arm")
     q2 = two_link_start()
     plot_maps("two_link", [("without wave", two_link(False)),

@@ -496,8 +496,7 @@ def _plot(rows: list[dict], configs: list[str]) -> None:
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(loc="upper left", fontsize=8)
     fig.tight_layout()
-    (harness.DOCS / "img").mkdir(parents=True, exist_ok=True)
-    (harness.DOCS / "img" / "suite.png").write_bytes(render(fig))
+    harness.output(harness.DOCS / "img" / "suite.png").write_bytes(render(fig))
 
 
 def _task_table(rows: list[dict]) -> str:

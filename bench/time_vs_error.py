@@ -30,6 +30,7 @@ Writes bench/results/time_vs_error.csv, docs/img/pareto_<scene>.png and the sect
 "Run time against error" of docs/benchmarks.md.
 
     python -m bench time_vs_error [--scenes seed-4 arm-2 under-2] [--warm seed-4] [--quick]
+        [--transcriptions legendre-3,...]
 """
 
 from __future__ import annotations
@@ -126,10 +127,10 @@ def point(scene_name: str, method: str, N: int, degree: int, integrator: str,
 
 
 def sweep(scene_name: str, grid: list[int], ref_path: str, ref_objective: float,
-          log, warm_path: str | None = None) -> list[dict]:
+          log, warm_path: str | None = None, specs: list = SPECS) -> list[dict]:
     rows = []
     name_of_scene = f"{scene_name}, warm" if warm_path else scene_name
-    for method, degree, integrator in SPECS:
+    for method, degree, integrator in specs:
         name = label(method, degree, integrator)
         stop = ""
         for N in grid:
@@ -201,8 +202,7 @@ def plot(scene_name: str, rows: list[dict], path: Path) -> None:
     axes[0].set_title(f"{scene_name}: red x = another local optimum than the reference's")
     axes[1].legend(fontsize=7, ncol=2)
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    fig.savefig(harness.output(path), dpi=110)
     plt.close(fig)
 
 
@@ -313,25 +313,19 @@ def read_csv(path: Path) -> list[dict]:
         return [{k: value(v) for k, v in row.items()} for row in csv.DictReader(f)]
 
 
-def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="python -m bench time_vs_error", description=__doc__)
-    parser.add_argument("--scenes", nargs="+", default=["seed-4", "arm-2", "under-2"])
-    parser.add_argument("--warm", nargs="*", default=["seed-4"],
-                        help="scenes to sweep again, warm-started from the reference's start")
-    parser.add_argument("--warm-only", action="store_true", help="skip the cold sweeps")
-    parser.add_argument("--merge", action="store_true",
-                        help="keep the other scenes' rows and references of the last run")
-    parser.add_argument("--quick", action="store_true", help="N = 10, 20 only")
-    args = parser.parse_args(argv)
-    started, note = time.perf_counter(), harness.machine_note()
-    rows, refs = [], {}
+def _log(row: dict) -> None:
+    print(json.dumps({k: v for k, v in row.items()
+                      if k in ("scene", "transcription", "N", "status", "solve",
+                               "ref_error", "optimum", "note")}), flush=True)
+
+
+def sweeps(args: argparse.Namespace) -> tuple[list[dict], dict[str, dict]]:
+    """The rows of every sweep the arguments ask for, and the references by scene."""
+    rows: list[dict] = []
+    refs: dict[str, dict] = {}
     tmp = tempfile.mkdtemp(prefix="undertow-ref-")
-
-    def log(row: dict) -> None:
-        print(json.dumps({k: v for k, v in row.items()
-                          if k in ("scene", "transcription", "N", "status", "solve",
-                                   "ref_error", "optimum", "note")}), flush=True)
-
+    specs = [s for s in SPECS if args.transcriptions is None
+             or label(*s) in args.transcriptions.split(",")]
     for scene_name in args.scenes:
         ref_path = f"{tmp}/{scene_name}.json"
         refs[scene_name] = harness.isolated("time_vs_error", "reference",
@@ -342,11 +336,30 @@ def main(argv: list[str]) -> int:
             continue
         grid = [10, 20] if args.quick else GRIDS[scene_name]
         if not args.warm_only:
-            rows += sweep(scene_name, grid, ref_path, refs[scene_name]["objective"], log)
+            rows += sweep(scene_name, grid, ref_path, refs[scene_name]["objective"], _log,
+                          specs=specs)
         if scene_name in args.warm:
             refs[f"{scene_name}, warm"] = refs[scene_name]
-            rows += sweep(scene_name, grid, ref_path, refs[scene_name]["objective"], log,
-                          warm_path=ref_path + ".start.json")
+            rows += sweep(scene_name, grid, ref_path, refs[scene_name]["objective"], _log,
+                          warm_path=ref_path + ".start.json", specs=specs)
+    return rows, refs
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench time_vs_error", description=__doc__)
+    parser.add_argument("--scenes", nargs="+", default=["seed-4", "arm-2", "under-2"])
+    parser.add_argument("--warm", nargs="*", default=["seed-4"],
+                        help="scenes to sweep again, warm-started from the reference's start")
+    parser.add_argument("--warm-only", action="store_true", help="skip the cold sweeps")
+    parser.add_argument("--merge", action="store_true",
+                        help="keep the other scenes' rows and references of the last run")
+    parser.add_argument("--quick", action="store_true", help="N = 10, 20 only")
+    parser.add_argument("--transcriptions", default=None,
+                        help="comma-separated, from: " + ", ".join(label(*s) for s in SPECS)
+                             + " (default: all)")
+    args = parser.parse_args(argv)
+    started, note = time.perf_counter(), harness.machine_note()
+    rows, refs = sweeps(args)
     merged = ""
     if args.merge:
         done = {r["scene"] for r in rows}

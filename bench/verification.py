@@ -2,24 +2,32 @@
 
 For each scene and each setting of `solver.jit`, a fresh process of each version plans the
 scene (building its NLP and, with jit, waiting for its compiled libraries), plans it again
-and then times, `--repeats` times each (median CPU time), the checks the planner runs on
-that plan: the interval check (every interval re-integrated by CVODES), the open-loop
-replay of the whole horizon, the feedback (linearisation, LQR gains and the two closed-loop
-replays) and all of `verify` (the feedback, the coupling along the plan, the waveless
-singular crossings, the defect); and the median wall time of `--repeats` plans. The largest
-interval error of both versions is reported to show that they check the same thing.
+`--repeats` times (median wall time of a plan, and its verdict) and then times, `--repeats`
+times each (median CPU time), the checks the planner runs on a plan, each through the
+public functions of `planner.ocp` called directly: the interval check
+(`accuracy.interval_errors`: every interval re-integrated by CVODES), the open-loop replay
+of the whole horizon (`verify.open_loop`), the feedback (`feedback.linearise`, `gains`,
+`growth_factor` and the two closed-loop `replay`s) and all of `verify.verify` (the
+feedback, the coupling along the plan, the waveless singular crossings, the defect). Both
+versions check the same plan, this checkout's (its state and torque polynomials, passed to
+the earlier version's process), so the largest interval error of both shows that they
+check the same thing. The scenes keep their waves (no co-design): the scene's robot is
+the plan's.
 
 Scenes: `seed-arm-plan` as shipped (50 intervals) and the same task on 100 intervals with
 one solve ("seed-hang", bench/scenes.py).
 
     python -m bench verification [--before 40cfc2f] [--repeats 5]
+        [--scenes seed-arm-plan,seed-hang] [--jit off,on]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import tempfile
 import time
+from pathlib import Path
 
 from bench import harness
 from bench.scenes import make_scene
@@ -28,38 +36,54 @@ from planner.examples import example
 DOC = harness.DOCS / "benchmarks.md"
 SECTION = "Verification: what a plan's checks cost"
 BEFORE = "40cfc2f"  # the last commit whose checks integrated by BDF only
+JIT = {"off": False, "on": True}
 
 _RUN = """
-import json, math, statistics, sys, time
+import inspect, json, statistics, sys, time
 import numpy as np
 sys.path.insert(0, {root!r})
 from planner import compiled
-from planner.ocp import planner as planner_module
+from planner.ocp import plan
 from planner.ocp.accuracy import interval_errors
-from planner.ocp.verify import _feedback, open_loop, verify
+from planner.ocp.feedback import PERTURBATION, gains, growth_factor, linearise, replay
+from planner.ocp.interpolant import PiecewisePolynomial
+from planner.ocp.transcription import Interpolant
+from planner.ocp.verify import open_loop, verify
 from planner.scene import Scene
 scene = Scene.model_validate(json.loads(sys.argv[1]))
-jit, limit = scene.solver.jit, scene.task.torque_limit
-seen = {{}}
-def keep(robot, interp, jit):
-    seen["plan"] = robot, interp
-    return interval_errors(robot, interp, jit)
-planner_module.interval_errors = keep
-planner_module.plan(scene)
+robot, jit, limit = scene.robot, scene.solver.jit, scene.task.torque_limit
+result = plan(scene)
 compiled.wait()
 plans = []
 for _ in range({repeats}):
     started = time.perf_counter()
-    result = planner_module.plan(scene)
+    result = plan(scene)
     plans.append(time.perf_counter() - started)
-robot, interp = seen["plan"]
+checked = json.loads(open(sys.argv[2]).read()) if len(sys.argv) > 2 else {{
+    "breaks": result.states.breaks, "q": result.states.q, "dq": result.states.dq,
+    "tau": result.torque.coefficients, "dense": result.dense.t}}
+breaks, dense = np.asarray(checked["breaks"]), np.asarray(checked["dense"])
+interp = Interpolant(*(PiecewisePolynomial(breaks, np.asarray(checked[k]))
+                       for k in ("q", "dq", "tau")))
 errors, status = interval_errors(robot, interp, jit)
 replayed = open_loop(robot, interp, jit)
-breaks = interp.q.breaks
-per = planner_module.REPLAY_SAMPLES * max(1, math.ceil(
-    planner_module.DENSE_POINTS / (planner_module.REPLAY_SAMPLES * len(breaks))))
-dense = np.concatenate([np.linspace(a, b, per, endpoint=False)
-                        for a, b in zip(breaks[:-1], breaks[1:])] + [breaks[-1:]])
+# the earlier planner's linearise has no compiled Jacobians
+linearised = {{"compiled": jit}} if "compiled" in inspect.signature(linearise).parameters else {{}}
+scale = max(float(np.max(limit)) if limit is not None
+            else float(np.abs(interp.tau.coeffs[:, 0]).max(initial=0.0)), 1.0)
+start = np.concatenate([interp.q(breaks[:1])[0], interp.dq(breaks[:1])[0]])
+def feedback():
+    lin = linearise(robot, interp, **linearised)
+    growth_factor(lin)
+    fb = gains(lin, np.diff(breaks), scale)
+    return replay(robot, interp, np.stack([start, start + PERTURBATION]),
+                  np.asarray(fb.gains), compiled=jit)
+def checks():
+    # the planner's verify takes the task and settings since its verdict checks the task
+    if "task" in inspect.signature(verify).parameters:
+        return verify(robot, interp, dense, errors, status, replayed, scene.task,
+                      scene.solver, True)
+    return verify(robot, interp, dense, errors, status, replayed, 1e-3, limit, jit)
 def cpu(fn):
     times = []
     for _ in range({repeats}):
@@ -70,11 +94,10 @@ def cpu(fn):
 print("RESULT " + json.dumps({{
     "intervals": cpu(lambda: interval_errors(robot, interp, jit)),
     "open_loop": cpu(lambda: open_loop(robot, interp, jit)),
-    "feedback": cpu(lambda: _feedback(robot, interp, limit, jit)),
-    "verify": cpu(lambda: verify(robot, interp, dense, errors, status, replayed, 1e-3, limit,
-                                 jit)),
+    "feedback": cpu(feedback),
+    "verify": cpu(checks),
     "plan": statistics.median(plans), "local_error": float(errors.max()),
-    "verified": bool(result.verification.verified)}}))
+    "verified": bool(result.verification.verified), "checked": checked}}))
 """
 COLUMNS = [("scene", "scene"), ("jit", "jit"), ("version", "version"),
            ("intervals", "interval check [ms]"), ("open_loop", "open-loop replay [ms]"),
@@ -90,33 +113,51 @@ def scenes() -> dict[str, dict]:
             "seed-hang, N = 100": make_scene("seed-hang", N=100, one_solve=True).model_dump()}
 
 
+def _checked(root: Path, request: dict, repeats: int, plan: Path | None) -> dict:
+    """The checks' times of one version (the checkout at `root`) in a fresh process, on the
+    plan whose polynomials the JSON file `plan` holds or, without one, on its own plan."""
+    code = _RUN.format(root=str(root), repeats=repeats)
+    out = harness.run_at(root, code, [json.dumps(request), *([str(plan)] if plan else [])], 900)
+    if "failure" in out:
+        raise RuntimeError(f"{root}: {out['failure']}")
+    return out
+
+
+def _row(name: str, jit: bool, version: str, out: dict) -> dict:
+    ms = {k: 1000 * out[k] for k in ("intervals", "open_loop", "feedback", "verify", "plan")}
+    return {"scene": name, "jit": jit, "version": version, **ms,
+            "local_error": out["local_error"], "verified": out["verified"]}
+
+
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench verification", description=__doc__)
     parser.add_argument("--before", default=BEFORE)
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--scenes", default=",".join(n.split(",")[0] for n in scenes()),
+                        help="comma-separated, from: " + ", ".join(scenes()))
+    parser.add_argument("--jit", default=",".join(JIT), help="comma-separated: off, on")
     args = parser.parse_args(argv)
     started, note = time.perf_counter(), harness.machine_note()
+    chosen = {name: request for name, request in scenes().items()
+              if name.split(",")[0] in args.scenes.split(",")}
     rows = []
-    with harness.checkout(args.before) as old:
-        for name, request in scenes().items():
-            for jit in (False, True):
+    with harness.checkout(args.before) as old, tempfile.TemporaryDirectory() as folder:
+        checked = Path(folder) / "plan.json"
+        for name, request in chosen.items():
+            for jit in (JIT[j] for j in args.jit.split(",")):
                 body = {**request, "solver": {**request.get("solver", {}), "jit": jit}}
-                for version, root in (("now", harness.ROOT), (args.before, old)):
-                    code = _RUN.format(root=str(root), repeats=args.repeats)
-                    out = harness.run_at(root, code, [json.dumps(body)], 900)
-                    if "failure" in out:
-                        raise RuntimeError(f"{name}, {version}: {out['failure']}")
-                    ms = {k: 1000 * out[k] for k in ("intervals", "open_loop", "feedback",
-                                                     "verify", "plan")}
-                    rows.append({"scene": name, "jit": jit, "version": version, **ms,
-                                 "local_error": out["local_error"],
-                                 "verified": out["verified"]})
-                    print(rows[-1])
+                now = _checked(harness.ROOT, body, args.repeats, None)
+                checked.write_text(json.dumps(now["checked"]))
+                before = _checked(old, body, args.repeats, checked)
+                for version, out in (("now", now), (args.before, before)):
+                    rows.append(_row(name, jit, version, out))
+                    print(rows[-1], flush=True)
     harness.write_csv(harness.RESULTS / "verification.csv", rows)
     text = "\n\n".join([
         "CPU time of each check of one plan (median of "
         f"{args.repeats}), and the median wall time of the whole plan, with this checkout "
-        f"and with {args.before} (checks by BDF only), in fresh processes of one run. Now "
+        f"and with {args.before} (checks by BDF only), in fresh processes of one run; both "
+        "versions check this checkout's plan. Now "
         "CVODES integrates by Adams-Moulton with functional iteration and falls back to BDF "
         "where Adams fails, and with `solver.jit` the linearisation's Jacobians are "
         "compiled too (`planner.ocp.flow`, `planner.ocp.feedback`).",

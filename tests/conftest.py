@@ -150,7 +150,8 @@ def store(request: pytest.FixtureRequest, tmp_path) -> Iterator[JobStore]:
 
 SERVICE = frozenset({
     "test_api_budget.py", "test_api_compute.py", "test_api_plans.py", "test_api_service.py",
-    "test_api_warm_start.py", "test_bad_input.py", "test_batches.py", "test_capacity.py",
+    "test_api_warm_start.py", "test_bad_input.py", "test_batches.py", "test_benches.py",
+    "test_capacity.py",
     "test_cli.py", "test_continuation.py", "test_delivered_torque.py", "test_distributed.py",
     "test_dockerfile.py", "test_e2e_server.py", "test_errors.py", "test_infeasible.py",
     "test_job_faults.py", "test_jobs.py", "test_limits.py", "test_node_faults.py",
@@ -160,11 +161,12 @@ SERVICE = frozenset({
     "test_sampling.py", "test_scene_validation.py", "test_schemathesis.py", "test_server.py",
     "test_service_interface.py", "test_store.py", "test_stress.py", "test_viewer.py"})
 """Files that exercise the service (app/): its app in-process, live servers and worker
-processes, the command line, the job store, the API documents. Any other file is `unit`:
-the library alone, in the test's own process."""
+processes, the command line, the job store, the API documents, the benchmarks. Any other
+file is `unit`: the library alone, in the test's own process."""
 DATABASE = frozenset({"test_distributed.py", "test_node_faults.py", "test_queue_engine.py"})
 """Files every test of which needs PostgreSQL; elsewhere a test that takes the `postgres`
-or `postgres_url` fixture, or the `store` fixture's PostgreSQL case, is marked too."""
+or `postgres_url` fixture, or the `store` fixture's PostgreSQL case, is marked too, and so
+is a test of tests/test_benches.py that runs a benchmark needing it (`bench.smoke`)."""
 BROWSER = frozenset({"test_viewer.py"})
 """Files that drive the viewer in a browser."""
 CHROMIUM = Path("/usr/bin/chromium")  # tests/test_viewer.py's browser
@@ -182,6 +184,11 @@ def kinds(item: pytest.Item) -> set[str]:
             callspec is not None and callspec.params.get("store") in ("postgres",
                                                                      "procrastinate")):
         found.add("database")
+    if name == "test_benches.py" and callspec is not None and "name" in callspec.params:
+        from bench.smoke import SMALL
+
+        if "postgres" in SMALL[callspec.params["name"]].needs:
+            found.add("database")
     return found
 
 

@@ -1,0 +1,204 @@
+"""The headline figures: one table at the top of docs/benchmarks.md, made from the committed
+benchmark results (bench/results/*.csv) alone.
+
+Each row is one figure: what it is, its goal where one is set, the value the results give,
+the benchmark that produced them and the commit of their last committed run
+(`bench.runs.committed`). `python -m bench headline` rewrites the section `SECTION`;
+`--out DIR` writes it under DIR instead.
+
+    python -m bench headline [--out DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from bench import harness, runs
+
+DOC = harness.DOCS / "benchmarks.md"
+SECTION = "Headline figures"
+Rows = list[dict]
+
+
+@dataclass(frozen=True)
+class Figure:
+    """One headline figure: `measure` turns the rows of each of `results` (CSV files under
+    bench/results/, in order) into the value shown."""
+
+    what: str
+    goal: str
+    bench: str
+    results: tuple[str, ...]
+    measure: Callable[..., str]
+
+
+def _ours(rows: Rows) -> Rows:
+    """The default planner's rows of a suite's CSV."""
+    return [r for r in rows if r["config"] == "undertow"]
+
+
+def _share(rows: Rows, key: str = "verified") -> str:
+    """How many rows have `key` true, "k of n (p %)"."""
+    done = sum(bool(r[key]) for r in rows)
+    return f"{done} of {len(rows)} ({100 * done / len(rows):.0f} %)"
+
+
+def _median_never(rows: Rows) -> float:
+    """The nearest-rank median time to a verified plan [s], unverified counted as never."""
+    every = sorted(r["time_to_verified"] if r["verified"] else math.inf for r in rows)
+    return every[max(math.ceil(0.5 * len(every)) - 1, 0)]
+
+
+def _finite(values) -> list[float]:
+    return [float(v) for v in values if v not in (None, "") and math.isfinite(float(v))]
+
+
+def suite_verified(rows: Rows) -> str:
+    return _share(_ours(rows))
+
+
+def suite_median(rows: Rows) -> str:
+    ours = _ours(rows)
+    return f"{harness.median(r['time_to_verified'] for r in ours if r['verified']):.3g} s"
+
+
+def hard_verified(*seeds: Rows) -> str:
+    return _share([r for rows in seeds for r in _ours(rows)])
+
+
+def hard_median(rows: Rows) -> str:
+    return f"{_median_never(_ours(rows)):.3g} s"
+
+
+def co_design(*seeds: Rows) -> str:
+    return _share([r for rows in seeds for r in _ours(rows) if r["category"] == "co-design"])
+
+
+def crossing_iterations(rows: Rows) -> str:
+    mine = [r["iterations"] for r in _ours(rows) if r["category"] == "seed-g0-cross"]
+    return f"{harness.median(mine):.0f} ({len(mine)} tasks)"
+
+
+def against_opti(rows: Rows) -> str:
+    """The planner's median time to a verified plan against the Opti script's median time
+    to its own plan, on the tasks the script can state."""
+    script = [r for r in rows if r["config"] == "Opti script"]
+    tasks = {r["task"] for r in script}
+    ours = harness.median(r["time_to_verified"] for r in _ours(rows)
+                          if r["task"] in tasks and r["verified"])
+    theirs = harness.median(r["time"] for r in script)
+    return f"{ours:.3g} s against {theirs:.3g} s: {theirs / ours:.1f}x"
+
+
+def iteration_cost(rows: Rows) -> str:
+    at = {r["solver"]: r["cpu_per_iteration"] for r in rows if r["N"] == 100}
+    return (f"{at['Ipopt, interpreted']:.3g} ms (compiled {at['Ipopt, compiled (jit)']:.3g}, "
+            f"fatrop {at['fatrop']:.3g})")
+
+
+def replan(rows: Rows) -> str:
+    mine = [r for r in rows if r["kind"] == "service, warm"]
+    return (f"{harness.median(r['time'] for r in mine if r['verified']):.3g} s "
+            f"({sum(r['verified'] for r in mine)} of {len(mine)} verified)")
+
+
+def impossible(rows: Rows) -> str:
+    return _share([{**r, "quick": r["within_quarter"] == "yes"} for r in rows], "quick")
+
+
+def moved_goals(rows: Rows) -> str:
+    feasible = [r for r in rows if r["feasible"]]
+    times = [r["time"] if r["verified"] else math.inf for r in feasible]
+    return f"{_share(feasible)}, median {harness.median(times):.3g} s"
+
+
+def torque_excess(*suites: Rows) -> str:
+    excess = _finite(r["torque_excess"] for rows in suites for r in _ours(rows)
+                     if r["verified"] and r["status"] == "Solve_Succeeded")
+    return f"{max(excess):.2g} of the limit"
+
+
+def robust_tracking(rows: Rows) -> str:
+    ours = _ours(rows)
+    tracking, alone = (harness.median(_finite(r[k] for r in ours))
+                       for k in ("robust_tracking_error", "open_loop_final_error"))
+    return f"{tracking:.2g} rad (the torque alone ends {alone:.2g} from the goal)"
+
+
+def memory(rows: Rows) -> str:
+    near = [r for r in rows if r["move"] == 0.05 and r["feasible"]]
+    warm, cold = ([r[f"{k}_time"] if r[f"{k}_verified"] else math.inf for r in near]
+                  for k in ("warm", "cold"))
+    return f"{harness.median(warm):.3g} s against {harness.median(cold):.3g} s from scratch"
+
+
+def build(rows: Rows) -> str:
+    eight = next(r for r in rows if r["links"] == 8)
+    return f"{eight['now_build']:.2g} s, {eight['now_peak_mb']:.0f} MB"
+
+
+HARD = ("hard-suite.csv", "hard-suite-seed-31415926.csv", "hard-suite-seed-27182818.csv")
+FIGURES = (
+    Figure("Task suite (48 tasks): plans verified", "", "suite", ("suite.csv",),
+           suite_verified),
+    Figure("Task suite: median time to a verified plan", "", "suite", ("suite.csv",),
+           suite_median),
+    Figure("Hard suite, three seeds: plans verified", "", "suite", HARD, hard_verified),
+    Figure("Hard suite, its seed: median time to a verified plan (unverified: never)", "",
+           "suite", HARD[:1], hard_median),
+    Figure("Wave co-design with a coupling margin (hard suite, three seeds): verified",
+           "90 %", "suite", HARD, co_design),
+    Figure("Seed arm across a singularity, g = 0: median Ipopt iterations (hard suite)",
+           "100", "suite", HARD[:1], crossing_iterations),
+    Figure("Against the plain Opti script, tasks it can state (hard suite, seed 27182818): "
+           "median time to a verified plan against the script's to its plan", "10x",
+           "suite", HARD[2:], against_opti),
+    Figure("CPU per Ipopt iteration, seed arm, N = 100", "5 ms", "iteration_cost",
+           ("iteration_cost.csv",), iteration_cost),
+    Figure("Warm replanning through the service, goal moved by up to 0.05 rad: median time "
+           "to a verified plan", "0.1 s", "replan", ("replan.csv",), replan),
+    Figure("Impossible tasks said infeasible within a quarter of the 60 s budget", "",
+           "impossible", ("impossible.csv",), impossible),
+    Figure("Built-in plan examples, goals moved by up to 0.05 rad: verified", "",
+           "moved_goals", ("moved_goals.csv",), moved_goals),
+    Figure("Delivered torque beyond its limit, worst verified plan (task and hard suites)",
+           "1e-6 of the limit", "suite", ("suite.csv", *HARD), torque_excess),
+    Figure("Every link's mass 10 % off: median deviation from the plan under its feedback "
+           "(task suite)", "", "suite", ("suite.csv",), robust_tracking),
+    Figure("Planned from a neighbour 0.05 rad away: median time to a verified plan", "",
+           "memory", ("memory.csv",), memory),
+    Figure("Building a default NLP of 8 links: time and peak memory", "", "build",
+           ("build.csv",), build),
+)
+"""The rows of the table, in order (at most 15)."""
+
+
+def row(figure: Figure) -> dict:
+    """A figure's row of the table, measured on the committed results."""
+    paths = [harness.RESULTS / name for name in figure.results]
+    return {"figure": figure.what, "goal": figure.goal or "–",
+            "measured": figure.measure(*(harness.read_csv(p) for p in paths)),
+            "bench": f"`{figure.bench}`", "commit": runs.committed(paths).split()[0]}
+
+
+def text() -> str:
+    """The section: the table and where its numbers come from."""
+    return "\n\n".join([
+        harness.table([row(f) for f in FIGURES],
+                      [("figure", "figure"), ("goal", "goal"), ("measured", "measured"),
+                       ("bench", "bench"), ("commit", "commit of its results")]),
+        "Made by `python -m bench headline` from the committed results "
+        "(`bench/results/*.csv`); the commit is the last one that changed them, the run's "
+        "(`python -m bench list` gives every benchmark's). What each figure means, and "
+        "the ones this table leaves out: [benchmark findings](bench-findings.md) and the "
+        "sections below."])
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench headline", description=__doc__)
+    parser.parse_args(argv)
+    harness.write_section(DOC, SECTION, text())
+    return 0
