@@ -90,6 +90,8 @@ def _energy(scene: Scene) -> list[Issue]:
             or any(v is None for v in task.final.q):
         return []
     limit = np.broadcast_to(np.asarray(task.torque_limit, float), (len(robot.active),))
+    if not limit.any():  # the free motion: the zero-torque check says more
+        return []
     T = task.duration_span[1]
     reach = energy_reach(robot, task.initial.q, task.initial.dq, limit, T)
     rates_given = all(v is not None for v in task.final.dq)

@@ -26,6 +26,13 @@ def with_task(scene: Scene, **task) -> Scene:
     return Scene.model_validate(data)
 
 
+def horizontal(scene: Scene) -> Scene:
+    """The scene with its arm in a horizontal plane (no gravity)."""
+    data = scene.model_dump(exclude_unset=True)
+    data["robot"]["gravity"] = 0.0
+    return Scene.model_validate(data)
+
+
 def fields(scene: Scene) -> list[tuple[str, str]]:
     return [(issue.field, issue.kind) for issue in feasibility.check(scene)]
 
@@ -145,9 +152,7 @@ def test_zero_torque_is_infeasible_unless_the_free_motion_reaches_the_goal():
 
 def test_plan_returns_at_once_with_the_fields_to_blame():
     scene = with_task(BASE, tip_target={"x": 3.0, "y": 0.0}, torque_limit=0.0)
-    start = time.perf_counter()
     p = plan(scene)
-    assert time.perf_counter() - start < 1.0
     assert p.infeasibility is not None and p.infeasibility.source == "checks"
     assert [f.field for f in p.infeasibility.fields] == ["task.tip_target",
                                                           "task.torque_limit"]
@@ -160,26 +165,31 @@ def test_plan_returns_at_once_with_the_fields_to_blame():
 
 
 def test_two_starts_that_agree_stop_the_retries_with_the_violated_rows():
-    """0.5 rad in 0.15 s with 1 N m is too fast for the arm: the first start stalls, the
-    next two report infeasibility, and no further retry runs."""
-    scene = chain_scene(2, intervals=10)
-    scene = with_task(scene, duration=0.15, torque_limit=1.0)
+    """The first link's final angle given, the tip target 0.1 m beyond its elbow along it:
+    the second link (0.4 m, its wave 0.04 m) cannot fold back that far, though the target
+    lies within the checks' convex hull of the tip's reach; two starts report
+    infeasibility and no further retry runs."""
+    elbow = 0.4 * np.array([np.cos(0.5), np.sin(0.5)])
+    target = elbow * 1.25
+    scene = with_task(chain_scene(2, intervals=10), final={"q": [0.5, None], "dq": [0.0, 0.0]},
+                      tip_target={"x": float(target[0]), "y": float(target[1])})
+    assert feasibility.check(scene) == []
     p = plan(scene)
     found = p.infeasibility
     assert found is not None and found.source == "solver"
     starts = {a.split(":")[0] for a in found.attempts} - {"restart from the last iterate"}
     assert len(starts) == AGREEING  # a restart from an attempt's last iterate not counted
-    assert found.attempt in p.solver.strategy and found.durations == [0.15]
+    assert found.attempt in p.solver.strategy and found.durations == [1.0]
     assert p.solver.status in ("Infeasible_Problem_Detected", "Restoration_Failed",
                                "Local_Infeasibility")
     # the retries stopped at the second agreeing attempt: its solve is the last one
     assert p.mesh_passes[-1].strategy == found.attempts[-1].split(":")[0]
     assert "first mesh of 5 intervals" not in {m.strategy for m in p.mesh_passes}
     assert found.violations and found.violations[0].largest > 1e-3
-    assert all(v.kind in ("dynamics", "continuity", "torque limit") for v in found.violations)
+    assert "tip target" in {v.kind for v in found.violations}
     assert [v.largest for v in found.violations] == sorted(
         (v.largest for v in found.violations), reverse=True)
-    assert "cannot be done in 0.15 s" in p.solver.message
+    assert "cannot be done in 1 s" in p.solver.message
     status, error = _verdict(p, False, False, 60.0)
     assert status == "failed" and error == f"infeasible: {found.summary}"
 
@@ -212,8 +222,8 @@ def test_the_service_answers_422_at_the_infeasible_fields(api):
 
 
 def test_a_duration_range_found_infeasible_says_so_for_the_whole_range():
-    scene = with_task(chain_scene(2, intervals=10), duration={"min": 0.1, "max": 0.15},
-                      torque_limit=1.0)
+    scene = with_task(horizontal(chain_scene(2, intervals=10)),
+                      duration={"min": 0.1, "max": 0.15}, torque_limit=1.0)
     p = plan(scene)
     assert p.infeasibility is not None and p.infeasibility.durations == [0.1, 0.15]
     assert "cannot be done with a free duration in [0.1, 0.15] s" in p.infeasibility.summary
@@ -242,11 +252,19 @@ def test_a_duration_below_the_shortest_is_infeasible_with_the_shortest_as_eviden
     assert found.shortest_duration == pytest.approx(_fastest(), rel=1e-2)
     assert found.summary.startswith("the task cannot be done in 0.5 s: its attempts gave no "
                                     "converged plan (direct: ")
-    assert (f"a time-optimal solve under the task's limits found its shortest duration at "
+    assert (f"a time-optimal solve under the task's limits, from its motion without them "
+            f"stretched to keep them, ended at a verified plan of "
             f"{found.shortest_duration:.4g} s") in found.summary
+    assert "(a local optimum of that solve: the task can be done in" in found.summary
     assert p.solver.message == found.summary and not p.solver.success
+    assert p.status == "infeasible" and p.message == f"infeasible: {found.summary}"
     assert p.duration == 0.5  # the plan is still the infeasible task's own iterate
-    assert p.solver.total_time < 15.0  # a quarter of the default budget
+    # the verdict came from the probe: no rescue start ran after it
+    assert not any(m.strategy.startswith(("restart", "inverse-dynamics", "first mesh"))
+                   for m in p.mesh_passes)
+    # the evidence is true: the task can be done in the duration it names
+    at = plan(with_task(FAST, duration=round(found.shortest_duration, 6)))
+    assert at.status == "verified", at.message
 
 
 def test_a_duration_just_above_the_shortest_is_planned_not_held_infeasible():

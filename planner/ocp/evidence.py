@@ -58,5 +58,7 @@ class Infeasibility(Out):
     shortest_duration: float | None = Field(
         default=None, description="[s] the duration of the verified plan a time-optimal "
                                   "solve under the task's torque limit and velocity bounds "
-                                  "found (docs/planner.md, \"Infeasible tasks\"); null when "
-                                  "none was found or tried")
+                                  "ended at (docs/planner.md, \"Infeasible tasks\"): the task "
+                                  "can be done in this duration, and the solve found none "
+                                  "shorter near it; a local optimum, not proven the least "
+                                  "duration. Null when none was found or tried")

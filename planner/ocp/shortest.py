@@ -205,9 +205,11 @@ def probe(scene: Scene, budget: Budget, solve: Solver, plan_motion: Planner,
         return _done(budget, sub, passes, None, False, f"the time-optimal solve gave no verified "
                                                f"plan ({found.solver.status})")
     too_short = found.duration > longest * (1.0 + DURATION_RTOL)
-    note = (f"a time-optimal solve under the task's limits found its shortest duration at "
-            f"{found.duration:.4g} s" + (f", {found.duration / longest - 1:.1%} above "
-                                         f"{longest:g} s" if too_short else ""))
+    note = (f"a time-optimal solve under the task's limits, from its motion without them "
+            f"stretched to keep them, ended at a verified plan of {found.duration:.4g} s"
+            + (f", {found.duration / longest - 1:.1%} above {longest:g} s (a local optimum of "
+               f"that solve: the task can be done in {found.duration:.4g} s, and no shorter "
+               f"duration was found near it)" if too_short else ""))
     return _done(budget, sub, passes, found, too_short, note)
 
 
