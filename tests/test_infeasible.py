@@ -4,8 +4,6 @@ starts agree, with the violated rows as evidence, and the job's error."""
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
 from service_fixtures import client, two_link_scene
