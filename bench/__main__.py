@@ -26,6 +26,9 @@ BENCHES = {
     "examples": ("bench.examples", "the built-in plan examples, now and at an earlier commit"),
     "plan_list": ("bench.plan_list", "listing 100 plan jobs with large plans, decoding the "
                                      "plans or not"),
+    "adversarial": ("bench.adversarial", "tasks drawn to make a verdict lie: verified plans "
+                                         "checked against their task, infeasible verdicts "
+                                         "challenged, evidence checked"),
     "impossible": ("bench.impossible", "tasks that cannot be done: how many end infeasible, "
                                        "how soon"),
     "iteration_cost": ("bench.iteration_cost", "CPU per iteration on the seed arm at N = 50 and "

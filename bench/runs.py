@@ -22,6 +22,7 @@ RESULTS: dict[str, tuple[str, ...]] = {
     "dynamics_size": (),
     "examples": ("bench/results/examples.csv",),
     "plan_list": ("bench/results/plan_list.csv",),
+    "adversarial": ("bench/results/adversarial.csv",),
     "impossible": ("bench/results/impossible.csv",),
     "iteration_cost": ("bench/results/iteration_cost.csv",),
     "memory": ("bench/results/memory.csv",),

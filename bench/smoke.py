@@ -40,6 +40,7 @@ SMALL: dict[str, Small] = {
     "dynamics_size": Small((("--calls", "2", "--repeats", "1", "--builds", "1"),)),
     "examples": Small((("--repeats", "1", "--examples", "two-link-plan"),)),
     "plan_list": Small((("--repeats", "1"),)),
+    "adversarial": Small((("--count", "2"),)),
     "impossible": Small((("--seeds", "20261126", "--count", "1"),)),
     "iteration_cost": Small((("--N", "10", "--iterations", "3", "--repeats", "1"),)),
     "memory": Small((("--bases", "1", "--variants", "1", "--moves", "0.05"),)),
