@@ -8,11 +8,12 @@ Drawn from a seed, each task named by its category (`<category>-<index>`), one o
   the task;
 - `tip-near-reach`: a 2- or 3-link chain with free final angles and a tip target at
   1 - 0.02 to 1 + 0.02 times the arm's extent in a random direction (`extent`): beyond it
-  the task is impossible, within it possible;
+  the task is impossible (a proof), within it possible or not (the farthest tip in a
+  direction need not lie on its ray);
 - `energy-starved`: a 2- or 3-link chain in gravity raised or lowered between rest
-  states under a torque limit of 0.3 to 3 times (log-uniform) the one at which the energy the move needs
-  equals what the limit lets the actuators exchange (`planner.energy_bound`): below it
-  proven impossible, above it possible or not;
+  states under a torque limit of 0.3 to 3 times (log-uniform) the one at which the
+  energy the move needs equals what the limit lets the actuators exchange
+  (`planner.energy_bound`): below it proven impossible, above it possible or not;
 - `margin`: the two-link example with a coupling margin log-uniform from 1e-6 to half
   sigma_min at its start;
 - `duration`: a 2- or 3-link chain in gravity under a torque limit of 2 to 6 N m, asked to
