@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from planner.model import Robot
+from planner.ocp.evidence import Infeasibility
 from planner.ocp.planner import plan
 from planner.ocp.task_checks import MARGIN_RTOL, requirements
 from planner.ocp.verdict import unverified_reason, verdict
@@ -136,13 +137,22 @@ def _verification(**fields) -> Verification:
      "solver-failure"),
     (False, "User_Requested_Stop", {"verified": False, "converged": False}, None, "cancelled"),
     (False, "Maximum_WallTime_Exceeded", {"verified": False, "converged": False},
-     "the task cannot be done in 0.4 s", "infeasible"),
+     "duration", "infeasible"),
+    (False, "Restoration_Failed", {"verified": False, "converged": False}, "checks",
+     "infeasible"),
+    (False, "Infeasible_Problem_Detected", {"verified": False, "converged": False},
+     "solver", "solver-failure"),
 ])
 def test_one_word_says_what_happened_to_the_plan(converged, status, checks, infeasible, word):
-    said, message = verdict(converged, status, "said", _verification(**checks), infeasible)
+    # agreeing starts that end locally infeasible prove nothing: a solver failure
+    found = None if infeasible is None else Infeasibility(
+        source=infeasible, summary="the task cannot be done in 0.4 s")
+    said, message = verdict(converged, status, "said", _verification(**checks), found)
     assert said == word
     if word == "infeasible":
         assert message == "infeasible: the task cannot be done in 0.4 s"
+    if infeasible == "solver":
+        assert message == "solver failure: the task cannot be done in 0.4 s"
     if word == "unverified":
         assert message.startswith("unverified: re-integrated interval by interval")
 

@@ -37,8 +37,10 @@ class Infeasibility(Out):
 
     source: Literal["checks", "solver", "duration"] = Field(
         description="checks: a check before any solve failed (`fields`; no solve ran); "
-                    "solver: two different starts ended with a status saying that the "
-                    "constraints cannot all hold; duration: the task's attempts gave no "
+                    "solver: two different starts ended locally infeasible, with a status "
+                    "saying that their constraints cannot all hold near where they went (a "
+                    "sign, not a proof: the plan's status is then solver-failure, not "
+                    "infeasible); duration: the task's attempts gave no "
                     "converged plan and a time-optimal solve under its limits found a "
                     "verified plan only at a longer duration (`shortest_duration`)")
     summary: str = Field(description="one sentence: what cannot hold, and the evidence")

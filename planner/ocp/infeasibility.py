@@ -140,10 +140,11 @@ def evidence(scene: Scene, attempts: list[Attempt], best: Outcome,
     rows = violated(best)
     largest = ", ".join(f"{v.kind} by {v.largest:.3g} (t = {v.time:.3g} s)" for v in rows[:3])
     starts = len({a.start.name for _, a in found if not a.start.continues})
-    summary = (f"the task cannot be done {_within(scene)}: attempts from {starts} different "
-               f"starts ended saying the constraints cannot all hold "
+    summary = (f"no plan {_within(scene)}: attempts from {starts} different starts ended "
+               f"locally infeasible, their constraints unable to hold near where they went "
                f"({'; '.join(names)}); the closest, '{attempt.start.name}', still violates "
-               + (largest if largest else "rows it did not report"))
+               + (largest if largest else "rows it did not report")
+               + ": a sign, not a proof, that the task cannot be done")
     return Infeasibility(source="solver", summary=summary, attempts=names,
                          attempt=attempt.start.name, violations=rows,
                          durations=durations(scene))

@@ -89,9 +89,8 @@ def plan_of(scene: Scene, attempts: list[Attempt], budget: Budget,
 
 def with_verdict(plan: Plan) -> Plan:
     """The plan with its status and message (`planner.ocp.verdict`)."""
-    found = plan.infeasibility
     status, message = verdict(plan.solver.success, plan.solver.status, plan.solver.message,
-                              plan.verification, None if found is None else found.summary)
+                              plan.verification, plan.infeasibility)
     return plan.model_copy(update={"status": status, "message": message})
 
 

@@ -5,13 +5,15 @@ from __future__ import annotations
 
 from typing import Literal
 
+from planner.ocp.evidence import Infeasibility
 from planner.ocp.verification import Verification
 
 PlanStatus = Literal["verified", "unverified", "infeasible", "out-of-budget",
                      "solver-failure", "cancelled"]
 """verified: converged and every check passed (the task is done); unverified: converged,
 but a check failed; infeasible: the task cannot be done, with evidence
-(`Plan.infeasibility`); out-of-budget: no converged plan within solver.max_iter or
+(`Plan.infeasibility`: a check's proof before any solve, or the duration probe's verified
+plan at a longer duration); out-of-budget: no converged plan within solver.max_iter or
 max_wall_time; solver-failure: no converged plan for another reason (a stall, an
 evaluation error, a restoration failure without a second witness); cancelled: stopped on
 request."""
@@ -22,11 +24,14 @@ CANCELLED = "User_Requested_Stop"
 
 
 def verdict(converged: bool, status: str, message: str, verification: Verification,
-            infeasible: str | None) -> tuple[PlanStatus, str]:
+            infeasible: Infeasibility | None) -> tuple[PlanStatus, str]:
     """The plan's status and message from its last solve (`converged`, its `status` and
-    `message`), its checks and the summary of its infeasibility (None: none shown)."""
+    `message`), its checks and its infeasibility (None: none shown). Attempts that agree
+    the task is locally infeasible (source "solver") prove nothing: a solver failure."""
+    if infeasible is not None and infeasible.source != "solver":
+        return "infeasible", f"infeasible: {infeasible.summary}"
     if infeasible is not None:
-        return "infeasible", f"infeasible: {infeasible}"
+        return "solver-failure", f"solver failure: {infeasible.summary}"
     reason = unverified_reason(verification)
     if converged and verification.verified:
         return "verified", "verified: the plan converged and does the task within every check"
