@@ -10,7 +10,7 @@ spent, the next iteration stops the solve.
 
 Its supervisor (`app.supervisor`) talks to it over a pipe: WAKE when a job was queued,
 STOP to end; the worker answers READY once started, CLAIMED when it takes a job and the
-job's `Outcome` when it ends. The worker limits its own memory (UNDERTOW_WORKER_MEMORY_MB)
+job's `JobEnd` when it ends. The worker limits its own memory (UNDERTOW_WORKER_MEMORY_MB)
 and leaves after a job that ran out of it, so a fresh process takes its place. A watchdog
 thread requeues its job (an infrastructure failure: the node's main process died) and
 exits when the supervising process is gone. SIGINT and SIGTERM are for the supervisor to
@@ -105,7 +105,7 @@ class Claimed:
 
 
 @dataclass(frozen=True)
-class Outcome:
+class JobEnd:
     """Worker -> supervisor: a job ended with this stored status after `elapsed` seconds;
     `exhausted` when it ran out of memory (the worker then leaves)."""
 
@@ -208,7 +208,7 @@ watchdog."""
 
 
 def run_job(store: JobStore, job_id: str, scene: Scene, solve: SolveFunction,
-            memory_mb: float | None = None, worker: str | None = None) -> Outcome:
+            memory_mb: float | None = None, worker: str | None = None) -> JobEnd:
     """Solve one job claimed by `worker` and store its verdict (unless the job was taken
     from `worker` meanwhile: its lease ran out and another worker holds it)."""
     global _current
@@ -238,7 +238,7 @@ def run_job(store: JobStore, job_id: str, scene: Scene, solve: SolveFunction,
     body = plan.model_dump(mode="json")
     persist(lambda: store.finish(job_id, status, body, error, solution, worker),
             f"job {job_id}: writing its verdict")
-    return Outcome(job_id, status, time.monotonic() - start)
+    return JobEnd(job_id, status, time.monotonic() - start)
 
 
 def _start_from(store: JobStore, scene: Scene) -> tuple[str, float | None] | None:
@@ -282,10 +282,10 @@ def _earlier(store: JobStore, job_id: str) -> Plan | None:
 
 
 def _failed(store: JobStore, job_id: str, error: str, start: float, worker: str | None,
-            exhausted: bool = False) -> Outcome:
+            exhausted: bool = False) -> JobEnd:
     persist(lambda: store.finish(job_id, "failed", None, error, worker=worker),
             f"job {job_id}: writing its verdict")
-    return Outcome(job_id, "failed", time.monotonic() - start, exhausted)
+    return JobEnd(job_id, "failed", time.monotonic() - start, exhausted)
 
 
 def _stop_requested(channel: Connection, wait: float) -> bool:
@@ -317,7 +317,7 @@ def _watch(parent: int) -> None:
     os._exit(0)
 
 
-def _take(spec: WorkerSpec, channel: Connection, record: JobRecord) -> Outcome | None:
+def _take(spec: WorkerSpec, channel: Connection, record: JobRecord) -> JobEnd | None:
     """Run a claimed job; None when it was given back (STOP arrived meanwhile)."""
     if _stop_requested(channel, 0.0):
         persist(lambda: spec.store.release(record.id, spec.name, "the worker was stopping"),
@@ -396,17 +396,17 @@ def serve(spec: WorkerSpec, channel: Connection) -> None:
                 unsure = True
                 record = spec.store.claim(spec.owner, spec.name, time.time() + spec.lease)
                 unsure = False
-                outcome = None if record is None else _take(spec, channel, record)
+                end = None if record is None else _take(spec, channel, record)
             except StoreUnavailable as exc:
                 log.error("worker %s: %s", spec.name, exc)
                 wait_for = IDLE_POLL
                 continue
-            if record is not None and outcome is None:
+            if record is not None and end is None:
                 return
             wait_for = IDLE_POLL if record is None else 0.0
-            if outcome is not None:
-                channel.send(outcome)
-                if outcome.exhausted:
+            if end is not None:
+                channel.send(end)
+                if end.exhausted:
                     return
     finally:
         idle.close()
