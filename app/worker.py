@@ -48,6 +48,7 @@ from app.store import (
     JobRecord,
     JobStatus,
     JobStore,
+    Listener,
     StoreUnavailable,
 )
 from app.stored_plan import current
@@ -333,21 +334,26 @@ def _take(spec: WorkerSpec, channel: Connection, record: JobRecord) -> JobEnd | 
 
 
 class _Listening:
-    """An idle worker's wait for work: its supervisor's pipe and, on PostgreSQL, the
-    store's notifications of queued jobs (reopened after a failure, polling meanwhile)."""
+    """An idle worker's wait for work: its supervisor's pipe and the store's announcements
+    of queued jobs (`JobStore.listen`; reopened after a failure, polling meanwhile; never
+    on a store that announces nothing)."""
 
     def __init__(self, store: JobStore, channel: Connection):
         self.store, self.channel = store, channel
-        self.listener: Any = None
-        self.retry_at = 0.0 if hasattr(store, "listen") else math.inf
+        self.listener: Listener | None = None
+        self.retry_at = 0.0
 
     def _open(self) -> None:
-        if self.listener is None and time.monotonic() >= self.retry_at:
-            try:
-                self.listener = self.store.listen()  # type: ignore[attr-defined]
-            except Exception as exc:  # noqa: BLE001 - any failure: poll, try again later
-                log.warning("LISTEN failed (polling meanwhile): %s", exc)
-                self.retry_at = time.monotonic() + LISTEN_RETRY
+        if self.listener is not None or time.monotonic() < self.retry_at:
+            return
+        try:
+            self.listener = self.store.listen()
+        except Exception as exc:  # noqa: BLE001 - any failure: poll, try again later
+            log.warning("LISTEN failed (polling meanwhile): %s", exc)
+            self.retry_at = time.monotonic() + LISTEN_RETRY
+            return
+        if self.listener is None:  # the store announces nothing: poll for good
+            self.retry_at = math.inf
 
     def _drop(self) -> None:
         if self.listener is not None:
@@ -355,14 +361,14 @@ class _Listening:
         self.listener, self.retry_at = None, time.monotonic() + LISTEN_RETRY
 
     def stop_requested(self, timeout: float) -> bool:
-        """Wait up to `timeout` s for a message or a notification; True on STOP or when
+        """Wait up to `timeout` s for a message or an announcement; True on STOP or when
         the supervisor is gone."""
         self._open()
         if self.listener is None or timeout <= 0.0:
             return _stop_requested(self.channel, timeout)
         try:
-            ready = wait([self.channel, self.listener], timeout)
-            if self.listener in ready:
+            announced = self.listener.fileno()
+            if announced in wait([self.channel, announced], timeout):
                 self.listener.drain()
         except Exception as exc:  # noqa: BLE001 - the listening connection broke
             log.warning("LISTEN connection lost (polling meanwhile): %s", exc)

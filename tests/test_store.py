@@ -62,6 +62,10 @@ def test_wal_mode_is_on(sqlite):
     assert sqlite.journal_mode == "wal"
 
 
+def test_sqlite_announces_no_queued_job_so_idle_workers_poll(sqlite):
+    assert sqlite.listen() is None
+
+
 def claim(store: JobStore, owner: str | None = "host", worker: str = "w1",
           lease: float = 60.0) -> str | None:
     """Claim the oldest queued job of `owner`; its id."""

@@ -258,9 +258,9 @@ class PostgresJobStore(SqlJobStore):
     def _push(self, pairs: str) -> str:
         return f"COALESCE(history, '[]'::jsonb) || jsonb_build_array(jsonb_build_object({pairs}))"
 
-    def listen(self) -> Listener:
+    def listen(self) -> ChannelListener:
         """A connection of its own that hears whenever a job is queued."""
-        return Listener(self.url, self.timeout, CHANNEL)
+        return ChannelListener(self.url, self.timeout, CHANNEL)
 
     def create_batch(self, batch_id: str, spec: dict[str, Any],
                      members: builtins.list[tuple[str, dict[str, Any]]], owner: str,
@@ -306,7 +306,7 @@ class PostgresJobStore(SqlJobStore):
             self._pool = None
 
 
-class Listener:
+class ChannelListener:
     """LISTEN on `channel` (the one notified of queued jobs) through a connection of its
     own: `fileno()` to wait on with select, `drain()` to read what arrived. Any failure
     closes it (the caller falls back to polling and opens a new one later)."""

@@ -44,7 +44,7 @@ from procrastinate import jobs as engine_jobs
 from procrastinate.sql import queries
 
 from app.store.base import FINAL, JobRecord, JobStatus, RetryPolicy
-from app.store.postgres import Listener, PostgresJobStore
+from app.store.postgres import ChannelListener, PostgresJobStore
 from app.store.sql import COLUMNS, LEASE_RAN_OUT
 
 TASK = "undertow.plan"
@@ -327,6 +327,6 @@ class ProcrastinateJobStore(PostgresJobStore):
                        "undertow_queue m WHERE m.queue_id = q.id)")
             return purged
 
-    def listen(self) -> Listener:
+    def listen(self) -> ChannelListener:
         """A connection of its own on procrastinate's channel of deferred jobs."""
-        return Listener(self.url, self.timeout, CHANNEL)
+        return ChannelListener(self.url, self.timeout, CHANNEL)

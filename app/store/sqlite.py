@@ -374,6 +374,12 @@ class SqliteJobStore(SqlJobStore):
         return BatchRecord(id=id_, spec=_loads(spec), owner=owner, created=created,
                            members=[_member(row) for row in members])
 
+    def listen(self) -> None:
+        """None: SQLite cannot announce a queued job to another process, so an idle worker
+        polls the store (`app.worker.IDLE_POLL`); a server's own workers are also woken
+        through their supervisor's pipe (WAKE) whenever the server queues a job."""
+        return None
+
     def check(self) -> None:
         """Check the files (database, write-ahead log, header) and read the schema, the
         newest job, the last row of the table and the count of its index through a new
