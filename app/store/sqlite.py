@@ -4,6 +4,10 @@ Each thread of each process opens its own connection on first use. Writes are si
 conditional statements, so they are atomic without explicit transactions; the busy
 timeout makes concurrent writers queue instead of failing.
 
+Its queue is its own: a claim is one conditional UPDATE of the oldest queued job, holding a
+lease until the time it writes, which the supervisor renews; `expire` requeues the claims
+whose lease ended. Nothing announces a queued job to another process (`listen`).
+
 Opening the store checks its integrity (`PRAGMA quick_check`) and brings its schema up to
 date (`app.store.migrations`; `PRAGMA user_version` counts the migrations applied).
 Connections open the file read-write without creating it, and every statement first checks
@@ -32,13 +36,14 @@ from app.store.base import (
     BatchRecord,
     DuplicateKey,
     JobRecord,
+    JobStatus,
     MemberRecord,
     RetryPolicy,
     StoreDamaged,
     StoreUnavailable,
 )
 from app.store.migrations import migrate, version
-from app.store.sql import COLUMNS, SqlJobStore, history
+from app.store.sql import COLUMNS, LEASE_RAN_OUT, SqlJobStore, history
 
 log = logging.getLogger("undertow.store")
 
@@ -342,6 +347,30 @@ class SqliteJobStore(SqlJobStore):
 
     def _push(self, pairs: str) -> str:
         return f"json_insert(COALESCE(history, '[]'), '$[#]', json_object({pairs}))"
+
+    def claim(self, owner: str | None, worker: str, lease_until: float) -> JobRecord | None:
+        mine = "AND owner = :owner" if owner is not None else ""
+        rows = self._write(
+            f"UPDATE jobs SET {self._claiming()} "
+            "WHERE status = 'queued' AND id = (SELECT id FROM jobs WHERE status = 'queued' "
+            f"{mine} AND (not_before IS NULL OR not_before <= :now) ORDER BY created, id "
+            f"LIMIT 1) RETURNING {COLUMNS}",
+            {**self._claim_params(worker, lease_until), "owner": owner})
+        return self._record(rows[0]) if rows else None
+
+    def renew(self, claims: builtins.list[tuple[str, str]],
+              lease_until: float) -> dict[str, bool]:
+        if not claims:
+            return {}
+        pairs = ", ".join(["(?, ?)"] * len(claims))
+        rows = self._write(
+            "UPDATE jobs SET lease_until = ? WHERE status = 'running' AND (id, worker) IN "
+            f"(VALUES {pairs}) RETURNING id, cancel_requested",
+            (lease_until, *(v for claim in claims for v in claim)))
+        return {job_id: bool(cancel) for job_id, cancel in rows}
+
+    def expire(self, now: float) -> dict[str, JobStatus]:
+        return self._requeue("lease_until < :expired", {"expired": now}, LEASE_RAN_OUT)
 
     def create_batch(self, batch_id: str, spec: dict[str, Any],
                      members: builtins.list[tuple[str, dict[str, Any]]], owner: str,
