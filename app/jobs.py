@@ -20,9 +20,10 @@ from typing import Any
 
 from anyio import to_thread
 
+from app.job_run import SolveFunction
 from app.store import FINAL, JobStore, StoreUnavailable
 from app.supervisor import Supervisor
-from app.worker import JobEnd, SolveFunction
+from app.worker_pipe import JobEnd
 
 log = logging.getLogger("undertow.jobs")
 

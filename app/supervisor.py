@@ -39,18 +39,11 @@ from dataclasses import dataclass, field
 from multiprocessing.connection import Connection, wait
 from multiprocessing.process import BaseProcess
 
+from app.job_run import SolveFunction
 from app.store import JobStatus, JobStore, StoreUnavailable
-from app.worker import (
-    READY,
-    STOP,
-    WAKE,
-    Claimed,
-    JobEnd,
-    SolveFunction,
-    WorkerSpec,
-    persist,
-    serve,
-)
+from app.store_retry import persist
+from app.worker import WorkerSpec, serve
+from app.worker_pipe import READY, STOP, WAKE, Claimed, JobEnd
 
 log = logging.getLogger("undertow.supervisor")
 

@@ -27,7 +27,8 @@ from app.metrics import _SOLVE_BUCKETS
 from app.settings import PLAN_PROCESSES, Settings
 from app.store.open import open_store
 from app.supervisor import Supervisor
-from app.worker import JobEnd, load_function
+from app.worker import load_function
+from app.worker_pipe import JobEnd
 
 log = logging.getLogger("undertow.worker_node")
 

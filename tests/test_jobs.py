@@ -10,10 +10,11 @@ import time
 import pytest
 
 from app import jobs
+from app.job_run import out_of_memory
 from app.jobs import JobRunner, QueueFull
 from app.store import BUILDING, FINAL, RetryPolicy, SqliteJobStore, StoreUnavailable
 from app.supervisor import CANCELLED_STOPPED, TICK, died, over_budget
-from app.worker import JobEnd, out_of_memory
+from app.worker_pipe import JobEnd
 from testbed.fake_solvers import fake_plan
 
 ROBOT = {"links": [{"length": 0.5, "mass": 1.0, "joint": "passive"},
