@@ -20,9 +20,10 @@ from typing import Any
 
 from anyio import to_thread
 
+from app.job_run import SolveFunction
 from app.store import FINAL, JobStore, StoreUnavailable
 from app.supervisor import Supervisor
-from app.worker import Outcome, SolveFunction
+from app.worker_pipe import JobEnd
 
 log = logging.getLogger("undertow.jobs")
 
@@ -40,7 +41,7 @@ class QueueFull(Exception):
 class JobRunner:
     """Runs the plan jobs of one server instance (`owner`) on `workers` processes.
 
-    `solve` is a module-level function (sent to the workers by reference); `on_done(outcome)`
+    `solve` is a module-level function (sent to the workers by reference); `on_done(end)`
     runs when a job ends, e.g. to update metrics. At most `workers + max_queued` jobs of
     the instance are unfinished at once. `memory_mb` caps each worker's memory growth and
     `grace` is how long a job may run past its wall-time budget before its worker is
@@ -51,7 +52,7 @@ class JobRunner:
     def __init__(self, store: JobStore, solve: SolveFunction, owner: str, workers: int,
                  max_queued: int, retry_after: int = 5, memory_mb: float | None = None,
                  grace: float = 30.0, log_level: str = "INFO",
-                 on_done: Callable[[Outcome], None] | None = None, lease: float = 60.0,
+                 on_done: Callable[[JobEnd], None] | None = None, lease: float = 60.0,
                  retention: tuple[float, int] | None = None):
         self.store, self.owner = store, owner
         self.capacity, self.retry_after = workers + max_queued, retry_after
@@ -122,16 +123,16 @@ class JobRunner:
                 if not waiting:
                     self._waiters.pop(job_id, None)
 
-    def _ended(self, outcome: Outcome) -> None:
+    def _ended(self, end: JobEnd) -> None:
         """A job ended by one of this server's workers (in the supervising thread): wake
         its waiters, then call `on_done`."""
         with self._waiters_lock:
-            waiting = list(self._waiters.get(outcome.job_id, []))
+            waiting = list(self._waiters.get(end.job_id, []))
         for loop, event in waiting:
             with contextlib.suppress(RuntimeError):  # its loop has closed
                 loop.call_soon_threadsafe(event.set)
         if self._on_done is not None:
-            self._on_done(outcome)
+            self._on_done(end)
 
     def problem(self) -> str | None:
         """Why this server cannot take or run jobs (store or workers), or None."""

@@ -23,6 +23,7 @@ from app import errors, viewer
 from app.auth import ApiKeyMiddleware
 from app.body_limit import BodyLimitMiddleware
 from app.deps import require_api_key
+from app.job_run import SolveFunction
 from app.jobs import JobRunner
 from app.logging import RequestIdMiddleware, configure
 from app.metrics import Metrics, MetricsMiddleware
@@ -32,7 +33,7 @@ from app.settings import PLAN_PROCESSES, Settings, get_settings
 from app.store import StoreUnavailable
 from app.store.open import open_store
 from app.sync_memory import MemoryBudget
-from app.worker import SolveFunction, load_function
+from app.worker import load_function
 
 log = logging.getLogger("undertow.main")
 

@@ -15,9 +15,9 @@ from prometheus_client.core import GaugeMetricFamily
 from prometheus_client.registry import Collector
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from app.jobs import Outcome
 from app.store import JobStore
 from app.sync_memory import MemoryBudget
+from app.worker_pipe import JobEnd
 
 _LATENCY_BUCKETS = (0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1, 2.5, 5, 10, 30)
 _SOLVE_BUCKETS = (0.1, 0.25, 0.5, 1, 2, 5, 10, 20, 30, 60, 120, 300, 600)
@@ -67,9 +67,9 @@ class Metrics:
         """Report what `budget` holds at scrape time."""
         self.sync_memory.set_function(lambda: budget.used)
 
-    def job_done(self, outcome: Outcome) -> None:
+    def job_done(self, end: JobEnd) -> None:
         """Record a finished job (called in the server process)."""
-        self.solves.labels(outcome.status).observe(outcome.elapsed)
+        self.solves.labels(end.status).observe(end.elapsed)
 
 
 class MetricsMiddleware:

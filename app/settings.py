@@ -5,7 +5,6 @@ from __future__ import annotations
 import os
 import socket
 from functools import lru_cache
-from typing import Literal
 
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -15,6 +14,9 @@ from planner.model import MAX_LINKS
 PLAN_PROCESSES = "UNDERTOW_SOLVER_PROCESSES"
 """The environment variable the planner reads for the processes one plan may use; the
 service sets it for its workers from `Settings.plan_processes`."""
+REMOVED_QUEUE = "UNDERTOW_QUEUE"
+"""The variable that chose between procrastinate and undertow's own PostgreSQL queue; the
+own queue was removed, and the variable with it (`get_settings`)."""
 
 
 class Settings(BaseSettings):
@@ -25,10 +27,6 @@ class Settings(BaseSettings):
     db_url: str | None = Field(default=None, description=(
         "PostgreSQL job store, postgresql://user:password@host:port/database; shared by "
         "servers and workers on any machine (unset: the SQLite file at UNDERTOW_DB_PATH)"))
-    queue: Literal["procrastinate", "own"] = Field(default="procrastinate", description=(
-        "what queues the jobs of a PostgreSQL store: procrastinate, or undertow's own "
-        "statements (docs/deploy.md, \"Queue engine\"); every process sharing the database "
-        "needs the same. SQLite always queues with its own"))
     db_path: str = Field(default="var/undertow-jobs.sqlite3",
                          description="SQLite job store file (relative to the working directory)")
     instance: str = Field(default_factory=socket.gethostname,
@@ -122,5 +120,12 @@ class Settings(BaseSettings):
 
 @lru_cache(maxsize=1)
 def get_settings() -> Settings:
-    """The settings of this process (read once from the environment)."""
+    """The settings of this process (read once from the environment). A set
+    UNDERTOW_QUEUE stops the start (ValueError) instead of being ignored: a deployment
+    that chose the removed own queue learns that procrastinate now queues its jobs."""
+    if any(name.upper() == REMOVED_QUEUE for name in os.environ):
+        raise ValueError(
+            f"{REMOVED_QUEUE} is set but no longer read: a PostgreSQL store's jobs are always "
+            "queued by procrastinate, since undertow's own PostgreSQL queue was removed "
+            "(docs/deploy.md, \"Queue engine\"); unset it")
     return Settings()

@@ -39,18 +39,11 @@ from dataclasses import dataclass, field
 from multiprocessing.connection import Connection, wait
 from multiprocessing.process import BaseProcess
 
+from app.job_run import SolveFunction
 from app.store import JobStatus, JobStore, StoreUnavailable
-from app.worker import (
-    READY,
-    STOP,
-    WAKE,
-    Claimed,
-    Outcome,
-    SolveFunction,
-    WorkerSpec,
-    persist,
-    serve,
-)
+from app.store_retry import persist
+from app.worker import WorkerSpec, serve
+from app.worker_pipe import READY, STOP, WAKE, Claimed, JobEnd
 
 log = logging.getLogger("undertow.supervisor")
 
@@ -112,13 +105,13 @@ class Supervisor:
     """Runs `workers` solver processes claiming jobs of `owner` from `store` (of anyone
     when `any_owner`; the workers' names start with "owner/" either way).
 
-    `on_done(outcome)` runs in the supervising thread whenever a job ends, by its worker's
+    `on_done(end)` runs in the supervising thread whenever a job ends, by its worker's
     report or by the supervisor's verdict. `lease` [s] is how long a claim holds without
     renewal."""
 
     def __init__(self, store: JobStore, solve: SolveFunction, owner: str, workers: int,
                  memory_mb: float | None, grace: float, log_level: str = "INFO",
-                 on_done: Callable[[Outcome], None] | None = None, lease: float = LEASE,
+                 on_done: Callable[[JobEnd], None] | None = None, lease: float = LEASE,
                  any_owner: bool = False, retention: tuple[float, int] | None = None):
         self.store, self.solve, self.owner = store, solve, owner
         self.count, self.memory_mb, self.grace = workers, memory_mb, grace
@@ -288,13 +281,13 @@ class Supervisor:
             now = time.monotonic()
             worker.job, worker.job_started, worker.budget = message.job_id, now, message.budget
             worker.deadline, worker.cancel_seen = now + message.budget + self.grace, None
-        elif isinstance(message, Outcome):
+        elif isinstance(message, JobEnd):
             worker.job, worker.deadline = None, float("inf")
             self._done(message)
 
-    def _done(self, outcome: Outcome) -> None:
+    def _done(self, end: JobEnd) -> None:
         if self.on_done is not None:
-            self.on_done(outcome)
+            self.on_done(end)
 
     def _enforce_cancels(self, now: float) -> None:
         """Renew the leases of running jobs; kill workers that ignore a cancel."""
@@ -335,10 +328,10 @@ class Supervisor:
         if worker.fate is not None:
             job_id, status, error = worker.fate
             if self.store.finish(job_id, status, None, error, worker=worker.name):
-                self._done(Outcome(job_id, status, time.monotonic() - worker.job_started))
+                self._done(JobEnd(job_id, status, time.monotonic() - worker.job_started))
         reason = died(exitcode)
         for job_id, status in self.store.requeue_claimed(worker.name, reason).items():
             log.warning("job %s: %s; %s", job_id, reason,
                         "requeued" if status == "queued" else status)
             if status != "queued":
-                self._done(Outcome(job_id, status, time.monotonic() - worker.job_started))
+                self._done(JobEnd(job_id, status, time.monotonic() - worker.job_started))

@@ -27,7 +27,8 @@ from app.metrics import _SOLVE_BUCKETS
 from app.settings import PLAN_PROCESSES, Settings
 from app.store.open import open_store
 from app.supervisor import Supervisor
-from app.worker import Outcome, load_function
+from app.worker import load_function
+from app.worker_pipe import JobEnd
 
 log = logging.getLogger("undertow.worker_node")
 
@@ -51,12 +52,12 @@ class NodeMetrics:
               "be used", registry=self.registry).set_function(
             lambda: float(supervisor.problem is None))
 
-    def done(self, outcome: Outcome) -> None:
-        self.solves.labels(outcome.status).observe(outcome.elapsed)
+    def done(self, end: JobEnd) -> None:
+        self.solves.labels(end.status).observe(end.elapsed)
 
 
-def _done(outcome: Outcome) -> None:
-    log.info("job %s %s in %.1f s", outcome.job_id, outcome.status, outcome.elapsed)
+def _done(end: JobEnd) -> None:
+    log.info("job %s %s in %.1f s", end.job_id, end.status, end.elapsed)
 
 
 def run(settings: Settings, processes: int, stop: threading.Event | None = None,
@@ -69,10 +70,10 @@ def run(settings: Settings, processes: int, stop: threading.Event | None = None,
     os.environ[PLAN_PROCESSES] = str(settings.plan_processes())
     node_metrics: NodeMetrics | None = None
 
-    def done(outcome: Outcome) -> None:
-        _done(outcome)
+    def done(end: JobEnd) -> None:
+        _done(end)
         if node_metrics is not None:
-            node_metrics.done(outcome)
+            node_metrics.done(end)
 
     supervisor = Supervisor(store, load_function(settings.solve_function), name, processes,
                             settings.worker_memory_mb, settings.wall_time_grace,

@@ -57,9 +57,6 @@ BENCHES = {
                                              "time"),
     "planner_speed": ("bench.planner_speed", "the planner against a plain Opti script on a seed "
                                              "scene, and where a solve's time goes"),
-    "queue_engine": ("bench.queue_engine", "undertow's own PostgreSQL queue against "
-                                           "procrastinate's: fault tests, pickup, fault "
-                                           "probes, lines of code"),
     "refinement": ("bench.refinement", "mesh refinement on the two-link example at other "
                                        "numbers of intervals; what each retry recovers"),
     "replan": ("bench.replan", "warm replanning: a moved goal on the seed arm, warm against "

@@ -156,8 +156,7 @@ def main(argv: list[str], tries: int, probes: int | None = None) -> int:
         print(rows[-1], flush=True)
     text = "\n\n".join([
         "A throwaway PostgreSQL server, one API-only server and two worker nodes (`undertow "
-        "worker --processes 2`) on 127.0.0.1, the jobs queued by "
-        f"{os.environ.get('UNDERTOW_QUEUE', 'procrastinate')} (`UNDERTOW_QUEUE`), a fresh "
+        "worker --processes 2`) on 127.0.0.1, the jobs queued by procrastinate, a fresh "
         "cluster per try, the fake solve "
         "function (plans of 3 s), `UNDERTOW_LEASE` "
         f"{LEASE:g} s, `UNDERTOW_RETRY_BACKOFF` 0.5 s. {PLANS} plans are submitted (4 "

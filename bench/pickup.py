@@ -2,8 +2,7 @@
 worker, for the three ways a worker learns of a queued job.
 
 - PostgreSQL, a worker node (`undertow worker --processes 1`) and an API-only server: the
-  node LISTENs and procrastinate's trigger NOTIFYs whenever a job is deferred (the
-  default queue; `python -m bench queue_engine` measures undertow's own queue beside it);
+  node LISTENs and procrastinate's trigger NOTIFYs whenever a job is deferred;
 - SQLite, a server with its own solver worker: the server tells its worker over a pipe;
 - SQLite, an API-only server and a worker node on the same file: the node polls the store
   every second (`app.worker.IDLE_POLL`), as every node did before LISTEN/NOTIFY.

@@ -114,27 +114,22 @@ def postgres_url(postgres: pg.PostgresServer) -> str:
 
 
 ENGINE_LEASE = 0.5
-"""[s] The lease of the procrastinate-queued stores of the tests: a claim left unrenewed
-that long has run out (that store's leases count from the last renewal, not from a time
-the claim names)."""
+"""[s] The lease of the PostgreSQL stores of the tests: a claim left unrenewed that long
+has run out (procrastinate's leases count from the last renewal, not from a time the
+claim names)."""
 
 
 def open_store(kind: str, request: pytest.FixtureRequest, tmp_path) -> JobStore:
     """A new empty store of `kind` ("sqlite": a file under `tmp_path`; "postgres": a new
-    database; "procrastinate": a new database queued by procrastinate)."""
+    database, queued by procrastinate)."""
     if kind == "sqlite":
         return SqliteJobStore(tmp_path / "jobs" / "db.sqlite3")
-    url = request.getfixturevalue("postgres_url")
-    if kind == "procrastinate":
-        from app.store.queue_engine import ProcrastinateJobStore
-
-        return ProcrastinateJobStore(url, lease=ENGINE_LEASE)
     from app.store.postgres import PostgresJobStore
 
-    return PostgresJobStore(url)
+    return PostgresJobStore(request.getfixturevalue("postgres_url"), lease=ENGINE_LEASE)
 
 
-@pytest.fixture(params=["sqlite", "postgres", "procrastinate"])
+@pytest.fixture(params=["sqlite", "postgres"])
 def store(request: pytest.FixtureRequest, tmp_path) -> Iterator[JobStore]:
     """An empty job store, once of each kind."""
     s = open_store(request.param, request, tmp_path)
@@ -181,8 +176,7 @@ def kinds(item: pytest.Item) -> set[str]:
     callspec = getattr(item, "callspec", None)
     fixtures = set(getattr(item, "fixturenames", ()))
     if name in DATABASE or fixtures & {"postgres", "postgres_url"} or (
-            callspec is not None and callspec.params.get("store") in ("postgres",
-                                                                     "procrastinate")):
+            callspec is not None and callspec.params.get("store") == "postgres"):
         found.add("database")
     if name == "test_benches.py" and callspec is not None and "name" in callspec.params:
         from bench.smoke import SMALL

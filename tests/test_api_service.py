@@ -195,6 +195,16 @@ def test_settings_come_from_undertow_environment_variables(monkeypatch):
         Settings()
 
 
+def test_the_removed_queue_setting_stops_the_start_instead_of_being_ignored(monkeypatch):
+    from app.settings import get_settings
+
+    get_settings.cache_clear()
+    monkeypatch.setenv("UNDERTOW_QUEUE", "own")
+    with pytest.raises(ValueError, match=r"UNDERTOW_QUEUE is set but no longer read: .* "
+                                         "always queued by procrastinate"):
+        get_settings()
+
+
 def test_the_default_store_lives_in_an_ignored_data_directory():
     import subprocess
 

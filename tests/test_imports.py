@@ -12,11 +12,6 @@ PACKAGES = ("planner", "app")
 MAX_MODULE_LINES = 400
 MAX_FUNCTION_LINES = 50
 
-SPLITTING = frozenset({"app/worker.py", "app/store/sqlite.py"})
-"""Modules over MAX_MODULE_LINES that are being split right now, exempt from that limit
-meanwhile: this list must shrink to empty, a module leaving it as soon as its split lands
-(`test_splitting_is_still_needed`)."""
-
 
 def sources() -> dict[str, Path]:
     """Every module of PACKAGES by its dotted name (a package by its own name)."""
@@ -116,15 +111,9 @@ def test_modules_are_short() -> None:
     for path in sources().values():
         name = str(path.relative_to(ROOT))
         lines = len(path.read_text().splitlines())
-        if lines > MAX_MODULE_LINES and name not in SPLITTING:
+        if lines > MAX_MODULE_LINES:
             long[name] = lines
     assert not long, f"modules over {MAX_MODULE_LINES} lines: {long}"
-
-
-def test_splitting_is_still_needed() -> None:
-    done = [name for name in sorted(SPLITTING) if not (ROOT / name).exists()
-            or len((ROOT / name).read_text().splitlines()) <= MAX_MODULE_LINES]
-    assert not done, f"split already, take them off SPLITTING: {done}"
 
 
 def test_functions_are_short() -> None:

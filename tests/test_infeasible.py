@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from service_fixtures import client, two_link_scene
 
-from app.worker import _verdict
+from app.job_run import _verdict
 from planner import feasibility
 from planner.ocp.infeasibility import AGREEING, CHECKS_STATUS
 from planner.ocp.planner import plan

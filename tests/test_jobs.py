@@ -10,10 +10,11 @@ import time
 import pytest
 
 from app import jobs
+from app.job_run import out_of_memory
 from app.jobs import JobRunner, QueueFull
 from app.store import BUILDING, FINAL, RetryPolicy, SqliteJobStore, StoreUnavailable
 from app.supervisor import CANCELLED_STOPPED, TICK, died, over_budget
-from app.worker import Outcome, out_of_memory
+from app.worker_pipe import JobEnd
 from testbed.fake_solvers import fake_plan
 
 ROBOT = {"links": [{"length": 0.5, "mass": 1.0, "joint": "passive"},
@@ -62,7 +63,7 @@ def solving(store, job_id: str) -> bool:
 def runner(tmp_path_factory):
     store = SqliteJobStore(tmp_path_factory.mktemp("jobs") / "db.sqlite3",
                            policy=RetryPolicy(max_retries=1, backoff=0.1))
-    done: list[Outcome] = []
+    done: list[JobEnd] = []
     r = JobRunner(store, fake_plan, owner="test", workers=2, max_queued=2, on_done=done.append)
     r.start()
     r.done = done
@@ -97,8 +98,8 @@ def test_a_job_succeeds_with_its_plan_progress_and_metrics_hook(runner):
     assert record.progress["inf_pr"] is None  # NaN from the solver is stored as null
     assert record.worker.startswith("test/")
     wait_until(lambda: any(o.job_id == "ok" for o in runner.done))
-    outcome = next(o for o in runner.done if o.job_id == "ok")
-    assert outcome.status == "succeeded" and 0.3 <= outcome.elapsed < 10
+    end = next(o for o in runner.done if o.job_id == "ok")
+    assert end.status == "succeeded" and 0.3 <= end.elapsed < 10
 
 
 @pytest.mark.parametrize("tol, error", [

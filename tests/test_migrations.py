@@ -16,11 +16,14 @@ import pytest
 from app.store import JobStore, SqliteJobStore
 from app.store.migrations import DIALECTS, SCHEMA_VERSION, STEPS, Dialect, migrate, version
 from app.store.postgres import PostgresJobStore
-from app.store.postgres import _execute as pg_execute
+from app.store.postgres_sql import _execute as pg_execute
 
 Execute = Callable[[str], list]
 Columns = dict[str, list[tuple[str, bool]]]
 """Each table's columns in order: (name, NOT NULL; a primary key counts as NOT NULL)."""
+MIGRATED = "table_name NOT LIKE 'procrastinate%' AND table_name <> 'undertow_queue'"
+"""The PostgreSQL tables of the migrations: not the queue's, which the store installs
+beside them (procrastinate's and the link table, `app.store.postgres`)."""
 
 
 @contextmanager
@@ -46,7 +49,7 @@ def database(dialect: Dialect, tmp_path: Path, url: str
 
 
 def columns(execute: Execute, dialect: Dialect) -> Columns:
-    """The columns of every table but the version ledger."""
+    """The columns of every table of the migrations but the version ledger."""
     if dialect == "sqlite":
         tables = [name for (name,) in execute(
             "SELECT name FROM sqlite_master WHERE type = 'table' "
@@ -57,23 +60,25 @@ def columns(execute: Execute, dialect: Dialect) -> Columns:
     for table, name, nullable in execute(
             "SELECT table_name, column_name, is_nullable FROM information_schema.columns "
             "WHERE table_schema = 'public' AND table_name <> 'undertow_schema' "
-            "ORDER BY table_name, ordinal_position"):
+            f"AND {MIGRATED} ORDER BY table_name, ordinal_position"):
         found.setdefault(table, []).append((name, nullable == "NO"))
     return found
 
 
 def indexes(execute: Execute, dialect: Dialect) -> set[str]:
-    """The names of the indexes created by name (not those of primary keys)."""
+    """The names of the indexes the migrations created (not those of primary keys)."""
     if dialect == "sqlite":
         return {name for (name,) in execute("SELECT name FROM sqlite_master WHERE type = "
                                             "'index' AND name NOT LIKE 'sqlite_%'")}
-    return {name for (name,) in execute("SELECT indexname FROM pg_indexes WHERE schemaname = "
-                                        "'public' AND indexname NOT LIKE '%_pkey'")}
+    return {name for (name,) in execute(
+        "SELECT indexname FROM pg_indexes WHERE schemaname = 'public' AND indexname NOT LIKE "
+        f"'%_pkey' AND {MIGRATED.replace('table_name', 'tablename')}")}
 
 
 def test_the_steps_are_numbered_one_by_one():
     assert [step.version for step in STEPS] == list(range(1, SCHEMA_VERSION + 1))
-    assert all(step.description and step.statements for step in STEPS)
+    assert all(step.description and step.sql("sqlite") + step.sql("postgres")
+               for step in STEPS)
 
 
 def test_fresh_databases_of_both_kinds_end_alike(tmp_path, postgres_url):

@@ -1,8 +1,8 @@
-"""The PostgreSQL store queued by procrastinate (`app.store.queue_engine`): every
-transition of a job moves its engine job the same way in the same transaction (the
-interface's own behaviour is tests/test_store.py's, run on this store too); claims are
-procrastinate registrations whose heartbeat is the lease; the engine's NOTIFY wakes a
-listener; jobs queued before the switch are taken over."""
+"""The PostgreSQL store's queue, procrastinate's (`app.store.postgres`): every transition
+of a job moves its engine job the same way in the same transaction (the interface's own
+behaviour is tests/test_store.py's, run on this store too); claims are procrastinate
+registrations whose heartbeat is the lease; the engine's NOTIFY wakes a listener; jobs
+queued or claimed by a version before procrastinate are taken over."""
 
 from __future__ import annotations
 
@@ -12,25 +12,29 @@ import select
 import time
 from collections.abc import Iterator
 
+import psycopg
 import pytest
 
 from app.store import DuplicateKey, RetryPolicy
+from app.store.migrations import migrate
 from app.store.postgres import PostgresJobStore
-from app.store.queue_engine import ProcrastinateJobStore
+from app.store.postgres_sql import _execute as pg_execute
 
 SCENE = {"robot": {"links": []}}
 LEASE = 0.5  # [s]
+OWN_QUEUE_SCHEMA = 6
+"""The schema version of the last databases undertow's own PostgreSQL queue wrote."""
 
 
 @pytest.fixture
-def store(postgres_url: str) -> Iterator[ProcrastinateJobStore]:
-    s = ProcrastinateJobStore(postgres_url, lease=LEASE,
-                              policy=RetryPolicy(max_retries=1, backoff=30.0))
+def store(postgres_url: str) -> Iterator[PostgresJobStore]:
+    s = PostgresJobStore(postgres_url, lease=LEASE,
+                         policy=RetryPolicy(max_retries=1, backoff=30.0))
     yield s
     s.close()
 
 
-def engine(store: ProcrastinateJobStore, job_id: str) -> dict:
+def engine(store: PostgresJobStore, job_id: str) -> dict:
     """The engine job of `job_id`: its status, queue, attempts, abort flag, seconds until
     its retry time (None when it has none) and whether a registration holds it."""
     rows = store._rows(
@@ -44,11 +48,11 @@ def engine(store: ProcrastinateJobStore, job_id: str) -> dict:
             "wait": None if wait is None else float(wait), "held": held}
 
 
-def registrations(store: ProcrastinateJobStore) -> int:
+def registrations(store: PostgresJobStore) -> int:
     return store._rows("SELECT COUNT(*) FROM procrastinate_workers")[0][0]
 
 
-def claim(store: ProcrastinateJobStore, owner: str | None = "host",
+def claim(store: PostgresJobStore, owner: str | None = "host",
           worker: str = "w1") -> str | None:
     record = store.claim(owner, worker, time.time() + 60)
     return None if record is None else record.id
@@ -161,21 +165,34 @@ def test_a_deferred_job_is_notified_on_the_engines_channel(store):
         listener.close()
 
 
-def test_jobs_queued_or_running_before_the_switch_are_taken_over(postgres_url):
-    with contextlib.closing(PostgresJobStore(postgres_url)) as own:
-        own.create("running", SCENE, "host")
-        own.create("queued", SCENE, "host")
-        assert own.claim("host", "old-worker", time.time() - 1.0).id == "running"
-    with contextlib.closing(ProcrastinateJobStore(postgres_url, lease=LEASE)) as taken:
-        assert engine(taken, "queued")["status"] == "todo"
-        with contextlib.closing(PostgresJobStore(postgres_url)) as older:
-            older.create("late", SCENE, "host")  # a server not switched yet
-        time.sleep(LEASE)  # the store's expiry waits a lease after the database started
-        assert taken.expire(time.time()) == {"running": "queued"}  # by its own lease
-        assert engine(taken, "late")["status"] == "todo"
-        taken._rows("UPDATE procrastinate_jobs SET scheduled_at = now()")
-        assert {claim(taken, None), claim(taken, None), claim(taken, "host", "w2")} == {
-            "queued", "running", "late"}
+def stored_by_the_own_queue(conn: psycopg.Connection, job_id: str,
+                            worker: str | None = None) -> None:
+    """A job as undertow's own PostgreSQL queue left it: queued, or claimed by `worker`
+    with a lease that ended a second ago; no engine job either way."""
+    conn.execute(
+        "INSERT INTO jobs (id, status, scene, owner, created, started, worker, lease_until, "
+        "attempts) VALUES (%s, %s, '{}', 'host', %s, %s, %s, %s, %s)",
+        (job_id, "queued" if worker is None else "running", time.time(),
+         None if worker is None else time.time(), worker,
+         None if worker is None else time.time() - 1.0, int(worker is not None)))
+
+
+def test_jobs_queued_or_claimed_by_the_own_queue_are_taken_over(postgres_url):
+    with psycopg.connect(postgres_url, autocommit=True) as conn:
+        migrate(lambda sql: pg_execute(conn, sql), "postgres", upto=OWN_QUEUE_SCHEMA)
+        stored_by_the_own_queue(conn, "running", worker="old-worker")
+        stored_by_the_own_queue(conn, "queued")
+        with contextlib.closing(PostgresJobStore(postgres_url, lease=LEASE)) as taken:
+            assert engine(taken, "queued")["status"] == "todo"
+            stored_by_the_own_queue(conn, "late")  # a server of the older version
+            time.sleep(LEASE)  # the store's expiry waits a lease after the database started
+            assert taken.expire(time.time()) == {"running": "queued"}  # by its own lease
+            assert engine(taken, "late")["status"] == "todo"
+            taken._rows("UPDATE procrastinate_jobs SET scheduled_at = now()")
+            assert {claim(taken, None), claim(taken, None), claim(taken, "host", "w2")} == {
+                "queued", "running", "late"}
+        assert conn.execute("SELECT COUNT(*) FROM pg_trigger WHERE tgname = "
+                            "'undertow_job_queued'").fetchone() == (0,)  # its NOTIFY is gone
 
 
 def test_purge_deletes_the_engine_jobs_of_deleted_jobs(store):

@@ -27,8 +27,7 @@ from app.store import (
 )
 from app.store.migrations import SCHEMA_VERSION, migrate
 from app.store.postgres import PostgresJobStore
-from app.store.postgres import _execute as pg_execute
-from app.store.queue_engine import ProcrastinateJobStore
+from app.store.postgres_sql import _execute as pg_execute
 
 SCENE = {"robot": {"links": []}, "note": "stored verbatim", "x": 0.1, "tiny": 1e-300}
 
@@ -45,21 +44,24 @@ def reopen(store: JobStore) -> JobStore:
     """A new store object on the same file or database."""
     if isinstance(store, SqliteJobStore):
         return SqliteJobStore(store.path)
-    if isinstance(store, ProcrastinateJobStore):
-        return ProcrastinateJobStore(store.url, lease=store.lease)
-    return PostgresJobStore(store.url)
+    assert isinstance(store, PostgresJobStore)
+    return PostgresJobStore(store.url, lease=store.lease)
 
 
 def lapse(store: JobStore) -> None:
-    """Let the leases of the claims made so far run out: at once for the stores whose
-    claims name their end (claimed with a lease of -1 s), one lease for procrastinate's,
-    which count from the last renewal."""
-    if isinstance(store, ProcrastinateJobStore):
+    """Let the leases of the claims made so far run out: at once for SQLite's, whose
+    claims name their end (claimed with a lease of -1 s), one lease for PostgreSQL's
+    (procrastinate's), which count from the last renewal."""
+    if isinstance(store, PostgresJobStore):
         time.sleep(store.lease + 0.05)
 
 
 def test_wal_mode_is_on(sqlite):
     assert sqlite.journal_mode == "wal"
+
+
+def test_sqlite_announces_no_queued_job_so_idle_workers_poll(sqlite):
+    assert sqlite.listen() is None
 
 
 def claim(store: JobStore, owner: str | None = "host", worker: str = "w1",

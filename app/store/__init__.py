@@ -13,6 +13,7 @@ from app.store.base import (
     JobRecord,
     JobStatus,
     JobStore,
+    Listener,
     MemberRecord,
     RetryPolicy,
     StoreDamaged,
@@ -23,5 +24,5 @@ from app.store.sqlite import SqliteJobStore
 
 __all__ = ["BUILDING", "CANCELLED_ON_REQUEST", "DEAD_LETTER", "FINAL", "INTERRUPTED",
            "STATUSES", "BatchRecord", "DuplicateKey", "JobRecord", "JobStatus", "JobStore",
-           "MemberRecord", "RetryPolicy", "SqliteJobStore", "StoreDamaged", "StoreUnavailable",
-           "WorkerRecord"]
+           "Listener", "MemberRecord", "RetryPolicy", "SqliteJobStore", "StoreDamaged",
+           "StoreUnavailable", "WorkerRecord"]

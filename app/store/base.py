@@ -28,7 +28,7 @@ from __future__ import annotations
 import builtins
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, Literal, Protocol
 
 JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
 STATUSES: tuple[JobStatus, ...] = ("queued", "running", "succeeded", "failed", "cancelled")
@@ -132,6 +132,21 @@ class BatchRecord:
     owner: str
     created: float
     members: list[MemberRecord]
+
+
+class Listener(Protocol):
+    """A connection of a store's own on which it announces queued jobs: readable (its
+    `fileno`, to wait on with `select` or `multiprocessing.connection.wait`) once one was
+    announced."""
+
+    def fileno(self) -> int:
+        """The descriptor to wait on."""
+
+    def drain(self) -> int:
+        """How many announcements arrived (0 or more); raises when the connection broke."""
+
+    def close(self) -> None:
+        """End the connection."""
 
 
 class JobStore(ABC):
@@ -283,6 +298,12 @@ class JobStore(ABC):
     @abstractmethod
     def get_batch(self, batch_id: str) -> BatchRecord | None:
         """The batch with its members in index order, or None when there is no such id."""
+
+    @abstractmethod
+    def listen(self) -> Listener | None:
+        """A connection of its own on which queued jobs are announced, for an idle worker
+        to wait on; None when the store announces nothing (the worker then polls). Raises
+        when the connection cannot be opened (the worker polls meanwhile)."""
 
     @abstractmethod
     def check(self) -> None:

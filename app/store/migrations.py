@@ -4,7 +4,9 @@ Each step has a version (1, 2, ...: the numbering both stores used before they s
 list, so a database at version k goes on with step k + 1), what it is for, and its
 statements, written once: the few types that differ between the dialects are placeholders
 (`TYPES`: {json}, {real}, {bool}, {false}), and a statement only one database has (the
-PostgreSQL notification of a queued job) is listed under that dialect.
+PostgreSQL notification of a queued job, and its removal) is listed under that dialect; a
+step may have statements for one database alone, and the other then only records its
+version.
 
 `migrate` applies the steps a database has not had, through the store's own connection and
 inside the transaction the store opened, and records the version where that database keeps
@@ -29,7 +31,8 @@ TYPES: dict[Dialect, dict[str, str]] = {
 """What each placeholder of a step's statements stands for in each dialect."""
 
 CHANNEL = "undertow_jobs"
-"""The PostgreSQL channel notified (once per transaction) whenever a job becomes queued."""
+"""The PostgreSQL channel undertow's own queue notified whenever a job became queued
+(steps 5 to 7; procrastinate announces queued jobs on its own channel)."""
 
 
 @dataclass(frozen=True)
@@ -109,6 +112,11 @@ STEPS: tuple[Step, ...] = (
             busy      INTEGER NOT NULL,
             started   {real} NOT NULL,
             seen      {real} NOT NULL)""",
+    )),
+    Step(7, "undertow's own PostgreSQL queue removed: its NOTIFY of queued jobs, which "
+            "nobody LISTENs to any more, goes (no table or row is dropped)", (), postgres=(
+        "DROP TRIGGER IF EXISTS undertow_job_queued ON jobs",
+        "DROP FUNCTION IF EXISTS undertow_job_queued()",
     )),
 )
 SCHEMA_VERSION = STEPS[-1].version

@@ -1,6 +1,6 @@
 """The job store a process's settings name: PostgreSQL at UNDERTOW_DB_URL when it is set
-(queued by undertow's own statements or by procrastinate: UNDERTOW_QUEUE), else the SQLite
-file at UNDERTOW_DB_PATH."""
+(its jobs queued by procrastinate), else the SQLite file at UNDERTOW_DB_PATH (its jobs
+queued by its own statements)."""
 
 from __future__ import annotations
 
@@ -14,12 +14,8 @@ def open_store(settings: Settings) -> JobStore:
     the settings' retry policy."""
     policy = RetryPolicy(settings.max_retries, settings.retry_backoff,
                          settings.retry_max_backoff)
-    if settings.db_url and settings.queue == "procrastinate":
-        from app.store.queue_engine import ProcrastinateJobStore
-
-        return ProcrastinateJobStore(settings.db_url, policy=policy, lease=settings.lease)
     if settings.db_url:
         from app.store.postgres import PostgresJobStore  # psycopg only where it is used
 
-        return PostgresJobStore(settings.db_url, policy=policy)
+        return PostgresJobStore(settings.db_url, policy=policy, lease=settings.lease)
     return SqliteJobStore(settings.db_path, policy=policy)

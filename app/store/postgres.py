@@ -1,335 +1,316 @@
-"""PostgreSQL job store (psycopg 3 with a connection pool): one database shared by API
-servers and workers on any number of machines.
+"""The PostgreSQL job store, queued by procrastinate: one database shared by API servers
+and workers on any number of machines (UNDERTOW_DB_URL).
 
-Each process opens its own pool on first use (the store pickles as its URL, so worker
-processes reopen it). Statements run in autocommit mode; the few that must agree with a
-count (a new job or batch under the owner's limit) run in one transaction holding the
-owner's advisory lock. Claims take the oldest queued job with `FOR UPDATE SKIP LOCKED`,
-so concurrent workers never wait for each other and never take the same job.
+undertow's `jobs` rows stay the record the API reads and writes (status, progress, cancel
+flag, plan, history, batches, limits); procrastinate's `procrastinate_jobs` rows are the
+queue. Each job has one engine job (queue: the job's owner, task `TASK`), linked by the
+table `undertow_queue`, and every transition changes both rows in one transaction:
 
-The schema is versioned in the table `undertow_schema`; opening the store applies the
-migrations it has not had (`app.store.migrations`, the SQLite store's too) under an
-advisory lock so that servers starting together migrate once. JSON objects are `jsonb`;
-times are Unix seconds (`double precision`) taken from the clock of the process that
-writes them, so the machines of one deployment keep their clocks synchronised (NTP).
+- claim: procrastinate's `fetch_job` (oldest by id, `FOR UPDATE SKIP LOCKED`, its retry
+  time come) for a procrastinate worker registered for that claim alone, so that the
+  registration's heartbeat is the claim's lease;
+- pickup: procrastinate's trigger NOTIFYs its channel when a job is deferred; idle solver
+  processes LISTEN there;
+- renewal: procrastinate's `update_heartbeat` of the claim's registration;
+- stalled jobs: procrastinate's `select_stalled_jobs_by_heartbeat`, with the lease as the
+  heartbeat timeout, finds the claims whose supervisor went silent (their registrations
+  are removed as the jobs are requeued);
+- retries: procrastinate's `retry_job` queues the job again at its retry time (the pause of
+  undertow's `RetryPolicy`), its `finish_job` ends it (failed, a dead letter, or aborted
+  when it was cancelled), its `cancel_job` cancels a queued one and flags a running one.
+
+What undertow keeps is its record of each transition (history, counts, dead-letter
+errors: `app.store.sql`), its connections and the statements PostgreSQL runs in
+transactions of their own (`app.store.postgres_sql`), and the supervisor that runs each
+solve in a process of its own. The engine's schema (procrastinate's `schema.sql` of the
+pinned version) and the link table are created when the store opens a database that
+lacks them. Jobs written by versions before procrastinate queued them are taken over: the
+queued ones get an engine job then, and any left without one (queued by a server of such
+a version during a rolling upgrade) at each look for stalled jobs; one they had claimed
+runs out by the lease its claim wrote. A lease is this store's `lease` [s]
+(UNDERTOW_LEASE), counted by the database's clock from the last renewal, so every
+process sharing the database needs the same UNDERTOW_LEASE.
 """
 
 from __future__ import annotations
 
 import builtins
-import contextlib
-import json
-import os
-import re
-import threading
+import datetime
 import time
-import zlib
 from collections.abc import Iterator
 from contextlib import contextmanager
-from functools import partial
 from typing import Any
 
 import psycopg
-from psycopg.sql import SQL, Identifier
-from psycopg.types.json import Jsonb
-from psycopg_pool import ConnectionPool, PoolTimeout
+from procrastinate import SyncPsycopgConnector, exceptions, manager, schema
+from procrastinate import jobs as engine_jobs
+from procrastinate.sql import queries
 
-from app.store.base import (
-    CANCELLED_ON_REQUEST,
-    BatchRecord,
-    DuplicateKey,
-    JobRecord,
-    MemberRecord,
-    RetryPolicy,
-    StoreUnavailable,
-)
-from app.store.migrations import CHANNEL, migrate, version
-from app.store.sql import COLUMNS, SqlJobStore
+from app.store.base import FINAL, JobRecord, JobStatus, RetryPolicy
+from app.store.postgres_listener import PostgresListener
+from app.store.postgres_sql import PostgresSql
+from app.store.sql import COLUMNS, LEASE_RAN_OUT
 
-_MIGRATION_LOCK = 0x756E6474  # advisory lock key held while migrating ("undt")
-
-_MEMBER_COLUMNS = ("id, member, status, error, (plan->'verification'->>'verified')::boolean, "
-                   "(plan->>'objective')::double precision, started, finished")
-
-
-_NAMED = re.compile(r"(?<![:\w]):([a-z_]+)")
-"""A named parameter of the shared statements (`:name`, never a `::type` cast)."""
+TASK = "undertow.plan"
+"""The procrastinate task name of every engine job (nothing runs it as a task)."""
+CHANNEL = next(iter(manager.get_channel_for_queues(None)))
+"""procrastinate's channel notified whenever a job of any queue is deferred."""
+ENDED: dict[str, str] = {"succeeded": "succeeded", "failed": "failed", "cancelled": "aborted"}
+"""A running job's final status -> its engine job's."""
+_LINK = ("CREATE TABLE IF NOT EXISTS undertow_queue ("
+         "job_id TEXT PRIMARY KEY REFERENCES jobs (id) ON DELETE CASCADE, "
+         "queue_id BIGINT NOT NULL UNIQUE REFERENCES procrastinate_jobs (id) ON DELETE CASCADE)")
+_ENGINE_LOCK = 0x756E6475  # advisory lock key held while the engine's schema is installed
+_LINKED = ("FROM jobs j JOIN undertow_queue m ON m.job_id = j.id "
+           "JOIN procrastinate_jobs q ON q.id = m.queue_id")
 
 
-def _jsonb(value: Any) -> Jsonb | None:
-    """A JSON parameter (no NaN or Inf: PostgreSQL's jsonb refuses them too)."""
-    return None if value is None else Jsonb(value, dumps=_dumps)
+@contextmanager
+def _database_errors() -> Iterator[None]:
+    """procrastinate's wrapped database errors raised as psycopg's own (so that the store
+    reports an unreachable database as StoreUnavailable)."""
+    try:
+        yield
+    except exceptions.ConnectorException as exc:
+        raise (exc.__cause__ or exc) from None
 
 
-def _dumps(value: Any) -> str:
-    return json.dumps(value, allow_nan=False, separators=(",", ":"))
+def _utc(seconds: float) -> datetime.datetime:
+    """Unix seconds as an aware datetime (what procrastinate's times are)."""
+    return datetime.datetime.fromtimestamp(seconds, datetime.UTC)
 
 
-def _job(row: tuple) -> JobRecord:
-    (id_, status, scene, progress, plan, error, cancel, owner, created, started,
-     finished, worker, attempts, infra, dead, events) = row
-    return JobRecord(id=id_, status=status, scene=scene or {}, progress=progress, plan=plan,
-                     error=error, cancel_requested=cancel, owner=owner, created=created,
-                     started=started, finished=finished, worker=worker, attempts=attempts,
-                     infra_failures=infra, dead_letter=dead, history=events)
-
-
-def _member(row: tuple) -> MemberRecord:
-    id_, index, status, error, verified, objective, started, finished = row
-    return MemberRecord(job_id=id_, index=index, status=status, error=error,
-                        verified=verified, objective=objective, started=started,
-                        finished=finished)
-
-
-def _one(cursor: psycopg.Cursor) -> tuple[Any, ...]:
-    """The row of a statement that always returns one (a COUNT, an INSERT ... RETURNING)."""
-    row = cursor.fetchone()
-    if row is None:
-        raise RuntimeError("the statement returned no row")
-    return row
-
-
-def _execute(conn: psycopg.Connection, sql: str) -> builtins.list[tuple]:
-    """Every row of one statement without parameters ([] when it returns none)."""
-    cursor = conn.execute(sql)
-    return cursor.fetchall() if cursor.description is not None else []
-
-
-def _lock_key(owner: str) -> int:
-    """The advisory lock key of an owner's job count (a signed 32-bit hash)."""
-    return zlib.crc32(owner.encode()) - 2**31
-
-
-class PostgresJobStore(SqlJobStore):
-    """Jobs in a PostgreSQL database at `url` ("postgresql://user:password@host:port/db").
-
-    `pool_size` connections at most per process; a statement that cannot get one within
-    `timeout` seconds, or fails on the server, raises StoreUnavailable."""
-
-    claim_lock = "FOR UPDATE SKIP LOCKED"
-    expire_guard = ("AND EXTRACT(EPOCH FROM pg_postmaster_start_time()) + COALESCE(lease, 0) "
-                    "< :expired")
+class PostgresJobStore(PostgresSql):
+    """Jobs in a PostgreSQL database at `url` ("postgresql://user:password@host:port/db")
+    queued by procrastinate; `lease` [s]: how long a claim holds after its last renewal
+    (the heartbeat timeout). `pool_size`, `timeout`: `PostgresSql`'s."""
 
     def __init__(self, url: str, pool_size: int = 4, timeout: float = 10.0,
-                 policy: RetryPolicy | None = None):
-        self.url, self.pool_size, self.timeout = url, pool_size, timeout
-        self.policy = policy or RetryPolicy()
-        self._lock = threading.Lock()
-        self._pool: ConnectionPool | None = None
-        self._pid = os.getpid()
-        try:
-            self._migrate()
-        except StoreUnavailable:
-            self.close()  # no pool left retrying in the background
-            raise
+                 policy: RetryPolicy | None = None, lease: float = 60.0):
+        self.lease = lease
+        self._engine = SyncPsycopgConnector()  # runs on this store's connections only
+        super().__init__(url, pool_size, timeout, policy)
 
     def __getstate__(self) -> dict[str, Any]:
-        return {"url": self.url, "pool_size": self.pool_size, "timeout": self.timeout,
-                "policy": self.policy}
+        return {**super().__getstate__(), "lease": self.lease}
 
     def __setstate__(self, state: dict[str, Any]) -> None:
-        self.url, self.pool_size, self.timeout = state["url"], state["pool_size"], state["timeout"]
-        self.policy = state["policy"]
-        self._lock, self._pool, self._pid = threading.Lock(), None, os.getpid()
+        super().__setstate__(state)
+        self.lease, self._engine = state["lease"], SyncPsycopgConnector()
 
-    def _where(self) -> str:
-        """The database named in messages: host, port and name, never the password."""
-        try:
-            info = psycopg.conninfo.conninfo_to_dict(self.url)
-        except psycopg.Error:
-            return "PostgreSQL"
-        host, port = info.get("host", ""), info.get("port", 5432)
-        return f"PostgreSQL {host}:{port}/{info.get('dbname', '')}"
-
-    def _unavailable(self, exc: Exception) -> StoreUnavailable:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        return StoreUnavailable(f"the job store ({self._where()}) failed: {first}")
-
-    def _get_pool(self) -> ConnectionPool:
-        """This process's pool (a new one after a fork)."""
-        with self._lock:
-            if self._pool is None or self._pid != os.getpid():
-                self._pool = ConnectionPool(
-                    self.url, min_size=1, max_size=self.pool_size, timeout=self.timeout,
-                    kwargs={"autocommit": True, "connect_timeout": max(1, int(self.timeout))},
-                    check=ConnectionPool.check_connection, open=True, name="undertow-jobs")
-                self._pid = os.getpid()
-            return self._pool
-
-    @contextmanager
-    def _connection(self) -> Iterator[psycopg.Connection]:
-        """A pooled connection; any database or pool error becomes StoreUnavailable."""
-        try:
-            with self._get_pool().connection() as conn:
-                yield conn
-        except (psycopg.OperationalError, psycopg.InterfaceError, psycopg.errors.DataError,
-                psycopg.errors.InternalError, PoolTimeout) as exc:
-            raise self._unavailable(exc) from exc
-
-    def _rows(self, sql: str, params: tuple | dict = ()) -> builtins.list[tuple]:
-        """Every row of one statement (autocommit: a write is complete on return); the
-        shared statements' `?` and `:name` parameters become psycopg's `%s`, `%(name)s`."""
-        named = not isinstance(params, tuple)
-        sql = _NAMED.sub(r"%(\1)s", sql) if named else sql.replace("?", "%s")
-        with self._connection() as conn:
-            cursor = conn.execute(sql, params)
-            return cursor.fetchall() if cursor.description is not None else []
-
-    def _write(self, sql: str, params: tuple | dict = ()) -> builtins.list[tuple]:
-        return self._rows(sql, params)
-
-    def _json(self, value: Any) -> Jsonb | None:
-        return _jsonb(value)
-
-    def _from_json(self, value: Any) -> Any:
-        return value  # jsonb columns come back decoded
-
-    def _record(self, row: tuple) -> JobRecord:
-        return _job(row)
+    def _run(self, name: str, **params: Any) -> builtins.list[dict[str, Any]]:
+        """The rows of procrastinate's statement `name` in this thread's transaction."""
+        with self._connection() as conn, _database_errors():
+            return self._engine.execute_query_all_with_connection(conn, queries[name], **params)
 
     def _migrate(self) -> None:
-        """Apply the migrations (`app.store.migrations`) this database has not had yet, in
-        one transaction."""
+        """undertow's migrations, then the engine's schema and the link table where they
+        are missing, and an engine job for every queued job that has none."""
+        super()._migrate()
         try:
-            with self._connection() as conn, conn.transaction():
-                conn.execute("SELECT pg_advisory_xact_lock(%s)", (_MIGRATION_LOCK,))
-                migrate(partial(_execute, conn), "postgres")
+            with self._transaction() as conn:
+                conn.execute("SELECT pg_advisory_xact_lock(%s)", (_ENGINE_LOCK,))
+                if self._run("check_connection")[0]["check"] is None:
+                    conn.execute(schema.SchemaManager.get_schema())
+                conn.execute(_LINK)
+                self._adopt()
         except psycopg.Error as exc:
-            raise StoreUnavailable(f"the job store ({self._where()}) could not be migrated: "
-                                   f"{exc}") from exc
+            raise self._unavailable(exc) from exc
 
-    @property
-    def schema_version(self) -> int:
-        """The version of the schema the database has (`app.store.migrations`)."""
-        return version(self._rows, "postgres")
+    def _adopt(self) -> None:
+        """An engine job for every queued job that has none (stored by a version before
+        procrastinate queued the jobs, or by a server of one during a rolling upgrade),
+        oldest first."""
+        self._defer([(job_id, owner) for job_id, owner in self._rows(
+            "SELECT id, owner FROM jobs WHERE status = 'queued' AND NOT EXISTS "
+            "(SELECT 1 FROM undertow_queue WHERE job_id = jobs.id) ORDER BY created, id")])
+
+    def _defer(self, jobs: builtins.list[tuple[str, str]], after: float = 0.0) -> None:
+        """An engine job in the owner's queue for each (job id, owner), linked to it, to
+        be claimed no sooner than `after` seconds from now."""
+        if not jobs:
+            return
+        start = _utc(time.time() + after) if after > 0.0 else None
+        with self._connection() as conn, _database_errors():
+            deferred = manager.JobManager(self._engine).batch_defer_jobs(
+                [engine_jobs.Job(queue=owner, lock=None, queueing_lock=None, task_name=TASK,
+                                 task_kwargs={"job": job_id}, scheduled_at=start)
+                 for job_id, owner in jobs], connection=conn)
+            with conn.cursor() as cursor:
+                cursor.executemany(
+                    "INSERT INTO undertow_queue (job_id, queue_id) VALUES (%s, %s) "
+                    "ON CONFLICT (job_id) DO UPDATE SET queue_id = EXCLUDED.queue_id",
+                    [(job_id, job.id) for (job_id, _), job in zip(jobs, deferred, strict=True)])
+
+    def _settle(self, ids: builtins.list[str], pause: bool) -> None:
+        """Bring the engine jobs of `ids` in line with their jobs' new status: a queued one
+        is retried (after the policy's pause for its failures when `pause`, else at once;
+        deferred anew when it had none: claimed by a version before procrastinate), a final
+        one ended; the claim's registration is removed."""
+        if not ids:
+            return
+        rows = self._rows(
+            "SELECT j.id, j.owner, j.status, j.infra_failures, q.id, q.status, q.worker_id "
+            "FROM jobs j LEFT JOIN undertow_queue m ON m.job_id = j.id "
+            "LEFT JOIN procrastinate_jobs q ON q.id = m.queue_id WHERE j.id = ANY(%s)", (ids,))
+        for job_id, owner, status, failures, queue_id, engine_status, engine_worker in rows:
+            delay = self.policy.delay(failures) if pause else 0.0
+            if queue_id is None and status == "queued":
+                self._defer([(job_id, owner)], delay)
+            elif status == "queued" and engine_status == "doing":
+                self._run("retry_job", job_id=queue_id, retry_at=_utc(time.time() + delay),
+                          new_priority=None, new_queue_name=None, new_lock=None)
+            elif status in FINAL and engine_status == "todo":
+                self._run("cancel_job", job_id=queue_id, abort=False, delete_job=False)
+            elif status in FINAL and engine_status == "doing":
+                self._run("finish_job", job_id=queue_id, status=ENDED[status],
+                          delete_job=False)
+            if engine_worker is not None:
+                self._run("unregister_worker", worker_id=engine_worker)
 
     def create(self, job_id: str, scene: dict[str, Any], owner: str,
                limit: int | None = None, key: str | None = None) -> JobRecord | None:
-        insert = ("INSERT INTO jobs (id, status, scene, owner, created, idem_key) "
-                  f"VALUES (%s, 'queued', %s, %s, %s, %s) RETURNING {COLUMNS}")
-        values = (job_id, _jsonb(scene), owner, time.time(), key)
-        try:
-            if limit is None:
-                return _job(self._rows(insert, values)[0])
-            with self._connection() as conn, conn.transaction():
-                if self._held(conn, owner) >= limit:
-                    return None
-                return _job(_one(conn.execute(insert, values)))
-        except psycopg.errors.UniqueViolation as exc:
-            raise DuplicateKey(key) from exc
-
-    def retry(self, job_id: str, owner: str, limit: int | None = None) -> bool:
-        params = {"id": job_id, "owner": owner, "limit": limit, "now": time.time()}
-        sql = _NAMED.sub(r"%(\1)s", self._retry_statement(False))
-        with self._connection() as conn, conn.transaction():
-            if limit is not None and self._held(conn, owner) >= limit:
-                return False
-            return conn.execute(sql, params).fetchone() is not None
-
-    @staticmethod
-    def _held(conn: psycopg.Connection, owner: str) -> int:
-        """The owner's unfinished jobs, counted under its advisory lock (held until the
-        transaction ends, so a concurrent create waits for this one's insert)."""
-        conn.execute("SELECT pg_advisory_xact_lock(%s)", (_lock_key(owner),))
-        return _one(conn.execute("SELECT COUNT(*) FROM jobs WHERE owner = %s AND status IN "
-                                 "('queued', 'running')", (owner,)))[0]
-
-    def request_cancel(self, job_id: str) -> JobRecord | None:
-        self._rows(
-            "UPDATE jobs SET cancel_requested = true, "
-            "status = CASE WHEN status = 'queued' THEN 'cancelled' ELSE status END, "
-            "finished = CASE WHEN status = 'queued' THEN %s ELSE finished END "
-            "WHERE id = %s AND status IN ('queued', 'running')", (time.time(), job_id))
-        return self.get(job_id)
-
-    def cancel_batch(self, batch_id: str) -> bool:
-        with self._connection() as conn, conn.transaction():
-            if conn.execute("SELECT 1 FROM batches WHERE id = %s", (batch_id,)).fetchone() is None:
-                return False
-            conn.execute(
-                "UPDATE jobs SET cancel_requested = true, "
-                "status = CASE WHEN status = 'queued' THEN 'cancelled' ELSE status END, "
-                "error = CASE WHEN status = 'queued' THEN %s ELSE error END, "
-                "finished = CASE WHEN status = 'queued' THEN %s ELSE finished END "
-                "WHERE batch = %s AND status IN ('queued', 'running')",
-                (CANCELLED_ON_REQUEST, time.time(), batch_id))
-        return True
-
-    def _push(self, pairs: str) -> str:
-        return f"COALESCE(history, '[]'::jsonb) || jsonb_build_array(jsonb_build_object({pairs}))"
-
-    def listen(self) -> Listener:
-        """A connection of its own that hears whenever a job is queued."""
-        return Listener(self.url, self.timeout, CHANNEL)
+        with self._transaction():
+            record = super().create(job_id, scene, owner, limit, key)
+            if record is not None:
+                self._defer([(job_id, owner)])
+            return record
 
     def create_batch(self, batch_id: str, spec: dict[str, Any],
                      members: builtins.list[tuple[str, dict[str, Any]]], owner: str,
                      limit: int | None = None) -> bool:
-        now = time.time()
-        with self._connection() as conn, conn.transaction():
-            if limit is not None and self._held(conn, owner) + len(members) > limit:
+        with self._transaction():
+            if not super().create_batch(batch_id, spec, members, owner, limit):
                 return False
-            conn.execute("INSERT INTO batches (id, owner, created, spec) "
-                         "VALUES (%s, %s, %s, %s)", (batch_id, owner, now, _jsonb(spec)))
-            with conn.cursor() as cursor:
-                cursor.executemany(
-                    "INSERT INTO jobs (id, status, scene, owner, created, batch, member) "
-                    "VALUES (%s, 'queued', %s, %s, %s, %s, %s)",
-                    [(job_id, _jsonb(scene), owner, now, batch_id, index)
-                     for index, (job_id, scene) in enumerate(members)])
-        return True
+            self._defer([(job_id, owner) for job_id, _ in members])
+            return True
 
-    def get_batch(self, batch_id: str) -> BatchRecord | None:
-        with self._connection() as conn, conn.transaction():
-            conn.execute("SET TRANSACTION ISOLATION LEVEL REPEATABLE READ")
-            row = conn.execute("SELECT id, spec, owner, created FROM batches WHERE id = %s",
-                               (batch_id,)).fetchone()
-            if row is None:
+    def claim(self, owner: str | None, worker: str, lease_until: float) -> JobRecord | None:
+        with self._transaction():
+            [registered] = self._run("register_worker")
+            [row] = self._run("fetch_job", queues=None if owner is None else [owner],
+                              worker_id=registered["worker_id"])
+            if row["id"] is None:
+                raise psycopg.Rollback()  # no registration left behind
+            rows = self._write(
+                f"UPDATE jobs SET {self._claiming()} WHERE status = 'queued' AND id = "
+                f"(SELECT job_id FROM undertow_queue WHERE queue_id = :queue) RETURNING {COLUMNS}",
+                {**self._claim_params(worker, lease_until), "queue": row["id"]})
+            if not rows:  # an engine job whose job is not queued: end it
+                self._run("finish_job", job_id=row["id"], status="failed", delete_job=False)
+                self._run("unregister_worker", worker_id=registered["worker_id"])
                 return None
-            members = conn.execute(f"SELECT {_MEMBER_COLUMNS} FROM jobs WHERE batch = %s "
-                                   "ORDER BY member", (batch_id,)).fetchall()
-        id_, spec, owner, created = row
-        return BatchRecord(id=id_, spec=spec, owner=owner, created=created,
-                           members=[_member(m) for m in members])
+            return self._record(rows[0])
+        return None
 
-    def check(self) -> None:
-        """Read the newest job through the pool (a new connection if the old ones broke)."""
-        self._rows("SELECT id FROM jobs ORDER BY created DESC LIMIT 1")
+    def renew(self, claims: builtins.list[tuple[str, str]],
+              lease_until: float) -> dict[str, bool]:
+        """A heartbeat of each claim's registration (the lease runs `lease` seconds from
+        now; `lease_until` is not used); {job id: cancel requested} of those still held."""
+        if not claims:
+            return {}
+        pairs = ", ".join(["(%s, %s)"] * len(claims))
+        rows = self._rows(
+            f"SELECT j.id, j.cancel_requested, procrastinate_update_heartbeat_v1(q.worker_id) "
+            f"{_LINKED} WHERE j.status = 'running' AND q.status = 'doing' "
+            f"AND q.worker_id IS NOT NULL AND (j.id, j.worker) IN (VALUES {pairs})",
+            tuple(v for claim in claims for v in claim))
+        return {job_id: bool(cancel) for job_id, cancel, _ in rows}
 
-    def checkpoint(self, final: bool = False) -> None:
-        """Nothing to do: PostgreSQL makes every committed change durable itself."""
+    def expire(self, now: float) -> dict[str, JobStatus]:
+        """Requeue the jobs whose claim's registration was silent for a lease before
+        `now` (none within a lease of a database restart, when nobody could renew); defer
+        the queued jobs that have no engine job yet."""
+        restarted = self._rows("SELECT EXTRACT(EPOCH FROM now() - pg_postmaster_start_time())")
+        if float(restarted[0][0]) < self.lease:
+            return {}
+        silent = max(0.0, self.lease - (now - time.time()))
+        with self._transaction():
+            self._adopt()
+            before = self._requeue(  # claimed by a version before: the lease it wrote
+                "lease_until < :expired AND NOT EXISTS (SELECT 1 FROM undertow_queue "
+                "WHERE job_id = jobs.id)", {"expired": now}, LEASE_RAN_OUT)
+            stalled = [row["id"] for row in self._run(
+                "select_stalled_jobs_by_heartbeat", seconds_since_heartbeat=silent,
+                queue=None, task_name=TASK)]
+            if not stalled:
+                return before
+            return {**before, **self._requeue(
+                "id IN (SELECT job_id FROM undertow_queue WHERE queue_id = ANY(:stalled))",
+                {"stalled": stalled}, LEASE_RAN_OUT)}
 
-    def close(self) -> None:
-        with self._lock:
-            if self._pool is not None and self._pid == os.getpid():
-                self._pool.close()
-            self._pool = None
+    def _requeue(self, condition: str, params: dict[str, Any],
+                 reason: str) -> dict[str, JobStatus]:
+        with self._transaction():
+            done = super()._requeue(condition, params, reason)
+            self._settle(builtins.list(done), pause=True)
+            return done
 
+    def _release(self, condition: str, params: dict[str, Any]) -> builtins.list[str]:
+        with self._transaction():
+            released = super()._release(condition, params)
+            self._settle(released, pause=False)
+            return released
 
-class Listener:
-    """LISTEN on `channel` (the one notified of queued jobs) through a connection of its
-    own: `fileno()` to wait on with select, `drain()` to read what arrived. Any failure
-    closes it (the caller falls back to polling and opens a new one later)."""
+    def finish(self, job_id: str, status: JobStatus, plan: dict[str, Any] | None,
+               error: str | None, solution: dict[str, Any] | None = None,
+               worker: str | None = None) -> bool:
+        with self._transaction():
+            if not super().finish(job_id, status, plan, error, solution, worker):
+                return False
+            self._settle([job_id], pause=False)
+            return True
 
-    def __init__(self, url: str, timeout: float, channel: str):
-        self.conn = psycopg.connect(url, autocommit=True, connect_timeout=max(1, int(timeout)))
-        self.conn.execute(SQL("LISTEN {}").format(Identifier(channel)))
+    def fail(self, job_id: str, error: str) -> bool:
+        with self._transaction():
+            if not super().fail(job_id, error):
+                return False
+            self._settle([job_id], pause=False)
+            return True
 
-    def fileno(self) -> int:
-        return self.conn.fileno()
+    def _abort(self, condition: str, params: tuple) -> None:
+        """procrastinate's cancel of the engine jobs of the jobs that meet `condition`: a
+        queued one ends cancelled, a running one is flagged for abort."""
+        self._rows(f"SELECT procrastinate_cancel_job_v1(q.id, true, false) {_LINKED} "
+                   f"WHERE {condition} AND q.status IN ('todo', 'doing')", params)
 
-    def drain(self) -> int:
-        """How many notifications arrived (0 or more); raises psycopg.Error when the
-        connection broke."""
-        pgconn = self.conn.pgconn
-        pgconn.consume_input()
-        count = 0
-        while pgconn.notifies() is not None:
-            count += 1
-        if pgconn.status != psycopg.pq.ConnStatus.OK:
-            raise psycopg.OperationalError("the listening connection broke")
-        return count
+    def request_cancel(self, job_id: str) -> JobRecord | None:
+        with self._transaction():
+            record = super().request_cancel(job_id)
+            if record is not None and record.cancel_requested:
+                self._abort("j.id = %s", (job_id,))
+            return record
 
-    def close(self) -> None:
-        with contextlib.suppress(psycopg.Error):
-            self.conn.close()
+    def cancel_batch(self, batch_id: str) -> bool:
+        with self._transaction():
+            if not super().cancel_batch(batch_id):
+                return False
+            self._abort("j.batch = %s AND j.cancel_requested", (batch_id,))
+            return True
+
+    def retry(self, job_id: str, owner: str, limit: int | None = None) -> bool:
+        """A failed engine job is retried in the new owner's queue; a cancelled or
+        aborted one, which procrastinate does not retry, is replaced by a new one."""
+        with self._transaction():
+            if not super().retry(job_id, owner, limit):
+                return False
+            row = self._rows(f"SELECT q.id, q.status {_LINKED} WHERE j.id = %s", (job_id,))
+            if row and row[0][1] == "failed":
+                self._run("retry_job", job_id=row[0][0], retry_at=_utc(time.time()),
+                          new_priority=None, new_queue_name=owner, new_lock=None)
+            else:
+                self._defer([(job_id, owner)])
+            return True
+
+    def purge(self, before: float, keep: int) -> int:
+        """undertow's purge, then the ended engine jobs no job links to any more."""
+        with self._transaction():
+            purged = super().purge(before, keep)
+            self._rows("DELETE FROM procrastinate_jobs q WHERE q.status IN ('succeeded', "
+                       "'failed', 'cancelled', 'aborted') AND NOT EXISTS (SELECT 1 FROM "
+                       "undertow_queue m WHERE m.queue_id = q.id)")
+            return purged
+
+    def listen(self) -> PostgresListener:
+        """A connection of its own on procrastinate's channel of deferred jobs."""
+        return PostgresListener(self.url, self.timeout, CHANNEL)

@@ -4,8 +4,9 @@ They name their parameters (`:name`, SQLite's style; the PostgreSQL store rewrit
 psycopg's `%(name)s`); a store runs them through its `_rows` (reads) and `_write` (writes)
 and converts its own JSON columns and rows (`_json`, `_from_json`, `_record`), and appends
 to a job's history with its own JSON functions (`_push`). What differs between the
-databases (creating jobs within a limit, batches, integrity) stays with each store; the
-migrations of both are one list (`app.store.migrations`).
+databases (creating jobs within a limit, batches, integrity, and the queue: claims,
+renewals and expiry are SQLite's own statements and procrastinate's on PostgreSQL) stays
+with each store; the migrations of both are one list (`app.store.migrations`).
 """
 
 from __future__ import annotations
@@ -52,12 +53,6 @@ def event(kind: str, worker: str = "worker", reason: str | None = None) -> str:
 
 class SqlJobStore(JobStore):
     """A job store on an SQL database: the statements its dialects share."""
-
-    claim_lock = ""
-    """Appended to the claim's row choice ("FOR UPDATE SKIP LOCKED" where rows lock)."""
-    expire_guard = ""
-    """Appended to the condition of an expired lease (PostgreSQL: not within a lease of a
-    server restart, when nobody could renew)."""
 
     @abstractmethod
     def _rows(self, sql: str, params: tuple | dict = ()) -> builtins.list[tuple]:
@@ -161,16 +156,6 @@ class SqlJobStore(JobStore):
         return {"now": now, "worker": worker, "until": lease_until, "lease": lease_until - now,
                 "progress": self._json(BUILDING)}
 
-    def claim(self, owner: str | None, worker: str, lease_until: float) -> JobRecord | None:
-        mine = "AND owner = :owner" if owner is not None else ""
-        rows = self._write(
-            f"UPDATE jobs SET {self._claiming()} "
-            "WHERE status = 'queued' AND id = (SELECT id FROM jobs WHERE status = 'queued' "
-            f"{mine} AND (not_before IS NULL OR not_before <= :now) ORDER BY created, id "
-            f"LIMIT 1 {self.claim_lock}) RETURNING {COLUMNS}",
-            {**self._claim_params(worker, lease_until), "owner": owner})
-        return self._record(rows[0]) if rows else None
-
     def _release(self, condition: str, params: dict[str, Any]) -> builtins.list[str]:
         rows = self._write(
             "UPDATE jobs SET status = CASE WHEN cancel_requested THEN 'cancelled' "
@@ -226,10 +211,6 @@ class SqlJobStore(JobStore):
     def requeue_claimed(self, worker: str, reason: str) -> dict[str, JobStatus]:
         return self._requeue("worker = :worker", {"worker": worker}, reason)
 
-    def expire(self, now: float) -> dict[str, JobStatus]:
-        return self._requeue(f"lease_until < :expired {self.expire_guard}",
-                             {"expired": now}, LEASE_RAN_OUT)
-
     def recover(self, owner: str) -> dict[str, JobStatus]:
         return self._requeue(
             "owner = :owner AND substr(worker, 1, length(CAST(:prefix AS TEXT))) = :prefix",
@@ -250,17 +231,6 @@ class SqlJobStore(JobStore):
     def retry(self, job_id: str, owner: str, limit: int | None = None) -> bool:
         params = {"id": job_id, "owner": owner, "limit": limit, "now": time.time()}
         return bool(self._write(self._retry_statement(limit is not None), params))
-
-    def renew(self, claims: builtins.list[tuple[str, str]],
-              lease_until: float) -> dict[str, bool]:
-        if not claims:
-            return {}
-        pairs = ", ".join(["(?, ?)"] * len(claims))
-        rows = self._write(
-            "UPDATE jobs SET lease_until = ? WHERE status = 'running' AND (id, worker) IN "
-            f"(VALUES {pairs}) RETURNING id, cancel_requested",
-            (lease_until, *(v for claim in claims for v in claim)))
-        return {job_id: bool(cancel) for job_id, cancel in rows}
 
     def report_progress(self, job_id: str, progress: dict[str, Any],
                         worker: str | None = None) -> bool:
