@@ -90,14 +90,20 @@ class _Reporter:
 
 def _verdict(plan: Plan, cancel_requested: bool, expired: bool,
              budget: float) -> tuple[JobStatus, str | None]:
-    """Final status and error of a returned plan: an optimal plan that fails its
-    re-simulation check has failed too; a plan that holds the task infeasible fails with
-    an error "infeasible: ..." (its evidence in `plan.infeasibility`)."""
-    if plan.solver.success:
+    """Final status and error of a returned plan, from the plan's own verdict
+    (`plan.status`, `plan.message`): a verified plan succeeded, any other failed with its
+    message ("unverified: ...", "infeasible: ...", ...), unless it was cancelled or ran past
+    the job's budget. A plan without a verdict of its own (one made elsewhere than the
+    planner) is judged by its solver report and verification."""
+    if plan.status == "verified":
+        return "succeeded", None
+    if plan.status is None and plan.solver.success:
         reason = unverified_reason(plan.verification)
         return ("succeeded", None) if reason is None else ("failed", f"unverified: {reason}")
-    if cancel_requested:
+    if cancel_requested and plan.status != "unverified":
         return "cancelled", CANCELLED_ON_REQUEST
+    if plan.status in ("unverified", "infeasible", "solver-failure") and plan.message:
+        return "failed", plan.message
     if plan.infeasibility is not None:
         return "failed", f"infeasible: {plan.infeasibility.summary}"
     if expired:

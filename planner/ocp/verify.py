@@ -33,7 +33,7 @@ from planner.ocp.interpolant import PiecewisePolynomial
 from planner.ocp.robustness import robustness
 from planner.ocp.task_checks import requirements
 from planner.ocp.transcription import Interpolant
-from planner.ocp.verification import Crossing, Feedback, Verification
+from planner.ocp.verification import Crossing, Feedback, Robustness, Verification
 from planner.scene import Bounds, SolverSettings, Task
 
 RESIM_TOL = 1e-10
@@ -235,13 +235,7 @@ def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.nd
     crossings, waveless = singular_crossings(robot, interp, t_dense)
     local = float(errors.max())
     fb, measured = _feedback(robot, interp, task.torque_limit, compiled, deadline)
-    robust = None
-    if task.uncertainty is not None and fb is not None:
-        robust = robustness(robot, interp, np.asarray(fb.gains), task.uncertainty,
-                            settings.robustness, compiled, deadline,
-                            _limit_array(task.torque_limit, len(robot.active)))
-    robust_ok = task.uncertainty is None or settings.robustness is None \
-        or robust is not None and bool(robust.within)
+    robust, robust_ok = _robust(robot, interp, fb, task, settings, deadline)
     accurate = errors_status == "completed" and local <= tolerance
     return Verification(
         local_error=local if np.isfinite(local) else None,
@@ -263,6 +257,20 @@ def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.nd
         sigma_min=_samples(sigma), waveless_sigma_min=_samples(waveless),
         robustness=robust, **measured,
     ), fb
+
+
+def _robust(robot: Robot, interp: Interpolant, fb: Feedback | None, task: Task,
+            settings: SolverSettings, deadline: float | None) -> tuple[Robustness | None, bool]:
+    """The feedback on the models of task.uncertainty (None without one, or without
+    feedback) and whether it keeps to solver.robustness (True without a bound)."""
+    robust = None
+    if task.uncertainty is not None and fb is not None:
+        robust = robustness(robot, interp, np.asarray(fb.gains), task.uncertainty,
+                            settings.robustness, settings.jit, deadline,
+                            _limit_array(task.torque_limit, len(robot.active)))
+    ok = task.uncertainty is None or settings.robustness is None \
+        or robust is not None and bool(robust.within)
+    return robust, ok
 
 
 def _minimum(values: np.ndarray) -> float | None:
