@@ -13,9 +13,10 @@ bench, apart from the planner's own checks:
   its dense samples, its duration within the task's, and every interval re-simulated by
   `planner.simulate` from the plan's state at its start within the plan's tolerance of the
   plan's state at its end;
-- an `infeasible` verdict from the solver or the duration probe is challenged by a second
-  plan with twice the intervals and twice the budget: a verified one contradicts it (those
-  of the checks before a solve are proofs and are only counted);
+- an `infeasible` verdict of the duration probe is challenged by a second plan with twice
+  the intervals and twice the budget: a verified one contradicts it (those of the checks
+  before a solve are proofs and are only counted); so is a solver failure whose starts
+  agreed the task locally infeasible, to show how often that sign misleads;
 - the evidence of a `duration` verdict, its `shortest_duration`, must be a duration the
   task can be done in: the task planned at it must verify.
 
@@ -182,7 +183,8 @@ def main(argv: list[str]) -> int:
 def _text(rows: list[dict], args: argparse.Namespace, argv: list[str], started: float,
           note: str) -> str:
     verified = [r for r in rows if r["status"] == "verified"]
-    challenged = [r for r in rows if r["contradicted"]]
+    challenged = [r for r in rows if r["contradicted"] and r["status"] == "infeasible"]
+    signs = [r for r in rows if r["contradicted"] and r["status"] != "infeasible"]
     evidence = [r for r in rows if r["evidence"]]
     latest = max(r["past_budget"] for r in rows)
     return "\n\n".join([
@@ -191,8 +193,10 @@ def _text(rows: list[dict], args: argparse.Namespace, argv: list[str], started: 
         f"`bench/adversarial.py`). **{sum(bool(r['missed']) for r in verified)} of "
         f"{len(verified)} verified plans miss their task**; "
         f"{sum(r['contradicted'] == 'yes' for r in challenged)} of {len(challenged)} "
-        f"infeasible verdicts of the solver or the duration probe are contradicted by a "
-        f"verified plan with twice the intervals and budget; "
+        f"infeasible verdicts of the duration probe are contradicted by a verified plan "
+        f"with twice the intervals and budget (of {len(signs)} solver failures whose starts "
+        f"agreed the task locally infeasible, {sum(r['contradicted'] == 'yes' for r in signs)} "
+        f"were planned so); "
         f"{sum(r['evidence'] == 'true' for r in evidence)} of {len(evidence)} shortest "
         f"durations given as evidence are durations a plan verifies at; "
         f"{sum(r['source'] == 'checks' for r in rows)} tasks are refused by a proof before "
@@ -202,7 +206,7 @@ def _text(rows: list[dict], args: argparse.Namespace, argv: list[str], started: 
             ("category", "category"), ("tasks", "tasks"), ("verified", "verified"),
             ("unverified", "unverified"), ("infeasible", "infeasible"),
             ("out-of-budget", "out of budget"), ("solver-failure", "solver failure"),
-            ("missed", "verified, task missed"), ("contradicted", "infeasible, contradicted"),
+            ("missed", "verified, task missed"), ("contradicted", "challenged, then planned"),
             ("median", "median wall [s]")]),
         harness.table(rows, [("task", "task"), ("status", "status"),
                              ("solver_status", "last solve"), ("source", "infeasible by"),
