@@ -196,7 +196,7 @@ def _text(rows: list[dict], args: argparse.Namespace, argv: list[str], started: 
         f"infeasible verdicts of the duration probe are contradicted by a verified plan "
         f"with twice the intervals and budget (of {len(signs)} solver failures whose starts "
         f"agreed the task locally infeasible, {sum(r['contradicted'] == 'yes' for r in signs)} "
-        f"were planned so); "
+        f"then planned so); "
         f"{sum(r['evidence'] == 'true' for r in evidence)} of {len(evidence)} shortest "
         f"durations given as evidence are durations a plan verifies at; "
         f"{sum(r['source'] == 'checks' for r in rows)} tasks are refused by a proof before "
