@@ -29,8 +29,10 @@ from planner.model import Robot
 @dataclass(frozen=True)
 class EnergyReach:
     """The energies [J] the arm can have at the end of a motion of T seconds from its
-    initial state: at least `lowest`, at most `highest`; `power` [W / sqrt(J)] is C."""
+    initial state, whose energy is `start`: at least `lowest`, at most `highest`; `power`
+    [W / sqrt(J)] is C."""
 
+    start: float
     lowest: float
     highest: float
     power: float
@@ -82,5 +84,5 @@ def energy_reach(robot: Robot, q0: list[float], dq0: list[float], limit: np.ndar
     C = float(np.dot(limit, rate_factors(robot, amplitude_max)[list(robot.active)]))
     root = math.sqrt(max(kinetic + potential - v_min, 0.0))
     step = C * T / math.sqrt(2.0)
-    return EnergyReach(lowest=v_min + max(root - step, 0.0) ** 2,
+    return EnergyReach(start=kinetic + potential, lowest=v_min + max(root - step, 0.0) ** 2,
                        highest=v_min + (root + step) ** 2, power=C)

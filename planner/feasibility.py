@@ -98,7 +98,7 @@ def _energy(scene: Scene) -> list[Issue]:
     kinetic, potential = Dynamics(robot).energy(
         task.final.q, [0.0 if v is None else v for v in task.final.dq])
     needed = potential + (kinetic if rates_given else 0.0)
-    start = sum(Dynamics(robot).energy(task.initial.q, task.initial.dq))
+    start = reach.start
     scale = ENERGY_RTOL * max(1.0, abs(needed), abs(start))
     what = "the final state's energy" if rates_given else \
         "the final angles' potential energy (rates free: the energy is at least that)"

@@ -103,14 +103,13 @@ def _balanced_limit(scene: Scene, needed: float) -> float:
     (`needed` [J], negative to take it) is what the limit lets the actuators add (or take)
     in the task's duration."""
     task, robot = scene.task, scene.robot
-    start = sum(Dynamics(robot).energy(task.initial.q, task.initial.dq))
     low, high = 1e-6, 1e3
     for _ in range(60):
         middle = math.sqrt(low * high)
         reach = energy_reach(robot, task.initial.q, task.initial.dq,
                              np.full(len(robot.active), middle), task.duration_span[1])
-        enough = reach.highest - start >= needed if needed > 0 \
-            else start - reach.lowest >= -needed
+        enough = reach.highest - reach.start >= needed if needed > 0 \
+            else reach.start - reach.lowest >= -needed
         low, high = (low, middle) if enough else (middle, high)
     return high
 
