@@ -1,12 +1,16 @@
 """The planner as the HTTP service (app/) sees it: the one module through which it
 reaches `planner.ocp`.
 
-The service needs the request (a `Scene`), the function that plans it, the result (`Plan`,
-its Ipopt iterate `NlpSolution` for a warm start, the `Progress` a solve reports), the
-reason a finished plan is not verified (`verdict_reason`, or `unverified_reason` of its
-verification), the plan sampled at any times (`Plan.sample`, `PlanSample`), and what a
-transcription costs: its time nodes (the server's node limit) and its knots (the memory
-estimate), and the stored plan a scene should start from (`nearest`, memory of motion).
+The service needs the request (a `Scene`), what admits it as a plan job (`admit`: the
+checks before a solve, each `Issue` a reason its task is infeasible), the function that
+plans it (`plan`, given the issues admission found, so that a job's plan does not check
+again, and the earlier plan it starts from as a `WarmStart`, so that the plan's report names
+it), the result (`Plan`, its Ipopt iterate `NlpSolution` for a warm start, the `Progress` a
+solve reports), the reason a finished plan is not verified (`verdict_reason`, or
+`unverified_reason` of its verification), the plan sampled at any times (`Plan.sample`,
+`PlanSample`), and what a transcription costs: its time nodes (the server's node limit) and
+its knots (the memory estimate), and the stored plan a scene should start from (`nearest`,
+memory of motion).
 Everything else of the optimal-control package stays internal to the library
 and may change without the service noticing. `tests/test_service_interface.py` holds
 app/ to this module.
@@ -16,9 +20,11 @@ from __future__ import annotations
 
 from typing import get_args
 
+from planner import feasibility
+from planner.feasibility import Issue
 from planner.memory import NEAREST, nearest
 from planner.ocp import methods
-from planner.ocp.planner import plan
+from planner.ocp.planner import WarmStart, plan
 from planner.ocp.result import MAX_SAMPLE_TIMES, NlpSolution, Plan, PlanSample, Progress
 from planner.ocp.transcription import AnyTranscription
 from planner.ocp.verdict import unverified_reason
@@ -26,6 +32,13 @@ from planner.scene import DurationRange, Method, Scene, Transcription
 
 METHODS: tuple[str, ...] = get_args(Method)
 """The transcription methods a scene may name (`transcription.method`)."""
+
+
+def admit(scene: Scene) -> list[Issue]:
+    """The checks before a solve (`planner.feasibility`): every reason the scene's task is
+    known infeasible before one (empty: none). Give them to `plan(..., issues=)`, which then
+    does not run them again."""
+    return feasibility.check(scene)
 
 
 def transcription(settings: Transcription, intervals: int | None = None) -> AnyTranscription:
@@ -52,6 +65,7 @@ def verdict_reason(result: Plan) -> str | None:
     return unverified_reason(result.verification)
 
 
-__all__ = ["MAX_SAMPLE_TIMES", "METHODS", "NEAREST", "DurationRange", "NlpSolution", "Plan",
-           "PlanSample", "Progress", "Scene", "Transcription", "knot_count", "nearest",
-           "node_count", "plan", "transcription", "unverified_reason", "verdict_reason"]
+__all__ = ["MAX_SAMPLE_TIMES", "METHODS", "NEAREST", "DurationRange", "Issue", "NlpSolution",
+           "Plan", "PlanSample", "Progress", "Scene", "Transcription", "WarmStart", "admit",
+           "knot_count", "nearest", "node_count", "plan", "transcription", "unverified_reason",
+           "verdict_reason"]

@@ -1,8 +1,9 @@
 """plan(): plan a scene's feed-forward torques.
 
 The story of a plan, one module a step:
-1. the checks before any solve (`planner.feasibility`): a task they hold infeasible is
-   refused at once (`planner.ocp.infeasibility.refused`);
+1. the checks before any solve (`planner.feasibility`; or what they found when the caller
+   ran them, `issues`): a task they hold infeasible is refused at once
+   (`planner.ocp.infeasibility.refused`);
 2. the cores it may use (`planner.ocp.cores`): with a spare one, a forked companion solves
    the continuation start beside the plan's own starts (`planner.ocp.portfolio`);
 3. its starts (`planner.ocp.starts`): an earlier plan's, with few iterations, then the
@@ -16,10 +17,11 @@ The story of a plan, one module a step:
 from __future__ import annotations
 
 import itertools
-from collections.abc import Collection, Iterator
-from dataclasses import replace
+from collections.abc import Collection, Iterator, Sequence
+from dataclasses import dataclass, replace
 
 from planner import feasibility
+from planner.feasibility import Issue
 from planner.ocp import continuation, cores, infeasibility, portfolio, shortest
 from planner.ocp.attempt import Attempt, Start
 from planner.ocp.codesign import design_robot
@@ -43,31 +45,60 @@ COMPANION_GRACE = 3.0
 the plan's MARGIN (`planner.ocp.solve`), which also covers what follows the wait."""
 
 
-def plan(scene: Scene, progress: Handler | None = None, warm_start: Plan | None = None, *,
-         starts: Collection[str] | None = None) -> Plan:
+@dataclass(frozen=True)
+class WarmStart:
+    """An earlier plan to start from, with where it came from: the service's id of its job
+    and, when it was the nearest stored one, its distance [rad] (`planner.memory.distance`)."""
+
+    plan: Plan
+    job_id: str
+    distance: float | None = None
+
+
+def plan(scene: Scene, progress: Handler | None = None,
+         warm_start: Plan | WarmStart | None = None, *, starts: Collection[str] | None = None,
+         issues: Sequence[Issue] | None = None) -> Plan:
     """Plan feed-forward torques for a scene.
 
     progress is called once per Ipopt iteration; returning False stops the plan.
-    warm_start: an earlier plan whose trajectory (or NLP solution) is tried first.
+    warm_start: an earlier plan whose trajectory (or NLP solution) is tried first; as a
+    `WarmStart`, the plan's report names where it came from (`solver.warm_start`,
+    `solver.warm_start_distance`).
     starts: the names of the scene's own starts the plan may try (`Plan.solver.strategy`
     names them: "direct", "coarse to fine", "continuation", ...), in the planner's order;
     None: all, and a companion process where one helps.
+    issues: what the checks before a solve (`planner.feasibility.check`) already found for
+    this scene, e.g. when the service admitted it: any refuses the plan, none lets it solve
+    without checking again; None: the checks run here.
     A failed solve is returned (success False, the last iterate), never raised. A task
     known infeasible before a solve returns at once, and one the solver holds infeasible
     says so (`Plan.infeasibility`).
     """
     budget = Budget.of(scene.solver.max_iter, scene.solver.max_wall_time)
-    issues = feasibility.check(scene)
-    if issues:
-        return infeasibility.refused(scene, issues, budget.started, duration_guess(scene))
+    found = feasibility.check(scene) if issues is None else list(issues)
+    if found:
+        refused = infeasibility.refused(scene, found, budget.started, duration_guess(scene))
+        return _started_from(refused, warm_start)
+    earlier = warm_start.plan if isinstance(warm_start, WarmStart) else warm_start
     wanted = starts is None and continuation.applies(scene) and scene.solver.retries > 0 \
         and portfolio.solver_processes() >= 2
     own = cores.take()
     spare = cores.take() if wanted and own is not None else None
     try:
-        return _planned(scene, progress, warm_start, budget, starts, alone=spare is None)
+        result = _planned(scene, progress, earlier, budget, starts, alone=spare is None)
     finally:
         cores.release(own, spare)
+    return _started_from(result, warm_start)
+
+
+def _started_from(result: Plan, warm_start: Plan | WarmStart | None) -> Plan:
+    """The plan with the job it was given to start from, and its distance, in its report
+    (unchanged without a `WarmStart`)."""
+    if not isinstance(warm_start, WarmStart):
+        return result
+    report = result.solver.model_copy(update={"warm_start": warm_start.job_id,
+                                              "warm_start_distance": warm_start.distance})
+    return result.model_copy(update={"solver": report})
 
 
 def shortest_duration(scene: Scene, lowest: float | None = None) -> shortest.Probe:
