@@ -120,8 +120,10 @@ def upgrades_keeping_its_rows(dialect: Dialect, older: int, execute: Execute,
             0, 0, False, None)
         if older >= 4:
             assert store.get_batch("b") is not None
-        store.create("new", {"x": 1}, "host", key="k")  # the latest columns are there
-        assert store.find_key("k") == "new"
+        assert old.admission is None  # its worker decides, as that version's did
+        store.create("new", {"x": 1}, "host", key="k", admission={"issues": []})
+        assert store.find_key("k") == "new"  # the latest columns are there
+        assert store.get("new").admission == {"issues": []}  # type: ignore[union-attr]
     finally:
         store.close()
     assert version(execute, dialect) == SCHEMA_VERSION

@@ -254,6 +254,20 @@ def test_a_batch_is_cancelled_whole(store):
     assert not store.report_progress("b-000", {"iteration": 1})
 
 
+def test_a_jobs_admission_is_stored_with_it_and_kept_by_a_retry(store):
+    decided = {"issues": [], "warm_start": {"job_id": "x", "distance": 0.01}}
+    store.create("a", SCENE, "host", admission=decided)
+    store.create("old", SCENE, "host")  # as an earlier version stored it
+    members = [("b-0", SCENE), ("b-1", SCENE)]
+    assert store.create_batch("b", {"base": SCENE}, members, "host",
+                              admissions=[decided, None])
+    assert [store.get(k).admission for k in ("a", "old", "b-0", "b-1")] == [
+        decided, None, decided, None]
+    assert [r.admission for r in store.list(summaries=True)] == [None] * 4
+    assert claim(store) == "a" and store.finish("a", "failed", None, "no", worker="w1")
+    assert store.retry("a", "host") and store.get("a").admission == decided
+
+
 def test_an_idempotency_key_names_one_job(store):
     assert store.find_key("k1") is None
     store.create("a", SCENE, "host", key="k1")

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import builtins
 from abc import ABC, abstractmethod
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Literal, Protocol
 
@@ -94,6 +95,10 @@ class JobRecord:
     history: list[dict[str, Any]] | None = None
     """Claims, releases, infrastructure failures, retries and the verdict, oldest first:
     {"at": Unix seconds, "event": ..., "worker": ..., "reason": ...}."""
+    admission: dict[str, Any] | None = None
+    """What was decided about the scene when the job was submitted (`app.admission`);
+    None in jobs stored without it (by an earlier version, or a caller that decided
+    nothing)."""
 
 
 @dataclass(frozen=True)
@@ -159,10 +164,11 @@ class JobStore(ABC):
 
     @abstractmethod
     def create(self, job_id: str, scene: dict[str, Any], owner: str,
-               limit: int | None = None, key: str | None = None) -> JobRecord | None:
-        """Store a new queued job; None (nothing stored) when `owner` already has `limit`
-        unfinished (queued or running) jobs. `key`: an idempotency key, unique among
-        jobs (IntegrityError when another job has it)."""
+               limit: int | None = None, key: str | None = None,
+               admission: dict[str, Any] | None = None) -> JobRecord | None:
+        """Store a new queued job with its `admission`; None (nothing stored) when `owner`
+        already has `limit` unfinished (queued or running) jobs. `key`: an idempotency key,
+        unique among jobs (IntegrityError when another job has it)."""
 
     @abstractmethod
     def get(self, job_id: str) -> JobRecord | None:
@@ -173,8 +179,8 @@ class JobStore(ABC):
              offset: int = 0, dead_letter: bool | None = None,
              summaries: bool = False) -> list[JobRecord]:
         """Jobs, newest first, optionally of one status, and dead letters or not;
-        summaries: without their scenes, plans and histories (empty scene, None), which
-        are neither read from the database nor decoded."""
+        summaries: without their scenes, plans, histories and admissions (empty scene,
+        None), which are neither read from the database nor decoded."""
 
     @abstractmethod
     def count_by_status(self) -> dict[str, int]:
@@ -263,10 +269,11 @@ class JobStore(ABC):
     @abstractmethod
     def create_batch(self, batch_id: str, spec: dict[str, Any],
                      members: builtins.list[tuple[str, dict[str, Any]]], owner: str,
-                     limit: int | None = None) -> bool:
-        """Store a batch and its members (job id, scene) as queued jobs, all or none;
-        False (nothing stored) when `owner` would then hold more than `limit` unfinished
-        jobs."""
+                     limit: int | None = None,
+                     admissions: Sequence[dict[str, Any] | None] | None = None) -> bool:
+        """Store a batch and its members (job id, scene) as queued jobs, all or none, with
+        their `admissions` (one per member, in order; none by default); False (nothing
+        stored) when `owner` would then hold more than `limit` unfinished jobs."""
 
     @abstractmethod
     def purge(self, before: float, keep: int) -> int:

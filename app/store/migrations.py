@@ -118,6 +118,11 @@ STEPS: tuple[Step, ...] = (
         "DROP TRIGGER IF EXISTS undertow_job_queued ON jobs",
         "DROP FUNCTION IF EXISTS undertow_job_queued()",
     )),
+    Step(8, "what was decided about a job's scene when it was submitted (`app.admission`: "
+            "the checks' findings, the earlier plan it starts from), so that its worker "
+            "does not decide again; NULL in jobs stored before", (
+        "ALTER TABLE jobs ADD COLUMN admission {json}",
+    )),
 )
 SCHEMA_VERSION = STEPS[-1].version
 """The version of a database that has had every step."""

@@ -37,7 +37,7 @@ from __future__ import annotations
 import builtins
 import datetime
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any
 
@@ -169,18 +169,20 @@ class PostgresJobStore(PostgresSql):
                 self._run("unregister_worker", worker_id=engine_worker)
 
     def create(self, job_id: str, scene: dict[str, Any], owner: str,
-               limit: int | None = None, key: str | None = None) -> JobRecord | None:
+               limit: int | None = None, key: str | None = None,
+               admission: dict[str, Any] | None = None) -> JobRecord | None:
         with self._transaction():
-            record = super().create(job_id, scene, owner, limit, key)
+            record = super().create(job_id, scene, owner, limit, key, admission)
             if record is not None:
                 self._defer([(job_id, owner)])
             return record
 
     def create_batch(self, batch_id: str, spec: dict[str, Any],
                      members: builtins.list[tuple[str, dict[str, Any]]], owner: str,
-                     limit: int | None = None) -> bool:
+                     limit: int | None = None,
+                     admissions: Sequence[dict[str, Any] | None] | None = None) -> bool:
         with self._transaction():
-            if not super().create_batch(batch_id, spec, members, owner, limit):
+            if not super().create_batch(batch_id, spec, members, owner, limit, admissions):
                 return False
             self._defer([(job_id, owner) for job_id, _ in members])
             return True

@@ -25,7 +25,7 @@ import re
 import threading
 import time
 import zlib
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from functools import partial
 from typing import Any
@@ -67,11 +67,12 @@ def _dumps(value: Any) -> str:
 
 def _job(row: tuple) -> JobRecord:
     (id_, status, scene, progress, plan, error, cancel, owner, created, started,
-     finished, worker, attempts, infra, dead, events) = row
+     finished, worker, attempts, infra, dead, events, admission) = row
     return JobRecord(id=id_, status=status, scene=scene or {}, progress=progress, plan=plan,
                      error=error, cancel_requested=cancel, owner=owner, created=created,
                      started=started, finished=finished, worker=worker, attempts=attempts,
-                     infra_failures=infra, dead_letter=dead, history=events)
+                     infra_failures=infra, dead_letter=dead, history=events,
+                     admission=admission)
 
 
 def _member(row: tuple) -> MemberRecord:
@@ -219,10 +220,11 @@ class PostgresSql(SqlJobStore):
         return version(self._rows, "postgres")
 
     def create(self, job_id: str, scene: dict[str, Any], owner: str,
-               limit: int | None = None, key: str | None = None) -> JobRecord | None:
-        insert = ("INSERT INTO jobs (id, status, scene, owner, created, idem_key) "
-                  f"VALUES (%s, 'queued', %s, %s, %s, %s) RETURNING {COLUMNS}")
-        values = (job_id, _jsonb(scene), owner, time.time(), key)
+               limit: int | None = None, key: str | None = None,
+               admission: dict[str, Any] | None = None) -> JobRecord | None:
+        insert = ("INSERT INTO jobs (id, status, scene, owner, created, idem_key, admission) "
+                  f"VALUES (%s, 'queued', %s, %s, %s, %s, %s) RETURNING {COLUMNS}")
+        values = (job_id, _jsonb(scene), owner, time.time(), key, _jsonb(admission))
         try:
             if limit is None:
                 return _job(self._rows(insert, values)[0])
@@ -275,8 +277,9 @@ class PostgresSql(SqlJobStore):
 
     def create_batch(self, batch_id: str, spec: dict[str, Any],
                      members: builtins.list[tuple[str, dict[str, Any]]], owner: str,
-                     limit: int | None = None) -> bool:
-        now = time.time()
+                     limit: int | None = None,
+                     admissions: Sequence[dict[str, Any] | None] | None = None) -> bool:
+        now, decided = time.time(), admissions or [None] * len(members)
         with self._connection() as conn, conn.transaction():
             if limit is not None and self._held(conn, owner) + len(members) > limit:
                 return False
@@ -284,10 +287,11 @@ class PostgresSql(SqlJobStore):
                          "VALUES (%s, %s, %s, %s)", (batch_id, owner, now, _jsonb(spec)))
             with conn.cursor() as cursor:
                 cursor.executemany(
-                    "INSERT INTO jobs (id, status, scene, owner, created, batch, member) "
-                    "VALUES (%s, 'queued', %s, %s, %s, %s, %s)",
-                    [(job_id, _jsonb(scene), owner, now, batch_id, index)
-                     for index, (job_id, scene) in enumerate(members)])
+                    "INSERT INTO jobs (id, status, scene, owner, created, batch, member, "
+                    "admission) VALUES (%s, 'queued', %s, %s, %s, %s, %s, %s)",
+                    [(job_id, _jsonb(scene), owner, now, batch_id, index, _jsonb(admission))
+                     for index, ((job_id, scene), admission)
+                     in enumerate(zip(members, decided, strict=True))])
         return True
 
     def get_batch(self, batch_id: str) -> BatchRecord | None:

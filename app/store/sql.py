@@ -30,12 +30,12 @@ from app.store.base import (
 
 COLUMNS = ("id, status, scene, progress, plan, error, cancel_requested, owner, "
            "created, started, finished, worker, attempts, infra_failures, dead_letter, "
-           "history")
+           "history, admission")
 """The columns of a job, in the order `_record` reads them."""
 SUMMARY_COLUMNS = COLUMNS.replace("scene,", "NULL,").replace("plan,", "NULL,") \
-    .replace("history", "NULL")
-"""The same without scene, plan and history (read as an empty scene, None and None): what a
-listing shows."""
+    .replace("history,", "NULL,").replace("admission", "NULL")
+"""The same without scene, plan, history and admission (read as an empty scene and None):
+what a listing shows."""
 NO_WORKER_OR = "(CAST(:worker AS TEXT) IS NULL OR worker = :worker)"
 """A condition that holds for any worker when the parameter is NULL, else for that one."""
 _NOW = "CAST(:now AS DOUBLE PRECISION)"

@@ -24,6 +24,7 @@ import logging
 import os
 import sqlite3
 import time
+from collections.abc import Sequence
 from typing import Any
 
 from app.store.base import (
@@ -53,12 +54,13 @@ def _loads(text: str | None) -> Any:
 
 def _job(row: tuple) -> JobRecord:
     (id_, status, scene, progress, plan, error, cancel, owner, created, started,
-     finished, worker, attempts, infra, dead, events) = row
+     finished, worker, attempts, infra, dead, events, admission) = row
     return JobRecord(id=id_, status=status, scene=_loads(scene) or {}, progress=_loads(progress),
                      plan=_loads(plan), error=error, cancel_requested=bool(cancel),
                      owner=owner, created=created, started=started, finished=finished,
                      worker=worker, attempts=attempts, infra_failures=infra,
-                     dead_letter=bool(dead), history=history(events))
+                     dead_letter=bool(dead), history=history(events),
+                     admission=_loads(admission))
 
 
 def _member(row: tuple) -> MemberRecord:
@@ -159,14 +161,15 @@ class SqliteJobStore(SqlJobStore):
         return self._rows("PRAGMA journal_mode")[0][0]
 
     def create(self, job_id: str, scene: dict[str, Any], owner: str,
-               limit: int | None = None, key: str | None = None) -> JobRecord | None:
-        values = (job_id, _dumps(scene), owner, time.time(), key)
+               limit: int | None = None, key: str | None = None,
+               admission: dict[str, Any] | None = None) -> JobRecord | None:
+        values = (job_id, _dumps(scene), owner, time.time(), key, _dumps(admission))
         held = ("" if limit is None else "WHERE (SELECT COUNT(*) FROM jobs WHERE owner = ? "
                 "AND status IN ('queued', 'running')) < ?")
         try:
             rows = self._write(
-                "INSERT INTO jobs (id, status, scene, owner, created, idem_key) "
-                f"SELECT ?, 'queued', ?, ?, ?, ? {held} RETURNING {COLUMNS}",
+                "INSERT INTO jobs (id, status, scene, owner, created, idem_key, admission) "
+                f"SELECT ?, 'queued', ?, ?, ?, ?, ? {held} RETURNING {COLUMNS}",
                 values if limit is None else (*values, owner, limit), fresh=True)
         except sqlite3.IntegrityError as exc:
             raise DuplicateKey(key) from exc
@@ -220,8 +223,9 @@ class SqliteJobStore(SqlJobStore):
 
     def create_batch(self, batch_id: str, spec: dict[str, Any],
                      members: builtins.list[tuple[str, dict[str, Any]]], owner: str,
-                     limit: int | None = None) -> bool:
-        now = time.time()
+                     limit: int | None = None,
+                     admissions: Sequence[dict[str, Any] | None] | None = None) -> bool:
+        now, decided = time.time(), admissions or [None] * len(members)
         with self.file.transaction(fresh=True) as conn:
             if limit is not None:
                 (held,) = conn.execute(
@@ -232,10 +236,11 @@ class SqliteJobStore(SqlJobStore):
             conn.execute("INSERT INTO batches (id, owner, created, spec) VALUES (?, ?, ?, ?)",
                          (batch_id, owner, now, _dumps(spec)))
             conn.executemany(
-                "INSERT INTO jobs (id, status, scene, owner, created, batch, member) "
-                "VALUES (?, 'queued', ?, ?, ?, ?, ?)",
-                [(job_id, _dumps(scene), owner, now, batch_id, index)
-                 for index, (job_id, scene) in enumerate(members)])
+                "INSERT INTO jobs (id, status, scene, owner, created, batch, member, "
+                "admission) VALUES (?, 'queued', ?, ?, ?, ?, ?, ?)",
+                [(job_id, _dumps(scene), owner, now, batch_id, index, _dumps(admission))
+                 for index, ((job_id, scene), admission)
+                 in enumerate(zip(members, decided, strict=True))])
         return True
 
     def get_batch(self, batch_id: str) -> BatchRecord | None:
