@@ -21,16 +21,18 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from app.admission import Admission, given
 from app.store import CANCELLED_ON_REQUEST, JobStatus, JobStore, StoreUnavailable
 from app.store_retry import persist
-from app.warm_start import started_from, warm_start
 from app.worker_pipe import JobEnd
 from planner.service import Plan, Progress, Scene, unverified_reason
 
 log = logging.getLogger("undertow.worker")
 
 SolveFunction = Callable[..., Plan]
-"""solve(scene, progress=callback) -> Plan; never raises for a solver failure."""
+"""solve(scene, progress=callback, issues=..., warm_start=...) -> Plan, never raising for a
+solver failure; `issues` and `warm_start` as `planner.service.plan` takes them, each given
+only when decided (`app.admission.given`)."""
 
 PROGRESS_INTERVAL = 0.2  # [s] between two progress writes of one job
 
@@ -114,18 +116,18 @@ def _verdict(plan: Plan, cancel_requested: bool, expired: bool,
 
 
 def run_job(store: JobStore, job_id: str, scene: Scene, solve: SolveFunction,
-            memory_mb: float | None = None, worker: str | None = None) -> JobEnd:
-    """Solve one job claimed by `worker` and store its verdict (unless the job was taken
-    from `worker` meanwhile: its lease ran out and another worker holds it)."""
+            memory_mb: float | None = None, worker: str | None = None,
+            admission: Admission | None = None) -> JobEnd:
+    """Solve one job claimed by `worker`, as its `admission` decided (`app.admission`), and
+    store its verdict (unless the job was taken from `worker` meanwhile: its lease ran out
+    and another worker holds it)."""
     global _current
     start, budget = time.monotonic(), scene.solver.max_wall_time
     _current = (store, job_id, worker)
     reporter = _Reporter(store, job_id, start + budget, worker)
     try:
-        warm = persist(lambda: warm_start(store, scene), f"job {job_id}: warm start")
-        plan = solve(scene, progress=reporter, **({"warm_start": warm[0]} if warm else {}))
-        if warm is not None:
-            plan = started_from(plan, *warm[1:])
+        arguments = persist(lambda: given(store, scene, admission), f"job {job_id}: warm start")
+        plan = solve(scene, progress=reporter, **arguments)
     except MemoryError:
         return fail(store, job_id, out_of_memory(memory_mb), start, worker, exhausted=True)
     except Exception as exc:  # noqa: BLE001 - any error fails the job, the worker lives

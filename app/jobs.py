@@ -73,10 +73,13 @@ class JobRunner:
             self.supervisor.wake()
         return list(recovered)
 
-    def submit(self, scene: dict[str, Any], job_id: str, key: str | None = None) -> None:
-        """Store a new queued job (with idempotency key `key`: DuplicateKey when another
-        job has it); QueueFull when the instance is at capacity."""
-        if self.store.create(job_id, scene, self.owner, limit=self.capacity, key=key) is None:
+    def submit(self, scene: dict[str, Any], job_id: str, key: str | None = None,
+               admission: dict[str, Any] | None = None) -> None:
+        """Store a new queued job with its `admission` (`app.admission`; with idempotency
+        key `key`: DuplicateKey when another job has it); QueueFull when the instance is at
+        capacity."""
+        if self.store.create(job_id, scene, self.owner, limit=self.capacity, key=key,
+                             admission=admission) is None:
             raise QueueFull(self.retry_after)
         self.supervisor.wake()
 
@@ -89,12 +92,13 @@ class JobRunner:
         return True
 
     def submit_batch(self, batch_id: str, spec: dict[str, Any],
-                     members: list[tuple[str, dict[str, Any]]], extra: int = 0) -> None:
-        """Store a batch and its member jobs, all or none; QueueFull when they would take
-        the instance past its capacity plus `extra` (the room one batch may take beyond
-        the queue, UNDERTOW_MAX_BATCH_MEMBERS)."""
+                     members: list[tuple[str, dict[str, Any]]], extra: int = 0,
+                     admissions: list[dict[str, Any]] | None = None) -> None:
+        """Store a batch and its member jobs with their `admissions` (one per member), all
+        or none; QueueFull when they would take the instance past its capacity plus `extra`
+        (the room one batch may take beyond the queue, UNDERTOW_MAX_BATCH_MEMBERS)."""
         if not self.store.create_batch(batch_id, spec, members, self.owner,
-                                       limit=self.capacity + extra):
+                                       limit=self.capacity + extra, admissions=admissions):
             raise QueueFull(self.retry_after)
         self.supervisor.wake()
 

@@ -131,14 +131,15 @@ def _member_scene(base: dict[str, Any], parameters: dict[str, float],
 
 
 def scenes(request: BatchRequest, parameters: list[dict[str, float]],
-           settings: Settings) -> list[dict[str, Any]]:
-    """Every member's scene as JSON; 422 listing the members that are not valid."""
+           settings: Settings) -> list[Scene]:
+    """Every member's scene; 422 listing the members that are not valid."""
     try:
         base = check_scene(request.base, settings)
     except ApiError as exc:
         raise invalid([_prefixed(e, ["body", "base"], "") for e in exc.errors or []]) from exc
     base_json = base.model_dump(mode="json", exclude_unset=True)
-    out, errors = [], []
+    out: list[Scene] = []
+    errors: list[FieldError] = []
     for k, member in enumerate(parameters):
         scene, found = _member_scene(base_json, member, settings)
         loc: list[str | int]
@@ -149,7 +150,7 @@ def scenes(request: BatchRequest, parameters: list[dict[str, float]],
             loc, what = ["body", "grid"], f"member {k} ({values}): "
         errors += [_prefixed(e, loc, what) for e in found]
         if scene is not None and not found:
-            out.append(scene.model_dump(mode="json"))
+            out.append(scene)
         if len(errors) >= MAX_ERRORS:
             break
     if errors:

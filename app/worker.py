@@ -28,6 +28,7 @@ import time
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
 
+from app.admission import stored
 from app.idle_wait import IdleWait
 from app.job_run import SolveFunction, fail, run_job, running
 from app.logging import configure
@@ -96,7 +97,8 @@ def _take(spec: WorkerSpec, channel: Connection, record: JobRecord) -> JobEnd | 
         return fail(spec.store, record.id, f"invalid stored scene: {exc}", time.monotonic(),
                     spec.name)
     channel.send(Claimed(record.id, scene.solver.max_wall_time))
-    return run_job(spec.store, record.id, scene, spec.solve, spec.memory_mb, spec.name)
+    return run_job(spec.store, record.id, scene, spec.solve, spec.memory_mb, spec.name,
+                   stored(record))
 
 
 def serve(spec: WorkerSpec, channel: Connection) -> None:

@@ -2,7 +2,8 @@
 benchmark's servers: UNDERTOW_SOLVE_FUNCTION=testbed.fake_solvers:fake_plan).
 
 `fake_plan` runs `solver.max_iter` iterations of 20 ms each, reporting progress and
-honouring a stop request like planner.ocp.plan does. `solver.tol` picks the outcome:
+honouring a stop request like planner.ocp.plan does (a task refused at admission it refuses
+as the planner does). `solver.tol` picks the outcome:
 < 0.2 converges, [0.2, 0.25) converges to a plan whose re-simulation departs by 0.5 rad,
 [0.25, 0.5) raises, [0.5, 0.7) fails, [0.7, 0.8) is refused at once (Ipopt's
 "Invalid_Problem_Definition": no iteration, no progress), [0.8, 0.9) first "builds" for
@@ -17,6 +18,7 @@ import time
 
 from planner.ocp.result import Plan, Progress
 from planner.scene import Scene
+from planner.service import plan
 
 ITERATION = 0.02  # [s]
 
@@ -47,8 +49,12 @@ def _plan(scene: Scene, status: str, success: bool, iterations: int, elapsed: fl
                          "waveless_singular_crossings": []}})
 
 
-def fake_plan(scene: Scene, progress=None) -> Plan:
-    """A plan after `max_iter` fake iterations; stops early when `progress` returns False."""
+def fake_plan(scene: Scene, progress=None, warm_start=None, issues=None) -> Plan:
+    """A plan after `max_iter` fake iterations; stops early when `progress` returns False.
+    A task whose admission found `issues` is refused at once, as the planner refuses it
+    (`planner.service.plan`); `warm_start` is taken and not used (the fake starts cold)."""
+    if issues:
+        return plan(scene, issues=issues)
     tol, start = scene.solver.tol, time.monotonic()
     if tol >= 0.95:
         os._exit(3)

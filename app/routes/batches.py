@@ -11,11 +11,11 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Body, Request, Response
 from starlette.concurrency import run_in_threadpool
 
+from app.admission import admit_members
 from app.deps import RunnerDep, SettingsDep, StoreDep
 from app.errors import ApiError
 from app.jobs import QueueFull
 from app.openapi import UNAVAILABLE, problems
-from app.routes.plans import check_warm_start
 from app.schema_examples import body_examples
 from app.schemas import Batch
 from app.store import BatchRecord
@@ -39,15 +39,15 @@ async def create_batch(request: Annotated[BatchRequest, Body(
                        store: StoreDep) -> Batch:
     parameters = members(request, settings)
     member_scenes = scenes(request, parameters, settings)
-    if request.base.solver.warm_start is not None:
-        await run_in_threadpool(check_warm_start, store, request.base.solver.warm_start,
-                                ("body", "base"))
+    admissions = await run_in_threadpool(admit_members, store, request.base, member_scenes)
     batch_id = uuid.uuid4().hex
     spec = {"base": request.base.model_dump(mode="json"), "parameters": parameters}
-    jobs = [(f"{batch_id}-{k:04d}", scene) for k, scene in enumerate(member_scenes)]
+    jobs = [(f"{batch_id}-{k:04d}", scene.model_dump(mode="json"))
+            for k, scene in enumerate(member_scenes)]
     try:
         await run_in_threadpool(runner.submit_batch, batch_id, spec, jobs,
-                                settings.max_batch_members)
+                                settings.max_batch_members,
+                                [admission.model_dump(mode="json") for admission in admissions])
     except QueueFull as exc:
         raise ApiError(429, "queue-full", "The job queue is full",
                        f"{len(jobs)} more plans would exceed the "

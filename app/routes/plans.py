@@ -9,39 +9,21 @@ from fastapi import APIRouter, Body, Header, Query, Response
 from starlette.concurrency import run_in_threadpool
 
 from app import stored_plan
+from app.admission import admit_plan
 from app.capacity import capacity_errors
 from app.deps import RunnerDep, SettingsDep, StoreDep
-from app.errors import ApiError, FieldError, field_error, invalid
+from app.errors import ApiError, field_error, invalid
 from app.jobs import JobRunner, QueueFull
 from app.limits import check_scene
 from app.openapi import UNAVAILABLE, problems
 from app.schema_examples import body_examples
 from app.schemas import Job, JobList, JobSummary
 from app.store import FINAL, DuplicateKey, JobRecord, JobStatus, JobStore
-from planner import feasibility
-from planner.service import NEAREST, Plan, Scene
+from planner.service import Plan, Scene
 
 router = APIRouter(prefix="/v1/plans", tags=["plans"])
 _LINKS = {name: {"operationId": op, "parameters": {"job_id": "$response.body#/id"}}
           for name, op in (("GetPlan", "get_plan"), ("CancelPlan", "cancel_plan"))}
-
-
-def check_warm_start(store: JobStore, job_id: str,
-                     loc: tuple[str, ...] = ("body",)) -> None:
-    """422 at solver.warm_start (under `loc`) unless it names a job that has a plan of
-    today's schema, or is "nearest" (whatever the store holds when the job runs)."""
-    if job_id == NEAREST:
-        return
-    record = store.get(job_id)
-    if record is None or record.plan is None:
-        what = "there is no plan job" if record is None else "no plan yet in the job"
-        raise invalid([field_error([*loc, "solver", "warm_start"], f"{what} {job_id!r}",
-                                   "value_error")])
-    if stored_plan.current(record.plan) is None:
-        raise invalid([field_error([*loc, "solver", "warm_start"],
-                                   f"the plan of job {job_id!r} was stored by a version of the "
-                                   "service whose schema this one cannot read "
-                                   "(plan_schema legacy)", "value_error")])
 
 
 def current_plan(record: JobRecord, use: str) -> Plan:
@@ -54,12 +36,6 @@ def current_plan(record: JobRecord, use: str) -> Plan:
                        f"whose schema this one cannot read (plan_schema legacy); {use} needs "
                        "a plan of today's schema: submit the scene again")
     return plan
-
-
-def infeasible_errors(scene: Scene) -> list[FieldError]:
-    """A field error of type "infeasible" for every reason the task is infeasible that is
-    known before a solve (`planner.feasibility`)."""
-    return [field_error(["body"], str(issue), "infeasible") for issue in feasibility.check(scene)]
 
 
 def _found_key(job_id: str | None) -> str:
@@ -95,18 +71,14 @@ async def create_plan(scene: Annotated[Scene, Body(openapi_examples=body_example
     too_big = capacity_errors(scene, settings)
     if too_big:
         raise invalid(too_big)
-    impossible = await run_in_threadpool(infeasible_errors, scene)
-    if impossible:
-        raise invalid(impossible)
-    if scene.solver.warm_start is not None:
-        await run_in_threadpool(check_warm_start, store, scene.solver.warm_start)
+    admission = await run_in_threadpool(admit_plan, store, scene)
     job_id = uuid.uuid4().hex
     try:
         earlier = (None if idempotency_key is None
                    else await run_in_threadpool(store.find_key, idempotency_key))
         if earlier is None:
             await run_in_threadpool(runner.submit, scene.model_dump(mode="json"), job_id,
-                                    idempotency_key)
+                                    idempotency_key, admission.model_dump(mode="json"))
         else:
             job_id = earlier
     except DuplicateKey as exc:  # submitted concurrently with the same key
