@@ -21,7 +21,7 @@ from typing import Any
 from anyio import to_thread
 
 from app.job_run import SolveFunction
-from app.store import FINAL, JobStore, StoreUnavailable
+from app.store import FINAL, Held, JobStore, StoreUnavailable
 from app.supervisor import Supervisor
 from app.worker_pipe import JobEnd
 
@@ -57,17 +57,24 @@ class JobRunner:
         self.store, self.owner = store, owner
         self.capacity, self.retry_after = workers + max_queued, retry_after
         self._on_done = on_done
+        self._name: Held | None = None
         self._waiters: dict[str, list[tuple[asyncio.AbstractEventLoop, asyncio.Event]]] = {}
         self._waiters_lock = threading.Lock()
         self.supervisor = Supervisor(store, solve, owner, workers, memory_mb, grace,
                                      log_level, self._ended, lease=lease, retention=retention)
 
     def start(self) -> list[str]:
-        """Recover after a restart: running jobs of this owner held by its own workers
-        had an infrastructure failure (the server stopped under them) and are requeued;
-        queued ones run (the workers start now if any job waits, else with the first
-        submitted one). Returns the recovered ids."""
-        recovered = self.store.recover(self.owner)
+        """Take the server's name on the store (NameTaken, touching nothing, when a live
+        server of that name runs on it), then recover after a restart: running jobs of
+        this owner held by its own workers had an infrastructure failure (the server
+        stopped under them) and are requeued; queued ones run (the workers start now if
+        any job waits, else with the first submitted one). Returns the recovered ids."""
+        self._name = self.store.hold_name(self.owner)
+        try:
+            recovered = self.store.recover(self.owner)
+        except StoreUnavailable:
+            self._name.release()
+            raise
         self.supervisor.start()
         if self.store.count_by_status()["queued"]:
             self.supervisor.wake()
@@ -149,10 +156,12 @@ class JobRunner:
     def shutdown(self) -> None:
         """Stop: running jobs are released (queued again), queued ones stay queued in the
         store for the next start or another server's workers; the store is then
-        checkpointed and closed."""
+        checkpointed, the server's name given back and the store closed."""
         self.supervisor.stop()
         try:
             self.store.checkpoint(final=True)
         except StoreUnavailable as exc:
             log.error("shutdown: %s", exc)
+        if self._name is not None:
+            self._name.release()
         self.store.close()

@@ -2,9 +2,10 @@
 
 `create_app(settings, solve)` builds an app; its lifespan opens the job store (SQLite, or
 PostgreSQL when UNDERTOW_DB_URL is set; refusing to start on one that fails its integrity
-check or cannot be reached), recovers jobs a previous run left behind, and starts the
-solver workers (none on an API-only server); on shutdown it stops them and checkpoints the
-store.
+check or cannot be reached), takes the server's name on it (refusing to start while a live
+server of that name runs on it), recovers jobs a previous run left behind, and starts the
+solver workers (none on an API-only server); on shutdown it stops them, checkpoints the
+store and gives the name back.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from app.jobs import JobRunner
 from app.logging import RequestIdMiddleware, configure
 from app.metrics import Metrics, MetricsMiddleware
 from app.openapi import document
+from app.refusal import QuietRefusal, refuse
 from app.routes import batches, dynamics, examples, health, plans, plots, samples, workers
 from app.settings import PLAN_PROCESSES, Settings, get_settings
 from app.store import StoreUnavailable
@@ -50,23 +52,8 @@ def create_app(settings: Settings | None = None, solve: SolveFunction | None = N
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        try:
-            store = open_store(settings)
-        except StoreUnavailable as exc:  # damaged or unreachable
-            log.critical("%s", exc)
-            raise
-        app.state.metrics.watch(store)
-        os.environ[PLAN_PROCESSES] = str(settings.plan_processes())
-        runner = JobRunner(store, solve or load_function(settings.solve_function),
-                           owner=settings.instance, workers=settings.workers,
-                           max_queued=settings.max_queued, retry_after=settings.retry_after,
-                           memory_mb=settings.worker_memory_mb,
-                           grace=settings.wall_time_grace, log_level=settings.log_level,
-                           on_done=app.state.metrics.job_done, lease=settings.lease,
-                           retention=(86400.0 * settings.retention_days,
-                                      settings.retention_count))
-        runner.start()
-        app.state.store, app.state.runner = store, runner
+        runner = _start(app, settings, solve)
+        app.state.store, app.state.runner = runner.store, runner
         app.state.limiter = CapacityLimiter(settings.compute_threads)
         app.state.sync_memory = MemoryBudget(settings.sync_memory_mb)
         app.state.metrics.watch_memory(app.state.sync_memory)
@@ -93,15 +80,43 @@ def create_app(settings: Settings | None = None, solve: SolveFunction | None = N
     return app
 
 
+def _start(app: FastAPI, settings: Settings, solve: SolveFunction | None) -> JobRunner:
+    """Open the store and start the job runner on it. A start refused (a damaged or
+    unreachable store, the server's name held by a live server) is one log line and
+    touches nothing more in the store (`app.refusal`)."""
+    try:
+        store = open_store(settings)
+    except StoreUnavailable as exc:
+        refuse(app, exc)
+    app.state.metrics.watch(store)
+    os.environ[PLAN_PROCESSES] = str(settings.plan_processes())
+    runner = JobRunner(store, solve or load_function(settings.solve_function),
+                       owner=settings.instance, workers=settings.workers,
+                       max_queued=settings.max_queued, retry_after=settings.retry_after,
+                       memory_mb=settings.worker_memory_mb,
+                       grace=settings.wall_time_grace, log_level=settings.log_level,
+                       on_done=app.state.metrics.job_done, lease=settings.lease,
+                       retention=(86400.0 * settings.retention_days,
+                                  settings.retention_count))
+    try:
+        runner.start()
+    except StoreUnavailable as exc:
+        store.close()
+        refuse(app, exc)
+    return runner
+
+
 def _add_middleware(app: FastAPI, settings: Settings) -> None:
     """The app's middleware, innermost first: a request passes the request id, the metrics,
-    the API key, the body limit and the catch-all for unexpected errors, in that order."""
+    the API key, the body limit and the catch-all for unexpected errors, in that order;
+    the lifespan passes `QuietRefusal`."""
     app.add_middleware(errors.UnexpectedErrorMiddleware)
     app.add_middleware(BodyLimitMiddleware, limit=settings.max_body_bytes,
                        timeout=settings.read_timeout)
     app.add_middleware(ApiKeyMiddleware, key=settings.api_key)
     app.add_middleware(MetricsMiddleware, metrics=app.state.metrics)
     app.add_middleware(RequestIdMiddleware)
+    app.add_middleware(QuietRefusal)
 
 
 async def _store_unavailable(request: Request, exc: StoreUnavailable) -> JSONResponse:

@@ -32,7 +32,8 @@ class Settings(BaseSettings):
     instance: str = Field(default_factory=socket.gethostname,
                           description="name of this server; jobs its own workers leave "
                                       "running are requeued when a server of that "
-                                      "name starts")
+                                      "name starts. One live server of a name per store: "
+                                      "a second one refuses to start")
     workers: int = Field(default=2, ge=0, le=64, description=(
         "solver worker processes of this server (0: an API-only server, whose jobs "
         "`undertow worker` processes run)"))

@@ -42,21 +42,38 @@ class LiveServer:
     def url(self) -> str:
         return f"http://127.0.0.1:{self.port}"
 
-    def start(self, timeout: float = 60.0) -> Self:
+    def _spawn(self) -> subprocess.Popen:
+        """The server's process, started (its output appended to `log`)."""
         with open(self.log, "ab") as log:
             self.proc = subprocess.Popen(
                 [sys.executable, "-m", "uvicorn", "app.main:app", "--host", "127.0.0.1",
                  "--port", str(self.port), "--no-access-log", "--http", PROTOCOL],
                 cwd=ROOT, env=self.env, stdout=log, stderr=subprocess.STDOUT,
                 start_new_session=True)
+        return self.proc
+
+    def start(self, timeout: float = 60.0) -> Self:
+        proc = self._spawn()
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
-            assert self.proc.poll() is None, f"server exited: {self.log.read_text()[-3000:]}"
+            assert proc.poll() is None, f"server exited: {self.log.read_text()[-3000:]}"
             with contextlib.suppress(httpx.HTTPError):
                 if httpx.get(self.url + "/healthz", timeout=1).status_code == 200:
                     return self
             time.sleep(0.1)
         raise AssertionError(f"server did not come up: {self.log.read_text()[-3000:]}")
+
+    def refused(self, timeout: float = 60.0) -> int:
+        """Start the server and wait for it to exit on its own (a start that is refused);
+        its exit status (AssertionError if it is still running after `timeout` s)."""
+        proc = self._spawn()
+        try:
+            return proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+            raise AssertionError(
+                f"the server kept running: {self.log.read_text()[-3000:]}") from None
 
     def stop(self, sig: int = signal.SIGTERM, timeout: float = 30.0) -> None:
         """Send `sig` to the server process only (its workers are left to notice)."""

@@ -215,6 +215,32 @@ def test_sigterm_releases_running_jobs_and_keeps_queued_ones_queued(tmp_path):
         assert [wait_final(api, j)["status"] for j in [running, *queued]] == ["succeeded"] * 4
 
 
+@pytest.mark.parametrize("name", ["e2e", "other"])
+def test_a_second_server_that_cannot_start_leaves_the_first_ones_job_alone(tmp_path, name):
+    """`make serve` twice in one checkout: the second server, of the same name or another,
+    on the same store and port, exits without touching the job the first one runs."""
+    first = fake_server(tmp_path)
+    with first, httpx.Client(base_url=first.url, timeout=30) as api:
+        job_id = post(api, iterations=250)  # 5 s
+        wait_for(api, job_id, solving)
+        second = LiveServer(first.db_path, port=first.port, UNDERTOW_INSTANCE=name,
+                            UNDERTOW_WORKERS="1",
+                            UNDERTOW_SOLVE_FUNCTION="testbed.fake_solvers:fake_plan")
+        second.log = tmp_path / "second.log"
+        assert second.refused() != 0, second.log.read_text()
+        said = second.log.read_text()
+        assert "Traceback" not in said
+        assert (name != "e2e" or "another server named 'e2e' runs on the job store" in said)
+        during = api.get(f"/v1/plans/{job_id}").json()
+        assert (during["status"], during["attempts"], during["infra_failures"]) == (
+            "running", 1, 0), during
+        assert [e["event"] for e in during["history"]] == ["claimed"]
+        done = wait_final(api, job_id)
+        assert (done["status"], done["attempts"], done["infra_failures"]) == (
+            "succeeded", 1, 0), done
+        assert api.get("/healthz").status_code == 200
+
+
 def test_ctrl_c_stops_server_and_workers_with_json_log_lines_only(tmp_path):
     live = fake_server(tmp_path)
     with live, httpx.Client(base_url=live.url, timeout=30) as api:

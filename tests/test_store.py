@@ -20,6 +20,7 @@ from app.store import (
     BUILDING,
     DuplicateKey,
     JobStore,
+    NameTaken,
     RetryPolicy,
     SqliteJobStore,
     StoreDamaged,
@@ -125,6 +126,16 @@ def test_recover_requeues_only_the_owners_running_jobs_held_by_its_workers(store
     assert mine.history[-1]["reason"] == "the server stopped while it ran"
     assert {store.get(j).status for j in ("other", "waiting", "remote")} == {"running"}
     assert store.get("last").status == "queued"
+
+
+def test_a_server_name_is_held_by_one_live_server_at_a_time(store):
+    held = store.hold_name("a")
+    with pytest.raises(NameTaken, match="another server named 'a' runs on the job store"):
+        reopen(store).hold_name("a")
+    other = reopen(store).hold_name("b")  # another name, on the same store
+    held.release()
+    reopen(store).hold_name("a").release()
+    other.release()
 
 
 def test_claims_take_the_oldest_queued_job_of_the_owner_and_say_building(store):

@@ -10,11 +10,13 @@ from app.store.base import (
     STATUSES,
     BatchRecord,
     DuplicateKey,
+    Held,
     JobRecord,
     JobStatus,
     JobStore,
     Listener,
     MemberRecord,
+    NameTaken,
     RetryPolicy,
     StoreDamaged,
     StoreUnavailable,
@@ -23,6 +25,6 @@ from app.store.base import (
 from app.store.sqlite import SqliteJobStore
 
 __all__ = ["BUILDING", "CANCELLED_ON_REQUEST", "DEAD_LETTER", "FINAL", "INTERRUPTED",
-           "STATUSES", "BatchRecord", "DuplicateKey", "JobRecord", "JobStatus", "JobStore",
-           "Listener", "MemberRecord", "RetryPolicy", "SqliteJobStore", "StoreDamaged",
-           "StoreUnavailable", "WorkerRecord"]
+           "STATUSES", "BatchRecord", "DuplicateKey", "Held", "JobRecord", "JobStatus",
+           "JobStore", "Listener", "MemberRecord", "NameTaken", "RetryPolicy", "SqliteJobStore",
+           "StoreDamaged", "StoreUnavailable", "WorkerRecord"]

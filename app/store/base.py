@@ -70,6 +70,17 @@ class StoreDamaged(StoreUnavailable):
     """The store failed its integrity check; the service must not start on it."""
 
 
+class NameTaken(StoreUnavailable):
+    """A live server of the same name already runs on the store (`JobStore.hold_name`)."""
+
+
+class Held(Protocol):
+    """A server name held on a store (`JobStore.hold_name`) until `release`."""
+
+    def release(self) -> None:
+        """Give the name back (it is given back anyway when the process ends)."""
+
+
 @dataclass(frozen=True)
 class JobRecord:
     """One stored job. Times are Unix seconds; scene, progress and plan are JSON objects.
@@ -255,6 +266,12 @@ class JobStore(ABC):
     def expire(self, now: float) -> dict[str, JobStatus]:
         """`requeue` the running jobs whose lease ended before `now` (their worker or
         node was lost); {job id: new status}."""
+
+    @abstractmethod
+    def hold_name(self, name: str) -> Held:
+        """Hold server name `name` on this store while this process runs it (NameTaken
+        when a live process holds it already): a server takes its name before it touches
+        a job, since it treats its name's running jobs as its own."""
 
     @abstractmethod
     def recover(self, owner: str) -> dict[str, JobStatus]:

@@ -40,6 +40,7 @@ from app.store.base import (
     DuplicateKey,
     JobRecord,
     MemberRecord,
+    NameTaken,
     RetryPolicy,
     StoreUnavailable,
 )
@@ -99,6 +100,35 @@ def _execute(conn: psycopg.Connection, sql: str) -> builtins.list[tuple]:
 def _lock_key(owner: str) -> int:
     """The advisory lock key of an owner's job count (a signed 32-bit hash)."""
     return zlib.crc32(owner.encode()) - 2**31
+
+
+_NAME_LOCKS = 0x756E6476  # first key of the advisory locks of server names ("undv")
+
+
+class NameLock:
+    """Server name `name` held in the database at `url` by a session advisory lock on a
+    connection of its own, kept open until `release` (NameTaken when another session
+    holds it). The lock ends with the session: a server that loses its connection to
+    the database loses its name with it."""
+
+    def __init__(self, url: str, name: str, where: str, timeout: float):
+        try:
+            self._conn = psycopg.connect(url, autocommit=True,
+                                         connect_timeout=max(1, int(timeout)))
+            (held,) = _one(self._conn.execute("SELECT pg_try_advisory_lock(%s, %s)",
+                                              (_NAME_LOCKS, _lock_key(name))))
+        except psycopg.Error as exc:
+            raise StoreUnavailable(f"the job store ({where}) failed: {exc}") from exc
+        if not held:
+            self._conn.close()
+            raise NameTaken(
+                f"another server named {name!r} runs on the job store ({where}): a second "
+                "server of that name would take its running jobs for its own. Stop that "
+                "server first, or give this one another name (UNDERTOW_INSTANCE)")
+
+    def release(self) -> None:
+        """End the session, and the lock with it."""
+        self._conn.close()
 
 
 class PostgresSql(SqlJobStore):
@@ -306,6 +336,9 @@ class PostgresSql(SqlJobStore):
         id_, spec, owner, created = row
         return BatchRecord(id=id_, spec=spec, owner=owner, created=created,
                            members=[_member(m) for m in members])
+
+    def hold_name(self, name: str) -> NameLock:
+        return NameLock(self.url, name, self._where(), self.timeout)
 
     def check(self) -> None:
         """Read the newest job through the pool (a new connection if the old ones broke)."""

@@ -41,6 +41,7 @@ from app.store.base import (
 from app.store.migrations import migrate, version
 from app.store.sql import COLUMNS, LEASE_RAN_OUT, SqlJobStore, history
 from app.store.sqlite_file import SqliteFile
+from app.store.sqlite_locks import NameLock
 
 log = logging.getLogger("undertow.store")
 
@@ -253,6 +254,10 @@ class SqliteJobStore(SqlJobStore):
                              "ORDER BY member", (batch_id,))
         return BatchRecord(id=id_, spec=_loads(spec), owner=owner, created=created,
                            members=[_member(row) for row in members])
+
+    def hold_name(self, name: str) -> NameLock:
+        """The lock file of server name `name` beside the store (`app.store.sqlite_locks`)."""
+        return NameLock(self.path, name)
 
     def listen(self) -> None:
         """None: SQLite cannot announce a queued job to another process, so an idle worker
