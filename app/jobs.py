@@ -21,7 +21,7 @@ from typing import Any
 from anyio import to_thread
 
 from app.job_run import SolveFunction
-from app.store import FINAL, Held, JobStore, StoreUnavailable
+from app.store import FINAL, Held, JobStore, StoreDamaged, StoreUnavailable
 from app.supervisor import Supervisor
 from app.worker_pipe import JobEnd
 
@@ -146,9 +146,13 @@ class JobRunner:
             self._on_done(end)
 
     def problem(self) -> str | None:
-        """Why this server cannot take or run jobs (store or workers), or None."""
+        """Why this server cannot take or run jobs (store or workers), or None; a store
+        that failed its integrity check raises StoreDamaged, which has an answer of its
+        own (`app.main`)."""
         try:
             self.store.check()
+        except StoreDamaged:
+            raise
         except StoreUnavailable as exc:
             return str(exc)
         return self.supervisor.problem

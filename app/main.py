@@ -32,7 +32,7 @@ from app.openapi import document
 from app.refusal import QuietRefusal, refuse
 from app.routes import batches, dynamics, examples, health, plans, plots, samples, workers
 from app.settings import PLAN_PROCESSES, Settings, get_settings
-from app.store import StoreUnavailable
+from app.store import StoreDamaged, StoreUnavailable
 from app.store.open import open_store
 from app.sync_memory import MemoryBudget
 from app.worker import load_function
@@ -120,8 +120,11 @@ def _add_middleware(app: FastAPI, settings: Settings) -> None:
 
 
 async def _store_unavailable(request: Request, exc: StoreUnavailable) -> JSONResponse:
-    """503 for any request that needed the job store while it could not be used."""
+    """503 for any request that needed the job store while it could not be used, or
+    once it was found damaged (type store-damaged)."""
     log.error("%s", exc)
+    if isinstance(exc, StoreDamaged):
+        return errors.problem(request, health.damaged(str(exc)))
     return errors.problem(request, health.unavailable(str(exc), request.app.state.settings))
 
 

@@ -30,7 +30,9 @@ _DESCRIPTIONS = {
 
 
 UNAVAILABLE = ("the job store or the solver workers cannot be used (type unavailable; "
-               "`detail` says why); retry after the Retry-After header's seconds")
+               "`detail` says why); retry after the Retry-After header's seconds. Type "
+               "store-damaged: the job store failed its integrity check, and no job is "
+               "accepted until the service is restarted on a sound store (`detail` says how)")
 """The 503 of the health, metrics and plan endpoints."""
 
 BUDGET = (f"{_DESCRIPTIONS[422]}; or type budget-exceeded: the computation ran out of its "

@@ -74,6 +74,10 @@ class Settings(BaseSettings):
         "days a finished job (its plan, its history) is kept after it ended"))
     retention_count: int = Field(default=100_000, ge=1, description=(
         "finished jobs kept at most: older ones beyond this count are deleted"))
+    integrity_interval: float = Field(default=300.0, ge=1.0, description=(
+        "seconds between two full integrity checks (PRAGMA integrity_check) of the SQLite "
+        "store by each server and worker node; a quick check runs besides whenever the file "
+        "changed since the last one passed, before a job is accepted"))
     max_batch_members: int = Field(default=200, ge=1, le=1000, description=(
         "plans one batch (POST /v1/batches) may create; a batch may take the server this "
         "many plans beyond UNDERTOW_MAX_QUEUED"))

@@ -13,7 +13,9 @@ and holds it to three bounds:
   job alone, which is requeued at once (`JobStore.requeue`: after a pause, up to
   UNDERTOW_MAX_RETRIES times, then a dead letter).
 
-Every `PURGE_INTERVAL` it deletes the finished jobs past their retention (age or count).
+Every round it has the store verify its integrity (`JobStore.verify`: a check whenever
+one is due), so that damage is found without waiting for a request; every
+`PURGE_INTERVAL` it deletes the finished jobs past their retention (age or count).
 It also renews the leases of the jobs it knows its workers run (by job and worker, reading
 their cancel flags in the same statement) and settles jobs whose lease ran out, of any
 server or worker sharing the store (`JobStore.expire`, an infrastructure failure too). A
@@ -259,6 +261,7 @@ class Supervisor:
         if self.count and now >= self._next_heartbeat:
             self._next_heartbeat = now + HEARTBEAT
             self.store.heartbeat(self.owner, self.count, self.busy(), self._started)
+        self.store.verify()
         if self.retention is not None and now >= self._next_purge:
             self._next_purge = now + PURGE_INTERVAL
             age, keep = self.retention

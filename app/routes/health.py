@@ -1,5 +1,5 @@
 """Health and Prometheus metrics: both answer 503 while the job store or the solver
-workers cannot be used."""
+workers cannot be used, or the store was found damaged."""
 
 from __future__ import annotations
 
@@ -25,9 +25,15 @@ def unavailable(detail: str, settings: Settings) -> ApiError:
                     headers={"Retry-After": str(settings.retry_after)})
 
 
+def damaged(detail: str) -> ApiError:
+    """The 503 of a service whose job store failed its integrity check: no Retry-After,
+    since waiting does not mend it (`detail` says what does)."""
+    return ApiError(503, "store-damaged", "The job store is damaged", detail)
+
+
 async def _available(runner: JobRunner, settings: Settings) -> None:
     """503 when the job store or the solver workers cannot be used (checked off the
-    event loop: it reads the store)."""
+    event loop: it reads the store; a damaged store raises StoreDamaged, `damaged`)."""
     problem = await run_in_threadpool(runner.problem)
     if problem is not None:
         raise unavailable(problem, settings)

@@ -334,6 +334,11 @@ class JobStore(ABC):
         """Raise StoreUnavailable (with the reason) unless the store can be used."""
 
     @abstractmethod
+    def verify(self) -> None:
+        """Raise StoreDamaged when the store fails the integrity check due now (cheap when
+        none is due); one found damaged stays damaged for this process."""
+
+    @abstractmethod
     def checkpoint(self, final: bool = False) -> None:
         """Make every committed change durable in the store's main file (`final`: also
         when shutting down, leaving nothing in side files)."""

@@ -18,4 +18,5 @@ def open_store(settings: Settings) -> JobStore:
         from app.store.postgres import PostgresJobStore  # psycopg only where it is used
 
         return PostgresJobStore(settings.db_url, policy=policy, lease=settings.lease)
-    return SqliteJobStore(settings.db_path, policy=policy)
+    return SqliteJobStore(settings.db_path, policy=policy,
+                          integrity_interval=settings.integrity_interval)

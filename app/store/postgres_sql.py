@@ -344,6 +344,10 @@ class PostgresSql(SqlJobStore):
         """Read the newest job through the pool (a new connection if the old ones broke)."""
         self._rows("SELECT id FROM jobs ORDER BY created DESC LIMIT 1")
 
+    def verify(self) -> None:
+        """Nothing to do: PostgreSQL checks its own pages as it reads them (checksums,
+        when the cluster has them) and reports damage as an error of the statement."""
+
     def checkpoint(self, final: bool = False) -> None:
         """Nothing to do: PostgreSQL makes every committed change durable itself."""
 

@@ -8,8 +8,11 @@ Its queue is its own: a claim is one conditional UPDATE of the oldest queued job
 lease until the time it writes, which the supervisor renews; `expire` requeues the claims
 whose lease ended. Nothing announces a queued job to another process (`listen`).
 
-Opening the store checks its integrity (`PRAGMA quick_check`) and brings its schema up to
-date (`app.store.migrations`; `PRAGMA user_version` counts the migrations applied). The
+Opening the store checks its integrity (`app.store.sqlite_integrity`: `PRAGMA
+integrity_check`) and brings its schema up to date (`app.store.migrations`; `PRAGMA
+user_version` counts the migrations applied); a job is accepted (`create`, `create_batch`,
+`retry`) and the store's health checked (`check`) only after `verify`, the same module's
+check of the file as it is now. The
 write-ahead log is moved into the database file at least every `checkpoint_interval`
 seconds of writes and entirely on shutdown, so the `-wal` file never holds more than that
 interval's jobs.
@@ -35,12 +38,12 @@ from app.store.base import (
     JobStatus,
     MemberRecord,
     RetryPolicy,
-    StoreDamaged,
     StoreUnavailable,
 )
 from app.store.migrations import migrate, version
 from app.store.sql import COLUMNS, LEASE_RAN_OUT, SqlJobStore, history
 from app.store.sqlite_file import SqliteFile
+from app.store.sqlite_integrity import Integrity
 from app.store.sqlite_locks import NameLock
 
 log = logging.getLogger("undertow.store")
@@ -82,40 +85,30 @@ class SqliteJobStore(SqlJobStore):
     Raises StoreDamaged when the file fails its integrity check."""
 
     def __init__(self, path: str | os.PathLike, busy_timeout: float = 30.0,
-                 checkpoint_interval: float = 60.0, policy: RetryPolicy | None = None):
+                 checkpoint_interval: float = 60.0, policy: RetryPolicy | None = None,
+                 integrity_interval: float = 300.0):
         self.file = SqliteFile(path, busy_timeout)
         self.path = self.file.path
         self.policy = policy or RetryPolicy()
         self.checkpoint_interval = checkpoint_interval
         self._checkpointed = time.monotonic()
-        self._verify()
+        self.integrity = Integrity(self.file, integrity_interval)
+        self.integrity.at_start()
         self._migrate()
         self.file.check_header = True
 
     def __getstate__(self) -> dict[str, Any]:
         return {"file": self.file, "checkpoint_interval": self.checkpoint_interval,
-                "policy": self.policy}
+                "policy": self.policy, "integrity_interval": self.integrity.interval}
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.file, self.path = state["file"], state["file"].path
         self.checkpoint_interval, self.policy = state["checkpoint_interval"], state["policy"]
         self._checkpointed = time.monotonic()
+        self.integrity = Integrity(self.file, state["integrity_interval"])
 
-    def _verify(self) -> None:
-        """StoreDamaged unless the file is a database that passes PRAGMA quick_check."""
-        try:
-            rows = self._rows("PRAGMA quick_check")
-        except StoreUnavailable as exc:
-            raise StoreDamaged(self._damaged(str(exc.__cause__ or exc))) from exc
-        findings = [" ".join(row[0].split()) for row in rows]
-        if findings != ["ok"]:
-            raise StoreDamaged(self._damaged("; ".join(findings[:5])))
-
-    def _damaged(self, finding: str) -> str:
-        return (f"the job store {self.path} failed its integrity check ({finding}); "
-                "refusing to start on it. Move the file (with its -wal and -shm files) "
-                "aside, keep it for recovery (`sqlite3 FILE .recover`), and start again "
-                "to begin with an empty store")
+    def verify(self) -> None:
+        self.integrity.verify()
 
     def _migrate(self) -> None:
         """Apply the migrations (`app.store.migrations`) this file has not had yet, in one
@@ -164,6 +157,7 @@ class SqliteJobStore(SqlJobStore):
     def create(self, job_id: str, scene: dict[str, Any], owner: str,
                limit: int | None = None, key: str | None = None,
                admission: dict[str, Any] | None = None) -> JobRecord | None:
+        self.integrity.verify()
         values = (job_id, _dumps(scene), owner, time.time(), key, _dumps(admission))
         held = ("" if limit is None else "WHERE (SELECT COUNT(*) FROM jobs WHERE owner = ? "
                 "AND status IN ('queued', 'running')) < ?")
@@ -226,6 +220,7 @@ class SqliteJobStore(SqlJobStore):
                      members: builtins.list[tuple[str, dict[str, Any]]], owner: str,
                      limit: int | None = None,
                      admissions: Sequence[dict[str, Any] | None] | None = None) -> bool:
+        self.integrity.verify()
         now, decided = time.time(), admissions or [None] * len(members)
         with self.file.transaction(fresh=True) as conn:
             if limit is not None:
@@ -265,10 +260,14 @@ class SqliteJobStore(SqlJobStore):
         through their supervisor's pipe (WAKE) whenever the server queues a job."""
         return None
 
+    def retry(self, job_id: str, owner: str, limit: int | None = None) -> bool:
+        self.integrity.verify()
+        return super().retry(job_id, owner, limit)
+
     def check(self) -> None:
         """Check the files (database, write-ahead log, header) and read the schema, the
         newest job, the last row of the table and the count of its index through a new
-        connection, whose pages come from the file and not from a cache."""
+        connection, whose pages come from the file and not from a cache; then `verify`."""
         self.file.connection()
         try:
             with contextlib.closing(self.file.open()) as conn:
@@ -277,7 +276,8 @@ class SqliteJobStore(SqlJobStore):
                              "(SELECT max(rowid) FROM jobs)").fetchall()
                 conn.execute("SELECT status, COUNT(*) FROM jobs GROUP BY status").fetchall()
         except sqlite3.Error as exc:
-            raise StoreUnavailable(f"the job store {self.path} failed: {exc}") from exc
+            raise self.file.failure(exc) from exc
+        self.integrity.verify()
 
     def checkpoint(self, final: bool = False) -> None:
         self._checkpointed = time.monotonic()

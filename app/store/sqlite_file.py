@@ -4,10 +4,11 @@ the checks that it is still the file first opened.
 Each thread of each process opens its own connection on first use. Connections open the
 file read-write without creating it, and every statement first checks that the path still
 names the file opened: a store deleted or replaced under a running service is reported as
-unavailable instead of being silently recreated empty. So are a file overwritten in place
-(it no longer starts with SQLite's header) and a write-ahead log deleted or replaced (what
-the deleted one held is first moved into the database file, through the connections that
-still have it open).
+unavailable instead of being silently recreated empty, and so is a write-ahead log deleted
+or replaced (what the deleted one held is first moved into the database file, through the
+connections that still have it open). A file overwritten in place (it no longer starts
+with SQLite's header), or one SQLite reports damaged, is StoreDamaged
+(`app.store.sqlite_integrity` checks the rest of the file).
 """
 
 from __future__ import annotations
@@ -21,12 +22,19 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from app.store.base import StoreUnavailable
+from app.store.base import StoreDamaged, StoreUnavailable
 
 log = logging.getLogger("undertow.store")
 
 HEADER = b"SQLite format 3\0"
 """The first 16 bytes of every SQLite database file."""
+DAMAGED = (11, 26)
+"""SQLite's primary result codes for a damaged file: SQLITE_CORRUPT, SQLITE_NOTADB."""
+RESTART_OR_RESTORE = (
+    "no new job is accepted. Stop the service and start it again: the start checks the "
+    "store, and when it refuses it, restore the last backup (`undertow restore BACKUP`; "
+    "docs/deploy.md, \"Backups\")")
+"""What to do about a store found damaged while the service runs."""
 
 
 def _identity(path: str) -> tuple[int, int] | None:
@@ -49,6 +57,8 @@ class SqliteFile:
     def __init__(self, path: str | os.PathLike, busy_timeout: float = 30.0):
         self.path, self.busy_timeout = str(path), busy_timeout
         self.check_header = False
+        self.failures = 0
+        """Statements that failed so far in this process (`failure`)."""
         Path(self.path).parent.mkdir(parents=True, exist_ok=True)
         sqlite3.connect(self.path).close()  # creates an empty file if there is none
         self._identity = _identity(self.path)
@@ -62,6 +72,7 @@ class SqliteFile:
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.path, self.busy_timeout = state["path"], state["busy_timeout"]
         self._identity, self.check_header = state["identity"], True
+        self.failures = 0
         self._local = threading.local()
         self._wal_state()
 
@@ -89,25 +100,26 @@ class SqliteFile:
         conn.execute("PRAGMA synchronous=NORMAL")
         return conn
 
-    def _verify_header(self) -> None:
-        """StoreUnavailable unless the file still starts with SQLite's header (it was not
-        overwritten in place since the store was opened). The header is read through a
+    def header(self) -> bytes:
+        """The first 16 bytes of the file (b"" while it is empty), read through a
         descriptor this process keeps open: closing any descriptor of the file would drop
         the process's POSIX locks on it, and with them SQLite's knowledge that this
         process still uses the write-ahead log."""
-        if not self.check_header:
-            return
         try:
             with self._wal_lock:
                 if self._header_fd is None or self._header_fd[0] != os.getpid():
                     self._header_fd = (os.getpid(), os.open(self.path, os.O_RDONLY))
-                header = os.pread(self._header_fd[1], 16, 0)
+                return os.pread(self._header_fd[1], 16, 0)
         except OSError as exc:
             raise StoreUnavailable(f"the job store {self.path} cannot be read: {exc}") from exc
-        if header != HEADER:
-            raise StoreUnavailable(f"the job store file {self.path} was overwritten while the "
-                                   "service ran (it no longer starts with SQLite's header); "
-                                   "restart the service")
+
+    def _verify_header(self) -> None:
+        """StoreDamaged unless the file still starts with SQLite's header (it was not
+        overwritten in place since the store was opened)."""
+        if self.check_header and self.header() != HEADER:
+            raise StoreDamaged(f"the job store file {self.path} was overwritten while the "
+                               "service ran (it no longer starts with SQLite's header); "
+                               f"{RESTART_OR_RESTORE}")
 
     def connection(self) -> sqlite3.Connection:
         """This thread's connection (a new one after a fork); every use checks that the
@@ -176,7 +188,16 @@ class SqliteFile:
         except sqlite3.IntegrityError:
             raise
         except sqlite3.Error as exc:
-            raise StoreUnavailable(f"the job store {self.path} failed: {exc}") from exc
+            raise self.failure(exc) from exc
+
+    def failure(self, exc: sqlite3.Error) -> StoreUnavailable:
+        """What a failed statement means for the service (counted in `failures`):
+        StoreDamaged when SQLite found the file damaged, else StoreUnavailable."""
+        self.failures += 1
+        if getattr(exc, "sqlite_errorcode", 0) & 0xFF in DAMAGED:
+            return StoreDamaged(f"the job store {self.path} is damaged ({exc}); "
+                                f"{RESTART_OR_RESTORE}")
+        return StoreUnavailable(f"the job store {self.path} failed: {exc}")
 
     @contextlib.contextmanager
     def transaction(self, fresh: bool = False) -> Iterator[sqlite3.Connection]:
@@ -200,7 +221,7 @@ class SqliteFile:
         except sqlite3.IntegrityError:
             raise
         except sqlite3.Error as exc:
-            raise StoreUnavailable(f"the job store {self.path} failed: {exc}") from exc
+            raise self.failure(exc) from exc
 
     def close(self) -> None:
         """Close this thread's connection (the write-ahead log may go with the last one)."""
