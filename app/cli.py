@@ -1,12 +1,14 @@
 """The installed `undertow` command: the library's commands (`planner.cli`); `serve`, which
 runs the HTTP service and the viewer under uvicorn; `worker`, a node of solver processes
-for a shared job store (`app.worker_node`); and `sweep`, which submits a batch to a
-running service and prints its summary (`app.sweep_client`)."""
+for a shared job store (`app.worker_node`); `sweep`, which submits a batch to a running
+service and prints its summary (`app.sweep_client`); and `backup` and `restore` of the
+SQLite job store (`app.store.sqlite_backup`)."""
 
 from __future__ import annotations
 
 import argparse
 import os
+import sys
 
 from planner import cli
 
@@ -39,6 +41,47 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     from app import sweep_client
 
     return sweep_client.run(args)
+
+
+def _store_path(args: argparse.Namespace) -> str:
+    """The SQLite job store a backup or restore works on (--db, else UNDERTOW_DB_PATH);
+    BackupFailed for a PostgreSQL store, which has its own tools."""
+    from app.settings import get_settings
+    from app.store.sqlite_backup import BackupFailed
+
+    settings = get_settings()
+    if args.db is None and settings.db_url:
+        raise BackupFailed("the job store is PostgreSQL (UNDERTOW_DB_URL): back it up and "
+                           "restore it with PostgreSQL's tools (pg_dump, pg_restore)")
+    return args.db or settings.db_path
+
+
+def cmd_backup(args: argparse.Namespace) -> int:
+    """A checked copy of the SQLite job store at PATH, taken while the service runs."""
+    from app.store.sqlite_backup import BackupFailed, backup
+
+    try:
+        copy = backup(_store_path(args), args.path)
+    except (BackupFailed, OSError) as exc:
+        print(f"undertow backup: {exc}", file=sys.stderr)
+        return cli.IO_ERROR
+    print(f"backed up {copy.jobs} jobs ({copy.size / 1e6:.1f} MB) to {copy.path}")
+    return cli.OK
+
+
+def cmd_restore(args: argparse.Namespace) -> int:
+    """The backup at PATH in the place of the SQLite job store (the service stopped)."""
+    from app.store.sqlite_backup import BackupFailed, restore
+
+    try:
+        copy = restore(args.path, _store_path(args))
+    except (BackupFailed, OSError) as exc:
+        print(f"undertow restore: {exc}", file=sys.stderr)
+        return cli.IO_ERROR
+    aside = "".join(f"\n  {name}" for name in copy.aside) or " (there was none)"
+    print(f"restored {copy.jobs} jobs ({copy.size / 1e6:.1f} MB) from {args.path} to "
+          f"{copy.path}; the store's earlier files were moved aside:{aside}")
+    return cli.OK
 
 
 def positive(text: str) -> int:
@@ -98,6 +141,35 @@ def add_serve(commands: cli.Commands) -> None:
     sweep.set_defaults(run=cmd_sweep)
 
 
+BACKUP_CODES = f"""exit codes:
+  {cli.OK}    the copy passed its integrity check and is in place
+  {cli.BAD_INPUT}    wrong option
+  {cli.IO_ERROR}    nothing was replaced: the store could not be copied (it is damaged, or a
+       PostgreSQL one), the copy failed its check, the store is in use (restore),
+       or a file could not be read or written; stderr says which"""
+
+
+def add_backup(commands: cli.Commands) -> None:
+    """The `backup` and `restore` commands of the SQLite job store."""
+    store = argparse.ArgumentParser(add_help=False)
+    store.add_argument("--db", default=None, metavar="STORE",
+                       help="the SQLite job store (default UNDERTOW_DB_PATH)")
+    backup = commands.add_parser(
+        "backup", parents=[store], epilog=BACKUP_CODES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        help="copy the SQLite job store to PATH while the service runs (checked, compact)")
+    backup.add_argument("path", metavar="PATH", help="the backup file (replaced once the "
+                                                     "new copy passed its check)")
+    backup.set_defaults(run=cmd_backup)
+    restore = commands.add_parser(
+        "restore", parents=[store], epilog=BACKUP_CODES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        help="put the backup at PATH in the place of the SQLite job store (stop the "
+             "service first; the store's files are moved aside)")
+    restore.add_argument("path", metavar="PATH", help="a file `undertow backup` wrote")
+    restore.set_defaults(run=cmd_restore)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run `undertow` with `argv` (default: the command line); returns the exit code."""
-    return cli.main(argv, add_serve)
+    return cli.main(argv, add_serve, add_backup)

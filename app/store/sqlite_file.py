@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from app.store.base import StoreDamaged, StoreUnavailable
+from app.store.sqlite_locks import hold_shared, release
 
 log = logging.getLogger("undertow.store")
 
@@ -82,6 +83,7 @@ class SqliteFile:
         self._wal_lock = threading.Lock()
         self._connections: list[sqlite3.Connection] = []
         self._header_fd: tuple[int, int] | None = None  # (pid, descriptor), never closed
+        self._in_use = False  # whether the descriptor holds its shared lock
 
     @property
     def wal_path(self) -> str:
@@ -100,23 +102,32 @@ class SqliteFile:
         conn.execute("PRAGMA synchronous=NORMAL")
         return conn
 
+    def _descriptor(self) -> int:
+        """This process's own descriptor of the file, holding a shared flock(2) lock on it
+        (`app.store.sqlite_locks`: the store is in use) while the store has connections.
+        It is never closed: closing any descriptor of the file would drop the process's
+        POSIX locks on it, and with them SQLite's knowledge that this process still uses
+        the write-ahead log."""
+        if self._header_fd is None or self._header_fd[0] != os.getpid():
+            self._header_fd = (os.getpid(), os.open(self.path, os.O_RDONLY))
+            self._in_use = False
+        if not self._in_use:
+            hold_shared(self._header_fd[1])
+            self._in_use = True
+        return self._header_fd[1]
+
     def header(self) -> bytes:
-        """The first 16 bytes of the file (b"" while it is empty), read through a
-        descriptor this process keeps open: closing any descriptor of the file would drop
-        the process's POSIX locks on it, and with them SQLite's knowledge that this
-        process still uses the write-ahead log."""
+        """The first 16 bytes of the file (b"" while it is empty)."""
         try:
             with self._wal_lock:
-                if self._header_fd is None or self._header_fd[0] != os.getpid():
-                    self._header_fd = (os.getpid(), os.open(self.path, os.O_RDONLY))
-                return os.pread(self._header_fd[1], 16, 0)
+                return os.pread(self._descriptor(), 16, 0)
         except OSError as exc:
             raise StoreUnavailable(f"the job store {self.path} cannot be read: {exc}") from exc
 
     def _verify_header(self) -> None:
         """StoreDamaged unless the file still starts with SQLite's header (it was not
-        overwritten in place since the store was opened)."""
-        if self.check_header and self.header() != HEADER:
+        overwritten in place since the store was opened); marks the store in use."""
+        if self.header() != HEADER and self.check_header:
             raise StoreDamaged(f"the job store file {self.path} was overwritten while the "
                                "service ran (it no longer starts with SQLite's header); "
                                f"{RESTART_OR_RESTORE}")
@@ -233,4 +244,7 @@ class SqliteFile:
                     self._connections.remove(conn)
                 if not self._connections:  # the log may go with the last connection
                     self._wal = None
+                    if self._in_use and self._header_fd is not None:
+                        release(self._header_fd[1])
+                        self._in_use = False
         self._local = threading.local()

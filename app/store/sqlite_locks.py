@@ -62,3 +62,23 @@ class NameLock:
         if self._fd is not None:
             os.close(self._fd)  # the lock ends with its file description
             self._fd = None
+
+
+def hold_shared(fd: int) -> None:
+    """A shared lock on the store's database file `fd` (the store is in use)."""
+    fcntl.flock(fd, fcntl.LOCK_SH)
+
+
+def release(fd: int) -> None:
+    """End this description's lock (the descriptor stays open)."""
+    fcntl.flock(fd, fcntl.LOCK_UN)
+
+
+def unused(fd: int) -> bool:
+    """Whether no process uses the store whose database file `fd` is: an exclusive lock
+    on it, held until `fd` is closed; False when some process holds a shared one."""
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return False
+    return True
