@@ -21,7 +21,7 @@ from typing import Any
 from anyio import to_thread
 
 from app.job_run import SolveFunction
-from app.store import FINAL, Held, JobStore, StoreDamaged, StoreUnavailable
+from app.store import FINAL, Held, JobStore, Retention, StoreDamaged, StoreUnavailable
 from app.supervisor import Supervisor
 from app.worker_pipe import JobEnd
 
@@ -53,7 +53,7 @@ class JobRunner:
                  max_queued: int, retry_after: int = 5, memory_mb: float | None = None,
                  grace: float = 30.0, log_level: str = "INFO",
                  on_done: Callable[[JobEnd], None] | None = None, lease: float = 60.0,
-                 retention: tuple[float, int] | None = None):
+                 retention: Retention | None = None):
         self.store, self.owner = store, owner
         self.capacity, self.retry_after = workers + max_queued, retry_after
         self._on_done = on_done

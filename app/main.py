@@ -96,8 +96,7 @@ def _start(app: FastAPI, settings: Settings, solve: SolveFunction | None) -> Job
                        memory_mb=settings.worker_memory_mb,
                        grace=settings.wall_time_grace, log_level=settings.log_level,
                        on_done=app.state.metrics.job_done, lease=settings.lease,
-                       retention=(86400.0 * settings.retention_days,
-                                  settings.retention_count))
+                       retention=settings.retention())
     try:
         runner.start()
     except StoreUnavailable as exc:

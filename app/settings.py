@@ -9,6 +9,8 @@ from functools import lru_cache
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from app.procmem import MB
+from app.store.base import Retention
 from planner.model import MAX_LINKS
 
 PLAN_PROCESSES = "UNDERTOW_SOLVER_PROCESSES"
@@ -74,6 +76,9 @@ class Settings(BaseSettings):
         "days a finished job (its plan, its history) is kept after it ended"))
     retention_count: int = Field(default=100_000, ge=1, description=(
         "finished jobs kept at most: older ones beyond this count are deleted"))
+    retention_mb: float = Field(default=1024.0, gt=0.0, description=(
+        "what the store may hold of finished jobs (their scenes, compressed plans and NLP "
+        "solutions, histories) [MB]: the oldest beyond are deleted"))
     integrity_interval: float = Field(default=300.0, ge=1.0, description=(
         "seconds between two full integrity checks (PRAGMA integrity_check) of the SQLite "
         "store by each server and worker node; a quick check runs besides whenever the file "
@@ -107,6 +112,11 @@ class Settings(BaseSettings):
     retry_after: int = Field(default=5, ge=1, description="Retry-After [s] when the queue is full")
     log_level: str = Field(default="INFO")
 
+
+    def retention(self) -> Retention:
+        """How long finished jobs are kept (UNDERTOW_RETENTION_DAYS, _COUNT, _MB)."""
+        return Retention(86400.0 * self.retention_days, self.retention_count,
+                         int(self.retention_mb * MB))
 
     def plan_processes(self) -> int:
         """Processes one plan may use (UNDERTOW_SOLVER_PROCESSES, else the machine's

@@ -15,7 +15,7 @@ and holds it to three bounds:
 
 Every round it has the store verify its integrity (`JobStore.verify`: a check whenever
 one is due), so that damage is found without waiting for a request; every
-`PURGE_INTERVAL` it deletes the finished jobs past their retention (age or count).
+`PURGE_INTERVAL` it deletes the finished jobs past their retention (age, count or bytes).
 It also renews the leases of the jobs it knows its workers run (by job and worker, reading
 their cancel flags in the same statement) and settles jobs whose lease ran out, of any
 server or worker sharing the store (`JobStore.expire`, an infrastructure failure too). A
@@ -42,7 +42,7 @@ from multiprocessing.connection import Connection, wait
 from multiprocessing.process import BaseProcess
 
 from app.job_run import SolveFunction
-from app.store import JobStatus, JobStore, StoreUnavailable
+from app.store import JobStatus, JobStore, Retention, StoreUnavailable
 from app.store_retry import persist
 from app.worker import WorkerSpec, serve
 from app.worker_pipe import READY, STOP, WAKE, Claimed, JobEnd
@@ -114,7 +114,7 @@ class Supervisor:
     def __init__(self, store: JobStore, solve: SolveFunction, owner: str, workers: int,
                  memory_mb: float | None, grace: float, log_level: str = "INFO",
                  on_done: Callable[[JobEnd], None] | None = None, lease: float = LEASE,
-                 any_owner: bool = False, retention: tuple[float, int] | None = None):
+                 any_owner: bool = False, retention: Retention | None = None):
         self.store, self.solve, self.owner = store, solve, owner
         self.count, self.memory_mb, self.grace = workers, memory_mb, grace
         self.log_level, self.on_done = log_level, on_done
@@ -264,8 +264,8 @@ class Supervisor:
         self.store.verify()
         if self.retention is not None and now >= self._next_purge:
             self._next_purge = now + PURGE_INTERVAL
-            age, keep = self.retention
-            purged = self.store.purge(time.time() - age, keep)
+            kept = self.retention
+            purged = self.store.purge(time.time() - kept.age, kept.count, kept.size)
             if purged:
                 log.info("%d finished jobs past their retention deleted", purged)
 

@@ -78,8 +78,7 @@ def run(settings: Settings, processes: int, stop: threading.Event | None = None,
     supervisor = Supervisor(store, load_function(settings.solve_function), name, processes,
                             settings.worker_memory_mb, settings.wall_time_grace,
                             settings.log_level, on_done=done, lease=settings.lease,
-                            any_owner=True, retention=(86400.0 * settings.retention_days,
-                                                       settings.retention_count))
+                            any_owner=True, retention=settings.retention())
     stop = stop or threading.Event()
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGTERM, signal.SIGINT):

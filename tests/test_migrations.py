@@ -109,6 +109,9 @@ def upgrades_keeping_its_rows(dialect: Dialect, older: int, execute: Execute,
     if older >= 4:
         execute("INSERT INTO batches (id, owner, created, spec) "
                 "VALUES ('b', 'host', 1.0, '{\"parameters\": []}')")
+        execute("INSERT INTO jobs (id, status, scene, plan, owner, created, batch, member) "
+                "VALUES ('member', 'succeeded', '{}', '{\"objective\": 1.5, "
+                "\"verification\": {\"verified\": true}}', 'host', 1.0, 'b', 0)")
     store = open_store()
     try:
         assert store.schema_version == SCHEMA_VERSION  # type: ignore[attr-defined]
@@ -118,8 +121,11 @@ def upgrades_keeping_its_rows(dialect: Dialect, older: int, execute: Execute,
             "succeeded", {"note": 1}, {"objective": 2.5}, 1.0, 3.0)
         assert (old.attempts, old.infra_failures, old.dead_letter, old.history) == (
             0, 0, False, None)
-        if older >= 4:
-            assert store.get_batch("b") is not None
+        if older >= 4:  # the summary's figures, from the plan's own columns since 9
+            batch = store.get_batch("b")
+            assert batch is not None
+            assert [(m.job_id, m.verified, m.objective) for m in batch.members] == [
+                ("member", True, 1.5)]
         assert old.admission is None  # its worker decides, as that version's did
         store.create("new", {"x": 1}, "host", key="k", admission={"issues": []})
         assert store.find_key("k") == "new"  # the latest columns are there

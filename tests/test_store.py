@@ -6,6 +6,7 @@ an unreachable server."""
 
 from __future__ import annotations
 
+import json
 import multiprocessing
 import os
 import pickle
@@ -414,6 +415,28 @@ def test_concurrent_claims_take_every_job_exactly_once(store):
     assert store.count_by_status()["succeeded"] == jobs
 
 
+def test_plans_are_stored_compressed_and_those_stored_as_text_still_read(sqlite):
+    plan = {"t": [0.1 * k for k in range(2000)], "objective": 2.5,
+            "verification": {"verified": True}}
+    solution = {"x": [1.0 / (k + 1) for k in range(500)]}
+    for job_id in ("new", "old"):
+        sqlite.create(job_id, SCENE, "host")
+        assert claim(sqlite) == job_id
+    assert sqlite.finish("new", "succeeded", plan, None, solution)
+    sqlite._rows("UPDATE jobs SET status = 'succeeded', plan = ?, solution = ? "  # as before
+                 "WHERE id = 'old'", (json.dumps(plan), json.dumps(solution)))
+    def stored(job_id: str, column: str) -> tuple[str, int]:
+        """How the column holds its value: SQLite's type, and its length [bytes]."""
+        return sqlite._rows(f"SELECT typeof({column}), length({column}) FROM jobs "
+                            "WHERE id = ?", (job_id,))[0]
+
+    for column in ("plan", "solution"):
+        (kind, size), (old_kind, old_size) = stored("new", column), stored("old", column)
+        assert (kind, old_kind) == ("blob", "text") and size < old_size / 2
+    for job_id in ("new", "old"):
+        assert (sqlite.get(job_id).plan, sqlite.solution(job_id)) == (plan, solution)
+
+
 def test_a_final_checkpoint_leaves_every_job_in_the_main_file(tmp_path):
     path = tmp_path / "db.sqlite3"
     store, reader = SqliteJobStore(path), SqliteJobStore(path)  # as two threads of a server
@@ -606,6 +629,22 @@ def test_finished_jobs_past_their_retention_are_deleted(store):
         store.finish(job_id, "failed", None, "x")
     assert store.purge(time.time() + 1, keep=100) == 3
     assert store.get_batch("b") is None  # no member left
+
+
+def test_finished_jobs_beyond_the_retention_in_bytes_are_deleted_oldest_first(store):
+    plan = {"t": [0.1 * k for k in range(3000)], "objective": 1.0}
+    for k in range(6):
+        store.create(f"j{k}", SCENE, "host")
+        assert claim(store) == f"j{k}"
+        assert store.finish(f"j{k}", "succeeded", plan, None, {"x": plan["t"]})
+    store.create("waiting", SCENE, "host")  # never deleted, and not counted
+    held = dict(store._rows(f"SELECT id, {store._stored_bytes()} FROM jobs "
+                            "WHERE status = 'succeeded'"))
+    assert min(held.values()) > 10_000  # the plans and solutions are counted
+    newest = held["j5"] + held["j4"] + held["j3"]
+    assert store.purge(0.0, keep=100, size=newest) == 3
+    assert sorted(r.id for r in store.list(limit=10)) == ["j3", "j4", "j5", "waiting"]
+    assert store.purge(0.0, keep=100, size=newest) == 0
 
 
 def test_heartbeats_list_the_live_workers(store):

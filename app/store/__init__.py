@@ -17,6 +17,7 @@ from app.store.base import (
     Listener,
     MemberRecord,
     NameTaken,
+    Retention,
     RetryPolicy,
     StoreDamaged,
     StoreUnavailable,
@@ -26,5 +27,6 @@ from app.store.sqlite import SqliteJobStore
 
 __all__ = ["BUILDING", "CANCELLED_ON_REQUEST", "DEAD_LETTER", "FINAL", "INTERRUPTED",
            "STATUSES", "BatchRecord", "DuplicateKey", "Held", "JobRecord", "JobStatus",
-           "JobStore", "Listener", "MemberRecord", "NameTaken", "RetryPolicy", "SqliteJobStore",
+           "JobStore", "Listener", "MemberRecord", "NameTaken", "Retention", "RetryPolicy",
+           "SqliteJobStore",
            "StoreDamaged", "StoreUnavailable", "WorkerRecord"]

@@ -58,6 +58,17 @@ class RetryPolicy:
         return min(self.max_backoff, self.backoff * 2.0 ** max(0, failures - 1))
 
 
+@dataclass(frozen=True)
+class Retention:
+    """How long finished jobs are kept: at most `age` seconds after they ended, the newest
+    `count` of them, and the newest within `size` bytes of what the store holds of them
+    (scene, plan, NLP solution, history). Queued and running jobs are always kept."""
+
+    age: float
+    count: int
+    size: int
+
+
 class StoreUnavailable(Exception):
     """The store cannot be used (file deleted or replaced, disk error, damaged database)."""
 
@@ -293,9 +304,11 @@ class JobStore(ABC):
         stored) when `owner` would then hold more than `limit` unfinished jobs."""
 
     @abstractmethod
-    def purge(self, before: float, keep: int) -> int:
-        """Delete the finished jobs that ended before `before` and those beyond the
-        newest `keep` finished ones (and batches left without members); how many jobs."""
+    def purge(self, before: float, keep: int, size: int | None = None) -> int:
+        """Delete the finished jobs that ended before `before`, those beyond the newest
+        `keep` finished ones, and those beyond the newest that the store holds within
+        `size` bytes (of their scenes, plans, NLP solutions and histories); then the
+        batches left without members. How many jobs."""
 
     @abstractmethod
     def heartbeat(self, name: str, processes: int, busy: int, started: float) -> None:

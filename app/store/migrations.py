@@ -123,6 +123,20 @@ STEPS: tuple[Step, ...] = (
             "does not decide again; NULL in jobs stored before", (
         "ALTER TABLE jobs ADD COLUMN admission {json}",
     )),
+    Step(9, "a plan's verdict and objective in columns of their own, which a batch's "
+            "summary reads (the SQLite store compresses plans from this version on); "
+            "filled from the stored plans of batch members, their only reader", (
+        "ALTER TABLE jobs ADD COLUMN verified {bool}",
+        "ALTER TABLE jobs ADD COLUMN objective {real}",
+    ), sqlite=(
+        "UPDATE jobs SET verified = json_extract(plan, '$.verification.verified'), "
+        "objective = json_extract(plan, '$.objective') "
+        "WHERE batch IS NOT NULL AND plan IS NOT NULL",
+    ), postgres=(
+        "UPDATE jobs SET verified = (plan->'verification'->>'verified')::boolean, "
+        "objective = (plan->>'objective')::double precision "
+        "WHERE batch IS NOT NULL AND plan IS NOT NULL",
+    )),
 )
 SCHEMA_VERSION = STEPS[-1].version
 """The version of a database that has had every step."""

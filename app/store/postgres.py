@@ -304,10 +304,10 @@ class PostgresJobStore(PostgresSql):
                 self._defer([(job_id, owner)])
             return True
 
-    def purge(self, before: float, keep: int) -> int:
+    def purge(self, before: float, keep: int, size: int | None = None) -> int:
         """undertow's purge, then the ended engine jobs no job links to any more."""
         with self._transaction():
-            purged = super().purge(before, keep)
+            purged = super().purge(before, keep, size)
             self._rows("DELETE FROM procrastinate_jobs q WHERE q.status IN ('succeeded', "
                        "'failed', 'cancelled', 'aborted') AND NOT EXISTS (SELECT 1 FROM "
                        "undertow_queue m WHERE m.queue_id = q.id)")

@@ -49,8 +49,7 @@ from app.store.sql import COLUMNS, SqlJobStore
 
 _MIGRATION_LOCK = 0x756E6474  # advisory lock key held while migrating ("undt")
 
-_MEMBER_COLUMNS = ("id, member, status, error, (plan->'verification'->>'verified')::boolean, "
-                   "(plan->>'objective')::double precision, started, finished")
+_MEMBER_COLUMNS = "id, member, status, error, verified, objective, started, finished"
 
 
 _NAMED = re.compile(r"(?<![:\w]):([a-z_]+)")
@@ -229,6 +228,15 @@ class PostgresSql(SqlJobStore):
 
     def _from_json(self, value: Any) -> Any:
         return value  # jsonb columns come back decoded
+
+    def _packed(self, value: Any) -> Jsonb | None:
+        """jsonb, which PostgreSQL compresses itself where it is large (TOAST)."""
+        return _jsonb(value)
+
+    def _stored_bytes(self) -> str:
+        """pg_column_size() of each column: its size as stored, compressed or not."""
+        return ("pg_column_size(scene) + COALESCE(pg_column_size(progress), 0) + "
+                "COALESCE(pg_column_size(plan), 0) + COALESCE(pg_column_size(solution), 0)")
 
     def _record(self, row: tuple) -> JobRecord:
         return _job(row)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import builtins
 import json
+import math
 import time
 from abc import abstractmethod
 from typing import Any
@@ -71,6 +72,11 @@ class SqlJobStore(JobStore):
         """A JSON column's value as read back."""
 
     @abstractmethod
+    def _packed(self, value: Any) -> Any:
+        """A plan or an NLP solution, the bulk of a job, as this database stores it (None
+        stays NULL); read back by `_from_json`."""
+
+    @abstractmethod
     def _record(self, row: tuple) -> JobRecord:
         """A row of COLUMNS as a job."""
 
@@ -105,12 +111,21 @@ class SqlJobStore(JobStore):
             counts[status] = count
         return counts
 
-    def purge(self, before: float, keep: int) -> int:
+    @abstractmethod
+    def _stored_bytes(self) -> str:
+        """The SQL of the bytes a job's row holds of its scene, plan, NLP solution and
+        history, as this database stores them."""
+
+    def purge(self, before: float, keep: int, size: int | None = None) -> int:
         final = "status IN ('succeeded', 'failed', 'cancelled')"
         rows = self._write(
             f"DELETE FROM jobs WHERE {final} AND (finished < :before OR id IN (SELECT id "
-            f"FROM jobs WHERE {final} ORDER BY finished DESC, id LIMIT :all OFFSET :keep)) "
-            "RETURNING id", {"before": before, "keep": keep, "all": 2**62})
+            f"FROM jobs WHERE {final} ORDER BY finished DESC, id LIMIT :all OFFSET :keep) "
+            f"OR id IN (SELECT id FROM (SELECT id, SUM({self._stored_bytes()}) OVER (ORDER BY "
+            f"finished DESC, id ROWS UNBOUNDED PRECEDING) AS held FROM jobs WHERE {final}) "
+            "AS newest WHERE held > :size)) RETURNING id",
+            {"before": before, "keep": keep, "all": 2**62,
+             "size": 2**62 if size is None else size})
         if rows:
             self._write("DELETE FROM batches WHERE NOT EXISTS (SELECT 1 FROM jobs "
                         "WHERE jobs.batch = batches.id) RETURNING id")
@@ -222,7 +237,8 @@ class SqlJobStore(JobStore):
                 "('queued', 'running')) < :limit" if limited else "")
         return (
             "UPDATE jobs SET status = 'queued', owner = :owner, error = NULL, plan = NULL, "
-            "solution = NULL, progress = NULL, started = NULL, finished = NULL, "
+            "solution = NULL, verified = NULL, objective = NULL, progress = NULL, "
+            "started = NULL, finished = NULL, "
             "worker = NULL, lease_until = NULL, not_before = NULL, "
             "cancel_requested = (1 = 0), dead_letter = (1 = 0), infra_failures = 0, "
             f"history = {self._push(event('retried', 'CAST(NULL AS TEXT)'))} "
@@ -245,11 +261,13 @@ class SqlJobStore(JobStore):
                worker: str | None = None) -> bool:
         rows = self._write(
             "UPDATE jobs SET status = :status, plan = :plan, error = :error, finished = :now, "
-            f"solution = :solution, lease_until = NULL, "
+            "solution = :solution, lease_until = NULL, verified = :verified, "
+            "objective = :objective, "
             f"history = {self._push(event('finished', reason='CAST(:status AS TEXT)'))} "
             f"WHERE id = :id AND status = 'running' AND {NO_WORKER_OR} RETURNING id",
-            {"status": status, "plan": self._json(plan), "error": error, "now": time.time(),
-             "solution": self._json(solution), "id": job_id, "worker": worker})
+            {"status": status, "plan": self._packed(plan), "error": error, "now": time.time(),
+             "solution": self._packed(solution), "id": job_id, "worker": worker,
+             **figures(plan)})
         return bool(rows)
 
     def solution(self, job_id: str) -> dict[str, Any] | None:
@@ -262,6 +280,16 @@ class SqlJobStore(JobStore):
             "WHERE id = ? AND status IN ('queued', 'running') RETURNING id",
             (error, time.time(), job_id))
         return bool(rows)
+
+
+def figures(plan: dict[str, Any] | None) -> dict[str, Any]:
+    """The plan's verdict and objective, as the columns `verified` and `objective` keep
+    them (None without a plan, or where the plan has no finite one)."""
+    verification = (plan or {}).get("verification") or {}
+    verified, objective = verification.get("verified"), (plan or {}).get("objective")
+    return {"verified": verified if isinstance(verified, bool) else None,
+            "objective": objective if isinstance(objective, (int, float))
+            and math.isfinite(objective) else None}
 
 
 def history(value: Any) -> builtins.list[dict[str, Any]] | None:

@@ -4,6 +4,11 @@ service is reported, never recreated). Writes are single conditional statements,
 are atomic without explicit transactions; the busy timeout makes concurrent writers queue
 instead of failing.
 
+A plan and its NLP solution, the bulk of a job (about 0.55 MB of JSON for a plan of the
+seed's 4-link arm), are stored as their JSON compressed by zlib, 2.4 times smaller; the
+plans of earlier versions, stored as JSON text, are read as they are. A plan's verdict
+and objective, which a batch's summary reads, have columns of their own.
+
 Its queue is its own: a claim is one conditional UPDATE of the oldest queued job, holding a
 lease until the time it writes, which the supervisor renews; `expire` requeues the claims
 whose lease ended. Nothing announces a queued job to another process (`listen`).
@@ -27,6 +32,7 @@ import logging
 import os
 import sqlite3
 import time
+import zlib
 from collections.abc import Sequence
 from typing import Any
 
@@ -48,12 +54,23 @@ from app.store.sqlite_locks import NameLock
 
 log = logging.getLogger("undertow.store")
 
-_MEMBER_COLUMNS = ("id, member, status, error, json_extract(plan, '$.verification.verified'), "
-                   "json_extract(plan, '$.objective'), started, finished")
+_MEMBER_COLUMNS = "id, member, status, error, verified, objective, started, finished"
+PACK_LEVEL = 6
+"""zlib's level for plans and NLP solutions, its default (9 saves under 0.2 % more)."""
 
 
-def _loads(text: str | None) -> Any:
-    return None if text is None else json.loads(text)
+def _loads(value: str | bytes | None) -> Any:
+    """A JSON column's value: JSON text, or JSON compressed by zlib (`_pack`: plans and
+    NLP solutions since schema version 9; those of earlier versions are text)."""
+    if value is None:
+        return None
+    return json.loads(zlib.decompress(value) if isinstance(value, bytes) else value)
+
+
+def _pack(value: Any) -> bytes | None:
+    """A plan or NLP solution as the store keeps it: its JSON compressed by zlib."""
+    text = _dumps(value)
+    return None if text is None else zlib.compress(text.encode(), PACK_LEVEL)
 
 
 def _job(row: tuple) -> JobRecord:
@@ -145,6 +162,15 @@ class SqliteJobStore(SqlJobStore):
 
     def _from_json(self, value: Any) -> Any:
         return _loads(value)
+
+    def _packed(self, value: Any) -> bytes | None:
+        return _pack(value)
+
+    def _stored_bytes(self) -> str:
+        """length() of each column: bytes of a compressed plan or solution (a blob's
+        length is read without its content), characters of JSON text, which are ASCII."""
+        return ("length(scene) + COALESCE(length(progress), 0) + COALESCE(length(plan), 0) "
+                "+ COALESCE(length(solution), 0)")
 
     def _record(self, row: tuple) -> JobRecord:
         return _job(row)
