@@ -77,8 +77,8 @@ class Settings(BaseSettings):
     retention_count: int = Field(default=100_000, ge=1, description=(
         "finished jobs kept at most: older ones beyond this count are deleted"))
     retention_mb: float = Field(default=1024.0, gt=0.0, description=(
-        "what the store may hold of finished jobs (their scenes, compressed plans and NLP "
-        "solutions, histories) [MB]: the oldest beyond are deleted"))
+        "what the store may hold of finished jobs (their scenes, progress, compressed plans "
+        "and NLP solutions) [MB]: the oldest beyond are deleted"))
     integrity_interval: float = Field(default=300.0, ge=1.0, description=(
         "seconds between two full integrity checks (PRAGMA integrity_check) of the SQLite "
         "store by each server and worker node; a quick check runs besides whenever the file "

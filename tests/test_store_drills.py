@@ -62,17 +62,18 @@ def run_jobs(api: httpx.Client, count: int) -> list[str]:
 
 
 def refused_after(api: httpx.Client, kind: str) -> None:
-    """Every submit and /healthz answer 503 problems of type `kind`: no 202 after the
-    damage."""
+    """Every submit, /healthz and /metrics answer 503 problems of type `kind` (with
+    Retry-After only where waiting may mend it): no 202 after the damage."""
     for _ in range(5):
         for method, path, body in (("post", "/v1/plans", two_link_scene()),
                                    ("post", "/v1/batches", {"base": two_link_scene(),
                                                             "overrides": [{}]}),
-                                   ("get", "/healthz", None)):
+                                   ("get", "/healthz", None), ("get", "/metrics", None)):
             r = api.request(method, path, json=body)
             assert r.status_code == 503, (path, r.text)
             assert r.headers["content-type"] == "application/problem+json"
             assert r.json()["type"] == f"urn:undertow:problem:{kind}", r.json()
+            assert ("retry-after" in r.headers) == (kind == "unavailable")
 
 
 def kill_9(live: LiveServer) -> None:

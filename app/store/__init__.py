@@ -28,5 +28,4 @@ from app.store.sqlite import SqliteJobStore
 __all__ = ["BUILDING", "CANCELLED_ON_REQUEST", "DEAD_LETTER", "FINAL", "INTERRUPTED",
            "STATUSES", "BatchRecord", "DuplicateKey", "Held", "JobRecord", "JobStatus",
            "JobStore", "Listener", "MemberRecord", "NameTaken", "Retention", "RetryPolicy",
-           "SqliteJobStore",
-           "StoreDamaged", "StoreUnavailable", "WorkerRecord"]
+           "SqliteJobStore", "StoreDamaged", "StoreUnavailable", "WorkerRecord"]

@@ -62,7 +62,7 @@ class RetryPolicy:
 class Retention:
     """How long finished jobs are kept: at most `age` seconds after they ended, the newest
     `count` of them, and the newest within `size` bytes of what the store holds of them
-    (scene, plan, NLP solution, history). Queued and running jobs are always kept."""
+    (scene, progress, plan, NLP solution). Queued and running jobs are always kept."""
 
     age: float
     count: int
@@ -78,7 +78,8 @@ class DuplicateKey(Exception):
 
 
 class StoreDamaged(StoreUnavailable):
-    """The store failed its integrity check; the service must not start on it."""
+    """The store failed its integrity check, or its database reported itself damaged: no
+    job is accepted into it, and the service does not start on it."""
 
 
 class NameTaken(StoreUnavailable):
@@ -307,7 +308,7 @@ class JobStore(ABC):
     def purge(self, before: float, keep: int, size: int | None = None) -> int:
         """Delete the finished jobs that ended before `before`, those beyond the newest
         `keep` finished ones, and those beyond the newest that the store holds within
-        `size` bytes (of their scenes, plans, NLP solutions and histories); then the
+        `size` bytes (of their scenes, progress, plans and NLP solutions); then the
         batches left without members. How many jobs."""
 
     @abstractmethod

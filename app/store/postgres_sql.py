@@ -111,13 +111,9 @@ class NameLock:
     the database loses its name with it."""
 
     def __init__(self, url: str, name: str, where: str, timeout: float):
-        try:
-            self._conn = psycopg.connect(url, autocommit=True,
-                                         connect_timeout=max(1, int(timeout)))
-            (held,) = _one(self._conn.execute("SELECT pg_try_advisory_lock(%s, %s)",
-                                              (_NAME_LOCKS, _lock_key(name))))
-        except psycopg.Error as exc:
-            raise StoreUnavailable(f"the job store ({where}) failed: {exc}") from exc
+        self._conn = psycopg.connect(url, autocommit=True, connect_timeout=max(1, int(timeout)))
+        (held,) = _one(self._conn.execute("SELECT pg_try_advisory_lock(%s, %s)",
+                                          (_NAME_LOCKS, _lock_key(name))))
         if not held:
             self._conn.close()
             raise NameTaken(
@@ -346,7 +342,10 @@ class PostgresSql(SqlJobStore):
                            members=[_member(m) for m in members])
 
     def hold_name(self, name: str) -> NameLock:
-        return NameLock(self.url, name, self._where(), self.timeout)
+        try:
+            return NameLock(self.url, name, self._where(), self.timeout)
+        except psycopg.Error as exc:
+            raise self._unavailable(exc) from exc
 
     def check(self) -> None:
         """Read the newest job through the pool (a new connection if the old ones broke)."""

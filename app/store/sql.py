@@ -113,8 +113,9 @@ class SqlJobStore(JobStore):
 
     @abstractmethod
     def _stored_bytes(self) -> str:
-        """The SQL of the bytes a job's row holds of its scene, plan, NLP solution and
-        history, as this database stores them."""
+        """The SQL of the bytes a job's row holds of its scene, progress, plan and NLP
+        solution, as this database stores them (not its history, a few hundred bytes
+        that SQLite keeps after the plan, so that reading it reads the plan too)."""
 
     def purge(self, before: float, keep: int, size: int | None = None) -> int:
         final = "status IN ('succeeded', 'failed', 'cancelled')"
