@@ -1,9 +1,10 @@
 """Wall-time budgets of library computations: a deadline on the `time.monotonic` clock.
 
 The long loops of the library (the coupling analysis' chunks and refinements, the wave
-design's starts and exchange rounds, the simulation's torque intervals, the inverse
-dynamics' right-hand side, the dynamics' states) call `check` and stop with
-`BudgetExceeded` once their deadline has passed; an Ipopt solve inside them stops at its
+design's starts, screening chunks and exchange rounds, the simulation's CVODES slices,
+the inverse dynamics' right-hand side and output chunks, the dynamics' states) call
+`check` and stop with `BudgetExceeded` once their deadline has passed; a batch over many
+points goes in `chunks`, checked before each; an Ipopt solve inside them stops at its
 next iteration through `ipopt_stop`. Every deadline is optional: None runs unbounded.
 """
 
@@ -29,6 +30,16 @@ def check(deadline: float | None, what: str) -> None:
     """Raise BudgetExceeded("{what} ran past its deadline") once `deadline` has passed."""
     if deadline is not None and time.monotonic() > deadline:
         raise BudgetExceeded(f"{what} ran past its deadline")
+
+
+def chunks(count: int, size: int, deadline: float | None, what: str,
+           unit: str) -> Iterator[slice]:
+    """The slices [start, start + size) that cover range(count), each given only after
+    `check(deadline, "{what} (at {unit} {start} of {count})")`: a batch evaluated chunk by
+    chunk stops within one chunk of its deadline, its first chunk included."""
+    for start in range(0, count, size):
+        check(deadline, f"{what} (at {unit} {start:,} of {count:,})")
+        yield slice(start, min(start + size, count))
 
 
 @contextmanager

@@ -72,14 +72,11 @@ def evaluate(s: Structure, name: Output, configurations, p,
     rows, cols = f.size_out(0)
     cols //= size
     out = np.empty((K, rows, cols))
-    for start in range(0, K, size):
-        budget.check(deadline, f"the evaluation of {name} (at configuration {start:,} of {K:,})")
-        stop = min(start + size, K)
-        args = [_pad(Q[start:stop], size).T,
-                P if P.ndim == 1 else _pad(P[start:stop], size).T]
+    for part in budget.chunks(K, size, deadline, f"the evaluation of {name}", "configuration"):
+        args = [_pad(Q[part], size).T, P if P.ndim == 1 else _pad(P[part], size).T]
         flat = np.array(f(*args))  # (rows, cols * size): the outputs side by side
         stacked = flat.reshape(rows, cols, size, order="F").transpose(2, 0, 1)
-        out[start:stop] = stacked[:stop - start]
+        out[part] = stacked[:part.stop - part.start]
     return out
 
 

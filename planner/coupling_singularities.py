@@ -49,7 +49,7 @@ def sign_changes(robot: Robot, s: Structure, Q: np.ndarray, det: np.ndarray,
     u = refine(s, parameters(robot, s), lambda x, k: start[k] + x[:, None] * step[k],
                np.zeros(len(lo)), np.ones(len(lo)), deadline)
     points = start + u[:, None] * step
-    m = along(robot, points, s)
+    m = along(robot, points, s, deadline)
     if m.det is None:
         raise ValueError("det M_pa needs a square coupling block")
     found += [SingularPoint(q=q.tolist(), det=float(d), sigma_min=float(a),
@@ -94,13 +94,15 @@ def near_sign_change(det: np.ndarray | None, pairs: Pairs, size: int) -> np.ndar
 
 
 def _refine_minimum(robot: Robot, s: Structure, lower: np.ndarray, upper: np.ndarray,
-                    q0: np.ndarray) -> np.ndarray:
-    """Local minimum of sigma_min in the box [lower, upper] around q0 (free axes only)."""
+                    q0: np.ndarray, deadline: float | None, what: str) -> np.ndarray:
+    """Local minimum of sigma_min in the box [lower, upper] around q0 (free axes only),
+    the deadline checked at every evaluation (a minimisation takes up to thousands)."""
     free = upper > lower
     if not free.any():
         return q0
 
     def objective(x: np.ndarray | float) -> float:
+        budget.check(deadline, what)
         q = q0.copy()
         q[free] = x
         return _sigma_min(robot, s, q)
@@ -124,9 +126,10 @@ def minima_points(robot: Robot, s: Structure, Q: np.ndarray, idx: np.ndarray,
                   boxes: Box, deadline: float | None = None) -> list[SingularPoint]:
     found: list[SingularPoint] = []
     for k in idx:
-        budget.check(deadline, _REFINING.format(len(found), len(idx)))
+        what = _REFINING.format(len(found), len(idx))
+        budget.check(deadline, what)
         lower, upper = boxes(k)
-        q = _refine_minimum(robot, s, lower, upper, Q[k])
+        q = _refine_minimum(robot, s, lower, upper, Q[k], deadline, what)
         found.append(_singular(robot, s, q, "sigma-minimum"))
     return found
 

@@ -33,7 +33,7 @@ from pydantic import BaseModel, Field, model_validator
 from scipy.integrate import solve_ivp
 
 from planner import budget
-from planner.coupling_block import along, measures
+from planner.coupling_block import CHUNK, along, measures
 from planner.coupling_request import check_split
 from planner.dynamics import derive, functions
 from planner.errors import InputError
@@ -292,14 +292,8 @@ def _result(status, pb: _Problem, t: np.ndarray, xa: np.ndarray,
         return InverseDynamicsResult(status=status, t=[], q=[], dq=[], ddq=[], tau=[],
                                      sigma_min=[], singularity=singularity, message=message)
     q, dq, ddqp = pb.full(t, xa)
-    K = len(t)
-    ddq = np.empty((K, pb.s.n))
-    ddq[:, pb.P] = ddqp
-    accel = pb.accel.map(K)
-    ddq[:, pb.A] = np.array(accel(q.T, dq.T, ddqp.T, pb.p)).T
-    generalized = np.array(functions(pb.s)["id"].map(K)(q.T, dq.T, ddq.T, pb.p)).T
-    tau = generalized[:, pb.A]
-    sigma = along(pb.robot, q, pb.s).sigma_min
+    ddq, tau = _torques(pb, q, dq, ddqp)
+    sigma = along(pb.robot, q, pb.s, pb.budget).sigma_min
     arrays = (q, dq, ddq, tau, sigma)
     if not all(np.all(np.isfinite(a)) for a in arrays):
         raise InputError(f"the inverse dynamics of this motion overflow (values too large): "
@@ -307,3 +301,20 @@ def _result(status, pb: _Problem, t: np.ndarray, xa: np.ndarray,
     return InverseDynamicsResult(status=status, t=t.tolist(), q=q.tolist(), dq=dq.tolist(),
                                  ddq=ddq.tolist(), tau=tau.tolist(), sigma_min=sigma.tolist(),
                                  singularity=singularity, message=message)
+
+
+def _torques(pb: _Problem, q: np.ndarray, dq: np.ndarray,
+             ddqp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """All joints' accelerations (K, n) [rad/s^2] and the active torques (K, na) [N m] at
+    the samples (q, dq (K, n), passive ddq (K, np)), CHUNK samples per call with the
+    caller's deadline checked before each."""
+    ddq = np.empty(q.shape)
+    ddq[:, pb.P] = ddqp
+    tau = np.empty((len(q), len(pb.A)))
+    inverse = functions(pb.s)["id"]
+    for part in budget.chunks(len(q), CHUNK, pb.budget, "the inverse dynamics' torques",
+                              "sample"):
+        size, Q, dQ = part.stop - part.start, q[part].T, dq[part].T
+        ddq[part, pb.A] = np.array(pb.accel.map(size)(Q, dQ, ddqp[part].T, pb.p)).T
+        tau[part] = np.array(inverse.map(size)(Q, dQ, ddq[part].T, pb.p)).T[:, pb.A]
+    return ddq, tau

@@ -36,6 +36,10 @@ Interpolation = Literal["zoh", "linear", "cubic"]
 Method = Literal["adams", "bdf"]
 
 MAX_STEPS = 200_000
+"""CVODES steps to one output, at most."""
+SLICE_STEPS = 5_000
+"""CVODES steps of one call under a deadline (0.2 s on an 8-link arm): the deadline is
+checked at least this often (`_output`)."""
 METHODS: dict[str, dict[str, str]] = {
     "adams": {"linear_multistep_method": "adams", "nonlinear_solver_iteration": "functional"},
     "bdf": {"linear_multistep_method": "bdf", "nonlinear_solver_iteration": "newton"},
@@ -83,8 +87,9 @@ def torque_coefficients(t: np.ndarray, tau: np.ndarray, kind: Interpolation) -> 
 
 @lru_cache(maxsize=64)
 def _integrator(s: Structure, degree: int, n_out: int, rtol: float, atol: float,
-                method: Method) -> Exclusive:
-    """CVODES over one interval in normalised time s in [0, 1], outputs at n_out points.
+                method: Method, max_steps: int = MAX_STEPS) -> Exclusive:
+    """CVODES over one interval in normalised time s in [0, 1], outputs at n_out points,
+    at most `max_steps` steps to each.
 
     A clock quadrature (ds/ds = 1, outside the error control) is read at every output:
     CVODES can stop at s = 0 without an error (torques near the largest double), and
@@ -101,7 +106,7 @@ def _integrator(s: Structure, degree: int, n_out: int, rtol: float, atol: float,
     dae: dict[str, Any] = {"x": x, "t": sn, "p": ca.vertcat(p, coeffs, h),
                            "ode": h * f(x, tau, p), "quad": 1}
     grid = np.linspace(0.0, 1.0, n_out + 1)[1:]
-    opts: dict[str, Any] = {"abstol": atol, "reltol": rtol, "max_num_steps": MAX_STEPS,
+    opts: dict[str, Any] = {"abstol": atol, "reltol": rtol, "max_num_steps": max_steps,
                             "show_eval_warnings": False, "disable_internal_warnings": True,
                             **METHODS[method]}
     return Exclusive(ca.integrator("sim", "cvodes", dae, 0.0, list(grid), opts))
@@ -127,10 +132,11 @@ def simulate(robot: Robot, breakpoints, coeffs, x0, samples_per_interval: int = 
     A failed integration does not raise: it returns what was reached with status
     "failed" and a message saying in which interval and why.
 
-    With a `deadline` (`time.monotonic()`) every output is one CVODES call (the interval's
-    torque polynomial restricted to it), checked against the deadline before it starts,
-    so that past it BudgetExceeded comes after at most one output's MAX_STEPS steps;
-    without one, one call integrates a whole interval.
+    With a `deadline` (`time.monotonic()`) every output is integrated on its own (the
+    interval's torque polynomial restricted to it) in CVODES calls of at most SLICE_STEPS
+    steps, each checked against the deadline before it starts, so that past it
+    BudgetExceeded comes after at most SLICE_STEPS steps; without one, one call
+    integrates a whole interval.
     """
     s = Structure.of(robot)
     p = parameters(robot, s)
@@ -138,7 +144,8 @@ def simulate(robot: Robot, breakpoints, coeffs, x0, samples_per_interval: int = 
     K, degree = coeffs.shape[0], coeffs.shape[1] - 1
     pieces = 1 if deadline is None else samples_per_interval
     per_call = samples_per_interval // pieces
-    sim = _integrator(s, degree, per_call, rtol, atol, method)
+    sim = _integrator(s, degree, per_call, rtol, atol, method,
+                      MAX_STEPS if deadline is None else SLICE_STEPS)
     x = np.asarray(x0, float)
     times, states = [tk[0]], [x]
     for k in range(K):
@@ -147,17 +154,15 @@ def simulate(robot: Robot, breakpoints, coeffs, x0, samples_per_interval: int = 
         outputs = tk[k] + h * np.linspace(0, 1, samples_per_interval + 1)[1:]
         for j in range(pieces):
             what = f"the simulation (at t = {tk[k] + h * j / pieces:.6g} s of {tk[-1]:.6g} s)"
-            budget.check(deadline, what)
             c = _restricted(coeffs[k], j / pieces, 1 / pieces)
             if feedback is not None:
                 c = c.copy()
                 c[0] -= feedback.correction(k, start)
             try:
-                out, _ = sim(deadline, what, x0=x, p=np.concatenate([p, c.ravel(), [h / pieces]]))
+                xf = _output(sim, x, p, c, h / pieces, deadline, what)
             except RuntimeError as exc:
                 return _trajectory(times, states, s.n, "failed",
                                    f"integration failed {where}: {_reason(exc)}")
-            xf = np.array(out["xf"])
             if not np.all(np.isfinite(xf)):
                 return _trajectory(times, states, s.n, "failed",
                                    f"the state became non-finite {where}")
@@ -165,6 +170,36 @@ def simulate(robot: Robot, breakpoints, coeffs, x0, samples_per_interval: int = 
             states += list(xf.T)
             x = xf[:, -1]
     return _trajectory(times, states, s.n, "completed", "")
+
+
+def _output(sim: Exclusive, x: np.ndarray, p: np.ndarray, c: np.ndarray, h: float,
+            deadline: float | None, what: str) -> np.ndarray:
+    """The states (2n, outputs) of one CVODES call over h [s] from x under the torque
+    polynomial c (degree + 1, na). With a deadline there is one output, reached in calls of
+    at most SLICE_STEPS steps, each checked against the deadline before it starts: a slice
+    that needs more is halved. RuntimeError (CVODES' CV_TOO_MUCH_WORK) once the slices
+    have taken more than MAX_STEPS steps, those of the halved ones included."""
+    if deadline is None:
+        out, _ = sim(deadline, what, x0=x, p=np.concatenate([p, c.ravel(), [h]]))
+        return np.array(out["xf"])
+    slices, spent = [(0.0, 1.0)], 0
+    while slices:
+        start, width = slices.pop()
+        budget.check(deadline, what)
+        part = np.concatenate([p, _restricted(c, start, width).ravel(), [h * width]])
+        try:
+            out, stats = sim(deadline, what, x0=x, p=part)
+        except RuntimeError as exc:
+            spent += SLICE_STEPS
+            if "CV_TOO_MUCH_WORK" not in str(exc) or spent > MAX_STEPS:
+                raise
+            slices += [(start + width / 2, width / 2), (start, width / 2)]
+            continue
+        spent += int(stats["nsteps"])
+        x = np.array(out["xf"])[:, -1]
+        if not np.all(np.isfinite(x)):
+            break
+    return x[:, None]
 
 
 def _restricted(c: np.ndarray, start: float, width: float) -> np.ndarray:

@@ -18,8 +18,6 @@ import numpy as np
 
 from planner import budget
 from planner.coupling_block import evaluate, measures
-from planner.dynamics import derive
-from planner.exclusive import Exclusive
 from planner.inverse import (
     InverseDynamicsRequest,
     InverseDynamicsResult,
@@ -28,21 +26,16 @@ from planner.inverse import (
 )
 from planner.model import Robot, Structure, parameters
 from planner.rk4 import rk4_step
+from planner.waves import motion_nlp
 from planner.waves.certificate import EXCHANGE_TOL, Certificate
-from planner.waves.nlp import (
-    IPOPT,
-    WHAT,
-    bound,
-    candidate_from,
-    decision,
-    lbx,
-    normalisers,
-    ubx,
-    with_waves,
-)
+from planner.waves.motion_nlp import n_bound
+from planner.waves.nlp import WHAT, candidate_from, lbx, normalisers, ubx
 from planner.waves.schemas import WaveDesignRequest
 from planner.waves.screening import SCREEN_STEPS, Candidate, params
 
+ROLLOUT_CHUNK = 16
+"""Candidates per call of the screening's RK4 (0.07 s on an 8-link arm): the deadline is
+checked between calls."""
 CERTIFY_FLOOR = 1e-3
 """sigma_min [kg m^2] down to which the certificate of a motion follows it: a design short
 of the margin still reports what it certifies."""
@@ -81,7 +74,7 @@ class MotionProblem:
         init = self.motion.active_initial
         x0 = np.concatenate([init.q, init.dq])
         P = params(self.s, self.p, cands)
-        X = np.array(_rollout(self.s, steps).map(len(cands))(x0, U, T / steps, P.T))
+        X = self._rollouts(x0, U, T / steps, P)
         na, C = len(x0) // 2, len(cands)
         q = np.empty((steps + 1, C, self.s.n))
         q[:, :, self.s.passive_idx] = qp[0::2][:, None, :]
@@ -96,6 +89,18 @@ class MotionProblem:
         reached = np.where(bad.any(axis=0), bad.argmax(axis=0) / steps, 1.0)
         return [float(sigma[:, k].min()) if reached[k] == 1.0 else float(reached[k] - 1.0)
                 for k in range(C)]
+
+    def _rollouts(self, x0: np.ndarray, U: np.ndarray, h: float, P: np.ndarray) -> np.ndarray:
+        """The screening's RK4 of every candidate (parameter rows P), ROLLOUT_CHUNK at a
+        time with the deadline checked before each: (2 na, steps x candidates)."""
+        f = _rollouts(self.s, SCREEN_STEPS, ROLLOUT_CHUNK)
+        out = []
+        for part in budget.chunks(len(P), ROLLOUT_CHUNK, self.deadline,
+                                  "the screening's inverse dynamics", "candidate"):
+            rows = P[part]
+            padded = np.vstack([rows, np.repeat(rows[-1:], ROLLOUT_CHUNK - len(rows), axis=0)])
+            out.append(np.array(f(x0, U, h, padded.T))[:, :len(rows) * SCREEN_STEPS])
+        return np.hstack(out)
 
     def inverse(self, c: Candidate, samples: int, rtol: float = 1e-10,
                 threshold: float | None = None) -> InverseDynamicsResult:
@@ -136,7 +141,7 @@ class MotionProblem:
 
     def optimise(self, c: Candidate, upper: np.ndarray) -> Candidate:
         K = len(self.times) - 1
-        solver, nz = _motion_nlp(self.s, K)
+        solver, nz = motion_nlp.solver(self.s, K, self.deadline, f"{WHAT}'s NLP")
         Z = self._guess(c, nz)
         qp, dqp, ddqp = self.motion.passive_motion.evaluate(self.times, self.motion.duration)
         x0 = np.concatenate([c.amplitude, c.phase, [max(c.bound, 0.0)], Z.ravel(order="F")])
@@ -148,9 +153,9 @@ class MotionProblem:
         par = np.concatenate([self.p, c.frequency, qp.ravel(), dqp.ravel(), ddqp.ravel(),
                               np.diff(self.times), init.q, init.dq, C.ravel()])
         extra = Z.size
-        n_res = solver.size_out("g")[0] - (K + 1) * _n_bound(self.s)
-        lbg = np.concatenate([np.zeros(n_res), np.zeros((K + 1) * _n_bound(self.s))])
-        ubg = np.concatenate([np.zeros(n_res), np.inf * np.ones((K + 1) * _n_bound(self.s))])
+        n_res = solver.size_out("g")[0] - (K + 1) * n_bound(self.s)
+        lbg = np.concatenate([np.zeros(n_res), np.zeros((K + 1) * n_bound(self.s))])
+        ubg = np.concatenate([np.zeros(n_res), np.inf * np.ones((K + 1) * n_bound(self.s))])
         sol, stats = solver(self.deadline, WHAT, x0=x0, p=par, lbx=lbx(upper, extra),
                             ubx=ubx(upper, extra), lbg=lbg, ubg=ubg)
         x = np.array(sol["x"]).ravel()
@@ -234,59 +239,7 @@ def _rollout(s: Structure, steps: int) -> ca.Function:
     return ca.Function("rollout", [X0, U, H, Pm], [chain(X0, U, H, Pm)])
 
 
-def _n_bound(s: Structure) -> int:
-    r = len(s.passive_idx)
-    return 1 if r <= 2 else r
-
-
 @lru_cache(maxsize=16)
-def _node(s: Structure) -> ca.Function:
-    """Passive-row residual and bound at one collocation node."""
-    sym = derive(s)
-    P, A = s.passive_idx, s.active_idx
-    na, npas = len(A), len(P)
-    z = ca.SX.sym("z", 3 * na + (npas if na > npas else 0))
-    qp, dqp, ddqp = ca.SX.sym("qp", npas), ca.SX.sym("dqp", npas), ca.SX.sym("ddqp", npas)
-    s2, c = ca.SX.sym("s2"), ca.SX.sym("c", npas)
-    q, dq = ca.SX.zeros(s.n), ca.SX.zeros(s.n)
-    q[P], q[A], dq[P], dq[A] = qp, z[:na], dqp, z[na:2 * na]
-    mass = ca.Function("Mh", [sym.q, sym.dq, sym.p], [sym.mass, sym.bias])
-    M, h = mass(q, dq, sym.p)
-    mpa = M[P, A]
-    ddqa = z[2 * na:3 * na]
-    residual = [ca.mtimes(M[P, P], ddqp) + ca.mtimes(mpa, ddqa) + h[P]]
-    if na > npas:  # minimum norm: ddq_a in the row space of M_pa
-        residual.append(ddqa - ca.mtimes(mpa.T, z[3 * na:]))
-    return ca.Function("node", [z, qp, dqp, ddqp, sym.p, s2, c],
-                       [ca.vertcat(*residual), bound(ca.mtimes(mpa, mpa.T), s2, c)])
-
-
-def _interval(na: int, nz: int) -> ca.Function:
-    """Continuity of (q_a, dq_a) over one interval with ddq_a linear in time."""
-    z0, z1, h = ca.SX.sym("z0", nz), ca.SX.sym("z1", nz), ca.SX.sym("h")
-    q0, v0, a0 = z0[:na], z0[na:2 * na], z0[2 * na:3 * na]
-    q1, v1, a1 = z1[:na], z1[na:2 * na], z1[2 * na:3 * na]
-    return ca.Function("interval", [z0, z1, h], [ca.vertcat(
-        q1 - q0 - h * v0 - h**2 / 6 * (2 * a0 + a1), v1 - v0 - h / 2 * (a0 + a1))])
-
-
-@lru_cache(maxsize=16)
-def _motion_nlp(s: Structure, K: int) -> tuple[Exclusive, int]:
-    """maximise s over (a, eps, s, node states) along K intervals; returns (solver, nz)."""
-    na, npas = len(s.active_idx), len(s.passive_idx)
-    nz = 3 * na + (npas if na > npas else 0)
-    a, eps, sig = decision(na)
-    Z = ca.MX.sym("Z", nz, K + 1)
-    base, freq = ca.MX.sym("p", s.n_params), ca.MX.sym("n", na)
-    QP, DQP, DDQP = (ca.MX.sym(name, npas, K + 1) for name in ("qp", "dqp", "ddqp"))
-    H, X0 = ca.MX.sym("h", 1, K), ca.MX.sym("x0", 2 * na)
-    C = ca.MX.sym("C", npas, K + 1)
-    p = with_waves(s, base, a, freq, eps)
-    residual, bound = _node(s).map(K + 1)(Z, QP, DQP, DDQP, p, sig**2, C)
-    continuity = _interval(na, nz).map(K)(Z[:, :-1], Z[:, 1:], H)
-    g = ca.vertcat(Z[:2 * na, 0] - X0, ca.vec(residual), ca.vec(continuity), ca.vec(bound))
-    nlp = {"x": ca.vertcat(a, eps, sig, ca.vec(Z)), "f": -sig, "g": g,
-           "p": ca.vertcat(base, freq, ca.vec(QP), ca.vec(DQP), ca.vec(DDQP), H.T, X0,
-                           ca.vec(C))}
-    options = {**IPOPT, "expand": True, **budget.ipopt_stop(nlp)}
-    return Exclusive(ca.nlpsol("waves_motion", "ipopt", nlp, options)), nz
+def _rollouts(s: Structure, steps: int, size: int) -> ca.Function:
+    """`_rollout` mapped over `size` candidates (one parameter column each)."""
+    return _rollout(s, steps).map(size)
