@@ -153,13 +153,13 @@ def simulate(robot: Robot, breakpoints, coeffs, x0, samples_per_interval: int = 
         where = f"between t = {tk[k]:.6g} s and t = {tk[k + 1]:.6g} s"
         outputs = tk[k] + h * np.linspace(0, 1, samples_per_interval + 1)[1:]
         for j in range(pieces):
-            what = f"the simulation (at t = {tk[k] + h * j / pieces:.6g} s of {tk[-1]:.6g} s)"
             c = _restricted(coeffs[k], j / pieces, 1 / pieces)
             if feedback is not None:
                 c = c.copy()
                 c[0] -= feedback.correction(k, start)
             try:
-                xf = _output(sim, x, p, c, h / pieces, deadline, what)
+                xf = _output(sim, x, p, c, (tk[k] + h * j / pieces, h / pieces, tk[-1]),
+                             deadline)
             except RuntimeError as exc:
                 return _trajectory(times, states, s.n, "failed",
                                    f"integration failed {where}: {_reason(exc)}")
@@ -172,34 +172,44 @@ def simulate(robot: Robot, breakpoints, coeffs, x0, samples_per_interval: int = 
     return _trajectory(times, states, s.n, "completed", "")
 
 
-def _output(sim: Exclusive, x: np.ndarray, p: np.ndarray, c: np.ndarray, h: float,
-            deadline: float | None, what: str) -> np.ndarray:
-    """The states (2n, outputs) of one CVODES call over h [s] from x under the torque
-    polynomial c (degree + 1, na). With a deadline there is one output, reached in calls of
-    at most SLICE_STEPS steps, each checked against the deadline before it starts: a slice
-    that needs more is halved. RuntimeError (CVODES' CV_TOO_MUCH_WORK) once the slices
-    have taken more than MAX_STEPS steps, those of the halved ones included."""
+def _output(sim: Exclusive, x: np.ndarray, p: np.ndarray, c: np.ndarray,
+            span: tuple[float, float, float], deadline: float | None) -> np.ndarray:
+    """The states (2n, outputs) of one CVODES call from x under the torque polynomial c
+    (degree + 1, na) over span = (start, length, end of the simulation) [s].
+
+    With a deadline there is one output, reached slice by slice in calls of at most
+    SLICE_STEPS steps, each checked against the deadline before it starts: a slice that
+    needs more is halved, and the next one sized by the steps the last one took. Raises
+    RuntimeError (CVODES' CV_TOO_MUCH_WORK) once the slices have taken more than MAX_STEPS
+    steps, those of the halved ones included."""
+    t0, h, end = span
     if deadline is None:
-        out, _ = sim(deadline, what, x0=x, p=np.concatenate([p, c.ravel(), [h]]))
+        out, _ = sim(None, x0=x, p=np.concatenate([p, c.ravel(), [h]]))
         return np.array(out["xf"])
-    slices, spent = [(0.0, 1.0)], 0
-    while slices:
-        start, width = slices.pop()
+    at, width, spent = 0.0, 1.0, 0
+    while True:
+        last = width >= 1.0 - at
+        width = min(width, 1.0 - at)
+        what = f"the simulation (at t = {t0 + h * at:.6g} s of {end:.6g} s)"
         budget.check(deadline, what)
-        part = np.concatenate([p, _restricted(c, start, width).ravel(), [h * width]])
+        part = np.concatenate([p, _restricted(c, at, width).ravel(), [h * width]])
         try:
             out, stats = sim(deadline, what, x0=x, p=part)
         except RuntimeError as exc:
             spent += SLICE_STEPS
             if "CV_TOO_MUCH_WORK" not in str(exc) or spent > MAX_STEPS:
                 raise
-            slices += [(start + width / 2, width / 2), (start, width / 2)]
+            width /= 2
             continue
-        spent += int(stats["nsteps"])
+        steps = max(int(stats["nsteps"]), 1)
+        spent += steps
         x = np.array(out["xf"])[:, -1]
-        if not np.all(np.isfinite(x)):
-            break
-    return x[:, None]
+        if last or not np.all(np.isfinite(x)):
+            return x[:, None]
+        if spent > MAX_STEPS:  # what one call would have said at its MAX_STEPS-th step
+            raise RuntimeError('CVode returned "CV_TOO_MUCH_WORK"')
+        at += width
+        width *= SLICE_STEPS / (2 * steps)  # the next slice: about half the steps allowed
 
 
 def _restricted(c: np.ndarray, start: float, width: float) -> np.ndarray:

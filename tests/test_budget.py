@@ -12,9 +12,19 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from planner import budget, coupling, evaluation, examples, inverse, simulate, waves
+from planner import (
+    budget,
+    coupling,
+    coupling_singularities,
+    evaluation,
+    examples,
+    inverse,
+    simulate,
+    waves,
+)
 from planner.budget import BudgetExceeded
-from planner.waves import screening
+from planner.model import Robot, Structure
+from planner.waves import motion_nlp, screening
 from planner.waves.nlp import wave_structure
 from planner.waves.region import RegionProblem
 
@@ -179,3 +189,62 @@ def test_concurrent_simulations_of_one_arm_agree_with_a_lone_one():
     for thread in threads:
         thread.join()
     assert len(results) == 4 and all(r == alone for r in results)
+
+
+def test_chunks_check_the_deadline_before_every_chunk_the_first_included():
+    parts = list(budget.chunks(10, 4, time.monotonic() + 60, "the thing", "point"))
+    assert parts == [slice(0, 4), slice(4, 8), slice(8, 10)]
+    with pytest.raises(BudgetExceeded, match=r"^the thing \(at point 0 of 10\) ran past"):
+        next(budget.chunks(10, 4, time.monotonic() - 1.0, "the thing", "point"))
+
+
+def test_the_inverse_dynamics_torques_and_a_minimum_refinement_check_their_deadline():
+    request = inverse.InverseDynamicsRequest.model_validate(
+        examples.example("two-link-waves").request)
+    pb = inverse._Problem(request.robot, request.passive_motion, request.duration,
+                          request.sigma_threshold, deadline=time.monotonic() - 1.0)
+    q, dq = np.zeros((5000, 2)), np.zeros((5000, 2))
+    with pytest.raises(BudgetExceeded, match=r"^the inverse dynamics' torques \(at sample 0 "
+                                             r"of 5,000\) ran past"):
+        inverse._torques(pb, q, dq, np.zeros((5000, 1)))
+    with pytest.raises(BudgetExceeded, match=r"^the refinement ran past"):
+        coupling_singularities._refine_minimum(
+            request.robot, Structure.of(request.robot), np.array([0.0, 1.0]),
+            np.array([0.5, 2.0]), np.array([0.2, 1.5]), time.monotonic() - 1.0, "the refinement")
+
+
+def _long_output(duration: float, tau: float) -> simulate.SimulationRequest:
+    return simulate.SimulationRequest.model_validate({
+        "robot": TWO_LINK, "t": [0.0, duration], "tau": [[tau]] * 2,
+        "initial": {"q": [0.3, -0.2], "dq": [0.0, 0.5]}, "rtol": 1e-12, "atol": 1e-12})
+
+
+def test_an_output_of_many_steps_is_integrated_in_slices_to_the_same_state(monkeypatch):
+    """Under a deadline one output is reached in CVODES calls of at most SLICE_STEPS steps
+    (checked between them); the state is that of the one call made without a deadline,
+    and an output that needs more than MAX_STEPS steps fails as it did."""
+    calls: list[str] = []
+    real = budget.check
+    monkeypatch.setattr(budget, "check", lambda d, what: (calls.append(what), real(d, what)))
+    request = _long_output(20.0, 0.2)  # about 7,000 steps
+    free, bounded = simulate.run(request), simulate.run(request, deadline=time.monotonic() + 60)
+    slices = sum(what.startswith("the simulation (at t = ") for what in calls)
+    assert slices >= 2 and bounded.status == free.status == "completed"
+    np.testing.assert_allclose(bounded.q, free.q, rtol=0, atol=1e-7)
+    too_fast = _long_output(1.0, 1e4)
+    assert simulate.run(too_fast, deadline=time.monotonic() + 60) == simulate.run(too_fast)
+    assert simulate.run(too_fast).message.endswith(
+        "more than 200000 steps before the next output (the motion is too fast for the "
+        "tolerances) (CVODES CV_TOO_MUCH_WORK)")
+
+
+def test_a_motion_nlp_is_not_built_when_its_build_would_end_past_the_deadline(monkeypatch):
+    s = wave_structure(Robot.model_validate(TWO_LINK).without_waves())
+    built, _ = motion_nlp.solver(s, 2)  # measures the pace of this arm's builds
+    assert motion_nlp.solver(s, 2, time.monotonic() - 1.0)[0] is built  # built: no wait
+    monkeypatch.setitem(motion_nlp._pace, s, 1.0)  # as if one interval took 1 s to build
+    with pytest.raises(BudgetExceeded, match=r"^the motion NLP: building it for 3 collocation "
+                                             r"intervals would take about 3 s \(at the pace "):
+        motion_nlp.solver(s, 3, time.monotonic() + 2.5)
+    assert (s, 3) not in motion_nlp._built
+    assert motion_nlp.solver(s, 3, time.monotonic() + 3.5)[1] > 0
