@@ -4,6 +4,7 @@ is a 408 problem, and a prompt client on a kept-alive connection is unaffected."
 from __future__ import annotations
 
 import json
+import re
 import socket
 import time
 from collections.abc import Iterator
@@ -102,3 +103,35 @@ def test_a_prompt_client_keeps_its_connection(port):
 def test_every_way_of_serving_uses_the_protocol(path):
     text = (ROOT / path).read_text()
     assert f"--http {PROTOCOL}" in text or f'"--http", "{PROTOCOL}"' in text
+
+
+def head(path: str, extra: int) -> bytes:
+    """A GET request whose head carries a header field of `extra` bytes."""
+    return f"GET {path} HTTP/1.1\r\nHost: x\r\nX-Big: {'a' * extra}\r\n\r\n".encode()
+
+
+@pytest.mark.parametrize("piece", [None, 1000])
+def test_a_head_over_16_kib_is_431_however_it_arrives(port, piece):
+    """h11 bounds only an incomplete head: 70 KB sent at once were served."""
+    sent = head("/healthz", 20 * 1024)
+    with connect(port) as sock:
+        for start in range(0, len(sent), piece or len(sent)):
+            sock.sendall(sent[start:start + (piece or len(sent))])
+        status, body = response(sock)
+        assert closed_after(sock) < 25
+    assert status == "HTTP/1.1 431 Request Header Fields Too Large"
+    problem = json.loads(body)
+    assert (problem["type"], problem["status"], problem["instance"]) == (
+        "urn:undertow:problem:head-too-large", 431, "/healthz")
+    assert problem["detail"] == ("the request head (request line and header fields) exceeds "
+                                 "16384 bytes")
+
+
+def test_a_head_within_16_kib_is_served_and_a_pipelined_one_over_it_is_not(port):
+    with connect(port) as sock:
+        sock.sendall(head("/healthz", 15 * 1024) + head("/healthz", 20 * 1024))
+        received = b""
+        while chunk := sock.recv(65536):  # until the server closes the connection
+            received += chunk
+    statuses = re.findall(rb"HTTP/1.1 \d{3} [^\r]*", received)
+    assert statuses == [b"HTTP/1.1 200 OK", b"HTTP/1.1 431 Request Header Fields Too Large"]
