@@ -27,6 +27,7 @@ from app.deps import require_api_key
 from app.job_run import SolveFunction
 from app.jobs import JobRunner
 from app.logging import RequestIdMiddleware, configure
+from app.media_type import require_json
 from app.metrics import Metrics, MetricsMiddleware
 from app.openapi import document
 from app.refusal import QuietRefusal, refuse
@@ -70,7 +71,7 @@ def create_app(settings: Settings | None = None, solve: SolveFunction | None = N
     errors.install(app)
     app.exception_handler(StoreUnavailable)(_store_unavailable)
     app.include_router(health.router)
-    secured = [Depends(require_api_key)]
+    secured = [Depends(require_api_key), Depends(require_json)]
     for router in (dynamics.router, plans.router, batches.router, examples.router,
                    plots.router, samples.router, workers.router):
         app.include_router(router, dependencies=secured)

@@ -21,6 +21,7 @@ _DESCRIPTIONS = {
     408: "the request body did not arrive within UNDERTOW_READ_TIMEOUT",
     409: "the resource is in a state that does not allow this",
     413: "the request body is too large",
+    415: "the request body is labelled as another media type than JSON (Content-Type)",
     422: "invalid request: `errors` lists each offending field",
     429: "the job queue is full; retry after the Retry-After header's seconds",
     503: "no compute thread, or no room in the synchronous computations' memory budget "
@@ -79,7 +80,7 @@ def document(app: FastAPI) -> dict[str, Any]:
             if responses.get("422", {}).get("description") == "Validation Error":
                 responses["422"] = problem_response(422)  # FastAPI's own shape
             if "requestBody" in operation:
-                for status in (400, 408, 413):
+                for status in (400, 408, 413, 415):
                     responses[str(status)] = problem_response(status)
             if operation.get("security"):
                 responses["401"] = problem_response(401)

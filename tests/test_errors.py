@@ -131,3 +131,39 @@ def test_an_input_error_of_a_computation_is_a_422_at_the_field_it_names(api, pat
                                                         "input-1")
     assert problem["errors"] == [{"loc": ["body", "states", 0, "q"], "type": "value_error",
                                   "msg": "a message that names a field of the request"}]
+
+
+def _json_routes(document: dict) -> list[tuple[str, str]]:
+    """The operations that read a JSON body, as (method, path)."""
+    return [(method.upper(), path) for path, operations in document["paths"].items()
+            for method, operation in operations.items() if "requestBody" in operation]
+
+
+@pytest.mark.parametrize("content_type", ["text/plain", "application/x-www-form-urlencoded",
+                                          None])
+def test_a_body_not_sent_as_json_is_415_on_every_json_route(tmp_path, content_type):
+    """Every route that reads a JSON body answers a body labelled otherwise (or not at all)
+    with 415 at the Content-Type header, not with a 422 about fields it never read."""
+    body = json.dumps({"robot": TWO_LINK, "states": [{"q": [0.1, 0.2], "dq": [0.0, 0.0]}]})
+    headers = {} if content_type is None else {"Content-Type": content_type}
+    with client(tmp_path) as api:
+        routes = _json_routes(api.get("/openapi.json").json())
+        assert ("POST", "/v1/dynamics") in routes and ("POST", "/v1/plans") in routes
+        for method, path in routes:
+            r = api.request(method, path.replace("{job_id}", "x"), content=body,
+                            headers=headers)
+            assert r.status_code == 415, (method, path, r.text)
+            assert "415" in api.app.openapi()["paths"][path][method.lower()]["responses"]
+            assert r.headers["content-type"] == "application/problem+json"
+            problem = r.json()
+            given = content_type or "no Content-Type"
+            assert problem["type"] == "urn:undertow:problem:unsupported-media-type"
+            assert problem["errors"] == [{
+                "loc": ["header", "content-type"], "type": "unsupported_media_type",
+                "msg": f"this endpoint reads a JSON body: send it as application/json, not "
+                       f"{given}"}]
+        json_type = api.post("/v1/dynamics", content=body,
+                             headers={"Content-Type": "application/json; charset=utf-8"})
+        empty = api.post("/v1/dynamics", headers=headers)
+    assert json_type.status_code == 200
+    assert empty.status_code == 422  # no body: the models say what is missing
