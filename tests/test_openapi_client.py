@@ -6,9 +6,11 @@ generated, and needs only the packages docs/api.md names (httpx, attrs)."""
 from __future__ import annotations
 
 import importlib
+import os
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 from service_fixtures import ROOT
@@ -71,3 +73,31 @@ def test_the_generated_client_plans_an_example(generated, tmp_path):
     assert isinstance(missing, Problem) and missing.status == 404
     assert again.plan.to_dict() == job.plan.to_dict()
     assert again.plan.q[0] == scene.task.initial.q
+
+
+def _generate(tmp_path, *options: str) -> subprocess.CompletedProcess:
+    """The generator as docs/api.md "Clients" runs it, in `tmp_path`, with no ruff in PATH."""
+    path = os.pathsep.join(d for d in os.environ.get("PATH", "").split(os.pathsep)
+                           if d and not (Path(d) / "ruff").exists())
+    return subprocess.run([sys.executable, "-m", "openapi_python_client", "generate",
+                           "--path", str(ROOT / "openapi" / "openapi.json"), "--meta", "none",
+                           "--output-path", "undertow_client", *options],
+                          cwd=tmp_path, env={**os.environ, "PATH": path}, capture_output=True,
+                          text=True, timeout=120)
+
+
+def test_without_ruff_the_generator_warns_as_docs_api_md_says_and_writes_the_client(tmp_path):
+    docs = " ".join((ROOT / "docs" / "api.md").read_text().split())
+    (tmp_path / "warned").mkdir()
+    warned = _generate(tmp_path / "warned")
+    output = warned.stdout + warned.stderr
+    assert warned.returncode == 0
+    assert (tmp_path / "warned" / "undertow_client" / "client.py").exists()
+    for said in ("Warning(s) encountered while generating. Client was generated, but some "
+                 "pieces may be missing", "Skipping Integration", "ruff is not in PATH"):
+        assert said in " ".join(output.split()) and f'"{said}"' in docs
+    (tmp_path / "quiet").mkdir()
+    (tmp_path / "quiet" / "hooks.json").write_text('{"post_hooks": []}')
+    assert '`{"post_hooks": []}`' in docs
+    quiet = _generate(tmp_path / "quiet", "--config", "hooks.json")
+    assert quiet.returncode == 0 and "Warning" not in quiet.stdout + quiet.stderr
