@@ -124,8 +124,8 @@ def unlimited_solve(scene: Scene, start: Start, budget: Budget, progress: Handle
     """The task without its torque limit and velocity bounds (`shortest.unlimited`) at the
     start's duration, on its first mesh, from its guess: a solve from an interpolated guess
     under limits can wander along the bounds for hundreds of iterations (the two-link
-    example under a limit 1.5 times its own peak torque ended Infeasible_Problem_Detected
-    after 836), while the unlimited optimum converges in tens and often keeps the limits."""
+    example under a limit above its own peak torque ended Infeasible_Problem_Detected),
+    while the unlimited optimum converges in tens and often keeps the limits."""
     free = shortest.unlimited(scene, start.T)
     mesh = start.coarse if start.coarse is not None else start.mesh
     return solve_on(free, instance(free, start.robot, mesh, start.T), start.robot, start.T,
