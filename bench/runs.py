@@ -37,7 +37,6 @@ RESULTS: dict[str, tuple[str, ...]] = {
     "pickup": ("bench/results/pickup.csv",),
     "plan_response": ("bench/results/plan_response.csv",),
     "planner_speed": ("bench/results/planner_speed*.csv",),
-    "queue_engine": ("bench/results/queue_engine_*.csv",),
     "refinement": ("bench/results/refinement_*.csv",),
     "replan": ("bench/results/replan.csv",),
     "reliability": ("bench/results/reliability.csv",),

@@ -149,14 +149,16 @@ SERVICE = frozenset({
     "test_api_warm_start.py", "test_bad_input.py", "test_batches.py", "test_benches.py",
     "test_capacity.py",
     "test_cli.py", "test_continuation.py", "test_delivered_torque.py", "test_distributed.py",
-    "test_dockerfile.py", "test_e2e_server.py", "test_errors.py", "test_infeasible.py",
+    "test_dockerfile.py", "test_e2e_server.py", "test_errors.py", "test_examples.py",
+    "test_infeasible.py",
     "test_job_faults.py", "test_jobs.py", "test_limits.py", "test_node_faults.py",
     "test_migrations.py", "test_openapi.py", "test_stored_plan.py", "test_sync_memory.py",
     "test_openapi_client.py", "test_plan_budget.py", "test_plots.py", "test_queue_engine.py",
     "test_readme.py",
     "test_sampling.py", "test_scene_validation.py", "test_schemathesis.py", "test_server.py",
     "test_service_interface.py", "test_store.py", "test_store_drills.py",
-    "test_store_integrity.py", "test_stress.py", "test_viewer.py"})
+    "test_store_integrity.py", "test_stop_status.py", "test_stress.py",
+    "test_sync_deadlines.py", "test_viewer.py"})
 """Files that exercise the service (app/): its app in-process, live servers and worker
 processes, the command line, the job store, the API documents, the benchmarks. Any other
 file is `unit`: the library alone, in the test's own process."""

@@ -19,11 +19,13 @@ ROBOT = Robot.model_validate({"links": [
 
 
 def inputs(batch: int, rate: float, torque: float) -> tuple[np.ndarray, ...]:
-    """Starts, parameters (a constant torque over intervals of 1 s) and zero offsets."""
+    """Starts, parameters (a constant torque over intervals of 1 s, no saturation) and zero
+    offsets."""
     s = Structure.of(ROBOT)
     x0 = np.tile(np.array([[0.0], [0.5], [rate], [rate]]), (1, batch))
     p = np.vstack([np.repeat(parameters(ROBOT, s)[:, None], batch, 1),
-                   np.full((1, batch), torque), np.ones((1, batch))])
+                   np.full((1, batch), torque), np.ones((1, batch)),
+                   np.full((1, batch), np.inf)])
     return x0, p, np.zeros((1, 4 * batch))
 
 

@@ -22,6 +22,12 @@ def reaches_the_service(path: Path) -> bool:
     return False
 
 
+RUN_IN_PROCESSES = frozenset({"test_benches.py"})
+"""Files that reach the service only through child processes (the benchmarks start live
+servers of their own), so that no import of theirs shows it."""
+
+
 def test_the_service_files_are_exactly_those_that_reach_the_service():
     files = sorted(TESTS.glob("test_*.py"))
-    assert {p.name for p in files if reaches_the_service(p)} == set(SERVICE)
+    reaching = {p.name for p in files if reaches_the_service(p)}
+    assert reaching | RUN_IN_PROCESSES == set(SERVICE)

@@ -91,9 +91,11 @@ def test_refinement_turns_the_unverified_two_link_plan_at_30_intervals_into_a_ve
 def test_a_refined_solve_starts_at_the_plan_before_and_stays_at_its_optimum():
     name, sc = next((n, s) for n, s in tasks() if n == "2-AP-g9.81-x31")
     result = plan(sc)
-    first, last = result.mesh_passes[0], result.mesh_passes[-1]
+    # the task has a torque limit: its first pass solves it without (attempt.unlimited_solve)
+    passes = [p for p in result.mesh_passes if not p.strategy.endswith("without its limits")]
+    first, last = passes[0], passes[-1]
     assert first.max_local_error > 1e-3 >= result.verification.local_error
-    assert len(result.mesh_passes) == 2 and last.iterations <= 10
+    assert len(passes) == 2 and last.iterations <= 10
     assert last.objective == pytest.approx(first.objective, rel=0.01)
 
 
