@@ -32,27 +32,16 @@ import numpy as np
 
 from bench import harness
 from planner.dynamics import Dynamics
-from planner.model import Robot
 from planner.ocp import plan
 from planner.ocp.result import Plan
 from planner.scene import Scene
 from planner.simulate import simulate
+from testbed.robots import tip_of
 from testbed.suites import adversarial
 
 DOC = harness.DOCS / "benchmarks.md"
 SECTION = "Adversarial suite: verdicts that never lie"
 RTOL = 1e-6
-
-
-def _tip(robot: Robot, q: np.ndarray) -> np.ndarray:
-    """[m] The last tip, summed link by link: r_i = l_i + a_i sin(n_i q_i + eps_i)."""
-    point = np.zeros(2)
-    for link, angle in zip(robot.links, q, strict=True):
-        w = link.wave
-        r = link.length + (0.0 if w is None else w.amplitude * np.sin(w.frequency * angle
-                                                                       + w.phase))
-        point += r * np.array([np.cos(angle), np.sin(angle)])
-    return point
 
 
 def _states(scene: Scene, result: Plan) -> list[str]:
@@ -65,7 +54,7 @@ def _states(scene: Scene, result: Plan) -> list[str]:
                 out.append(f"{which} state entry {k} off by {abs(got[k] - value):.3g}")
     target = task.tip_target
     if target is not None:
-        gap = float(np.hypot(*(_tip(result.robot_of(scene.robot), np.asarray(result.q[-1]))
+        gap = float(np.hypot(*(tip_of(result.robot_of(scene.robot), np.asarray(result.q[-1]))
                                - [target.x, target.y])))
         if gap > RTOL:
             out.append(f"tip {gap:.3g} m from its target")

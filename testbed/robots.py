@@ -49,6 +49,18 @@ def random_state(rng: np.random.Generator, n: int,
     return rng.uniform(-np.pi, np.pi, n), rng.uniform(-speed, speed, n)
 
 
+def tip_of(robot: Robot, q: np.ndarray) -> np.ndarray:
+    """The last tip [m] (2,), summed link by link from the model's definition, apart from
+    the derived kinematics: r_i = l_i + a_i sin(n_i q_i + eps_i) along (cos q_i, sin q_i)."""
+    point = np.zeros(2)
+    for link, angle in zip(robot.links, q, strict=True):
+        wave = link.wave
+        r = link.length + (0.0 if wave is None else
+                           wave.amplitude * np.sin(wave.frequency * angle + wave.phase))
+        point += r * np.array([np.cos(angle), np.sin(angle)])
+    return point
+
+
 def chain(n: int, under: bool, masses: list[float] | None = None,
           lengths: list[float] | None = None, frequency: float = 3.0,
           gravity: float = 9.81) -> dict:

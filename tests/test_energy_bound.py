@@ -41,7 +41,7 @@ def limited() -> tuple[Scene, object]:
 
 def test_a_verified_limited_plan_stays_within_its_energy_reach_at_every_time(limited):
     scene, result = limited
-    robot, dyn = scene.robot.with_waves({}), Dynamics(scene.robot)
+    dyn = Dynamics(scene.robot)
     limit = np.array([scene.task.torque_limit], float)
     t, q = np.asarray(result.dense.t), np.asarray(result.dense.q)
     dq = result.interpolant().dq(t)
@@ -50,7 +50,6 @@ def test_a_verified_limited_plan_stays_within_its_energy_reach_at_every_time(lim
         energy = sum(dyn.energy(q[k], dq[k]))
         reach = energy_reach(scene.robot, *start, limit, float(t[k]))
         assert reach.lowest - 1e-9 <= energy <= reach.highest + 1e-9
-    assert robot is not None
 
 
 def _raise(limit: float, duration: float = 1.0) -> Scene:

@@ -7,7 +7,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from planner.model import Robot
 from planner.ocp.evidence import Infeasibility
 from planner.ocp.planner import plan
 from planner.ocp.task_checks import MARGIN_RTOL, requirements
@@ -15,7 +14,7 @@ from planner.ocp.verdict import unverified_reason, verdict
 from planner.ocp.verification import Verification
 from planner.ocp.verify import verify
 from planner.scene import Scene
-from testbed.robots import chain_scene
+from testbed.robots import chain_scene, tip_of
 
 
 def with_task(scene: Scene, solver: dict | None = None, **task) -> Scene:
@@ -23,18 +22,6 @@ def with_task(scene: Scene, solver: dict | None = None, **task) -> Scene:
     data["task"].update(task)
     data["solver"] = {**data.get("solver", {}), **(solver or {})}
     return Scene.model_validate(data)
-
-
-def tip(robot: Robot, q: np.ndarray) -> np.ndarray:
-    """The last tip [m], summed link by link from the model's definition (independent of
-    the derived kinematics): r_i = l_i + a_i sin(n_i q_i + eps_i) along (cos q_i, sin q_i)."""
-    point = np.zeros(2)
-    for link, angle in zip(robot.links, q, strict=True):
-        wave = link.wave
-        r = link.length + (0.0 if wave is None else
-                           wave.amplitude * np.sin(wave.frequency * angle + wave.phase))
-        point += r * np.array([np.cos(angle), np.sin(angle)])
-    return point
 
 
 @pytest.fixture(scope="module")
@@ -58,7 +45,7 @@ def test_a_plan_stopped_before_it_converged_is_never_verified_and_shows_its_tip_
     assert result.message.startswith("out of budget: no converged plan before the iteration "
                                      "limit was reached (Maximum_Iterations_Exceeded)")
     end = np.asarray(result.q[-1])
-    expected = float(np.linalg.norm(tip(scene.robot, end) - [0.5, 1.8]))
+    expected = float(np.linalg.norm(tip_of(scene.robot, end) - [0.5, 1.8]))
     assert v.tip_error == pytest.approx(expected, rel=1e-9) and v.tip_error > 0.1
     assert any(s.startswith("the plan's final tip is at") for s in v.task_violations)
 
@@ -91,7 +78,7 @@ def test_the_final_state_initial_state_and_tip_are_checked_on_the_delivered_plan
     assert found.violations[0].startswith("the plan's initial dq of joint 1 is ")
     assert found.violations[1].startswith("the plan's final q of joint 0 is 0.5 rad where the "
                                           "task asks 0.51 rad (off by 0.01 rad")
-    end = tip(robot, np.asarray(result.q[-1]))
+    end = tip_of(robot, np.asarray(result.q[-1]))
     aimed = with_task(scene, tip_target={"x": float(end[0]) + 0.03, "y": float(end[1])}).task
     found = requirements(robot, interp, t, aimed, sigma, 1e-3)
     assert found.tip_error == pytest.approx(0.03, abs=1e-9)

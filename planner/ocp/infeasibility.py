@@ -31,7 +31,7 @@ from planner.ocp.attempt import Attempt
 from planner.ocp.evidence import Infeasibility, InfeasibleField, ViolatedRows
 from planner.ocp.outcome import Outcome
 from planner.ocp.problem import stages
-from planner.ocp.result import DenseTrajectory, Plan, SolverReport, WaveOut
+from planner.ocp.result import DenseTrajectory, Plan, SolverReport, waves_of
 from planner.ocp.shortest import Probe
 from planner.ocp.solve import INFEASIBLE
 from planner.ocp.verification import Verification
@@ -199,14 +199,11 @@ def refused(scene: Scene, issues: list[Issue], started: float, T: float) -> Plan
     (empty lists), no solve, the issues as `infeasibility.fields`."""
     listed = "; ".join(str(issue) for issue in issues)
     summary = f"the task is infeasible before any solve: {listed}"
-    robot = scene.robot
     return Plan(
         status="infeasible", message=f"infeasible: {summary}",
         t=[], q=[], dq=[], ddq=[], tau=[], dense=DenseTrajectory(t=[], q=[], tau=[]),
         torque=None, duration=T, objective=None,
-        waves=[WaveOut(joint=j, amplitude=link.wave.amplitude, frequency=link.wave.frequency,
-                       phase=link.wave.phase)
-               for j, link in enumerate(robot.links) if link.wave is not None],
+        waves=waves_of(scene.robot),
         solver=SolverReport(status=CHECKS_STATUS, success=False, message=summary,
                             iterations=0, build_time=0.0, solve_time=0.0,
                             total_time=time.perf_counter() - started, cache_hit=False,

@@ -13,7 +13,7 @@ import numpy as np
 from planner.ocp import infeasibility
 from planner.ocp.attempt import Attempt
 from planner.ocp.feedback import REPLAY_SAMPLES
-from planner.ocp.outcome import NOT_FINITE, Outcome
+from planner.ocp.outcome import NOT_FINITE, Outcome, finite_or_none
 from planner.ocp.result import (
     DenseTrajectory,
     MeshPass,
@@ -21,7 +21,7 @@ from planner.ocp.result import (
     Plan,
     SolverReport,
     StatePolynomials,
-    WaveOut,
+    waves_of,
 )
 from planner.ocp.shortest import Probe
 from planner.ocp.solve import Budget
@@ -71,8 +71,8 @@ def plan_of(scene: Scene, attempts: list[Attempt], budget: Budget,
         states=StatePolynomials(breaks=breaks.tolist(), q=_finite(interp.q.coeffs),
                                 dq=_finite(interp.dq.coeffs)),
         duration=best.T,
-        objective=sol.objective if math.isfinite(sol.objective) else None,
-        waves=waves_of(best),
+        objective=finite_or_none(sol.objective),
+        waves=waves_of(best.robot),
         solver=SolverReport(status=sol.status, success=success, message=note,
                             iterations=budget.used,
                             build_time=sum(i.problem.build_time for i in built),
@@ -110,13 +110,6 @@ def _checks(scene: Scene, best: Outcome, t_dense: np.ndarray, budget: Budget,
         return unverified(scene.solver.resimulation_tolerance), None
     return verify(best.robot, best.interp, t_dense, best.errors, best.errors_status,
                   best.replayed, scene.task, scene.solver, converged, budget.deadline)
-
-
-def waves_of(best: Outcome) -> list[WaveOut]:
-    """The waves of the outcome's robot (the co-designed ones after co-design)."""
-    return [WaveOut(joint=j, amplitude=link.wave.amplitude, frequency=link.wave.frequency,
-                    phase=link.wave.phase)
-            for j, link in enumerate(best.robot.links) if link.wave is not None]
 
 
 def _records(outcomes: list[Outcome], probe: Probe | None, after: int) -> list[MeshPass]:

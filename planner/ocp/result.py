@@ -41,6 +41,13 @@ class Progress:
     mesh_pass: int = 0
 
 
+def waves_of(robot: Robot) -> list[WaveOut]:
+    """The waves of the robot's joints, in joint order."""
+    return [WaveOut(joint=j, amplitude=link.wave.amplitude, frequency=link.wave.frequency,
+                    phase=link.wave.phase)
+            for j, link in enumerate(robot.links) if link.wave is not None]
+
+
 class DenseTrajectory(Out):
     """The transcription's interpolant sampled finely: times [s], angles [rad], torques [N m]."""
 
