@@ -22,6 +22,7 @@ from dataclasses import dataclass, replace
 
 from planner import feasibility
 from planner.feasibility import Issue
+from planner.model import Robot
 from planner.ocp import continuation, cores, infeasibility, portfolio, shortest
 from planner.ocp.attempt import Attempt, Start
 from planner.ocp.codesign import design_robot
@@ -122,7 +123,7 @@ def _planned(scene: Scene, progress: Handler | None, warm_start: Plan | None, bu
     if attempts and ended(scene, attempts, budget):
         return plan_of(scene, attempts, budget)
     if not alone:
-        return _beside_companion(scene, attempts, budget, progress)
+        return _beside_companion(scene, robot, T, attempts, budget, progress)
     probe = DurationProbe(scene, robot, budget, progress)
     try_starts(scene, _own(scene, attempts, probe, names, alone), attempts, budget, progress)
     return plan_of(scene, attempts, budget, probe.found, probe.after)
@@ -138,11 +139,11 @@ def _own(scene: Scene, attempts: list[Attempt], probe: DurationProbe,
     return itertools.islice(chosen, 1 + scene.solver.retries)
 
 
-def _beside_companion(scene: Scene, attempts: list[Attempt], budget: Budget,
-                      progress: Handler | None) -> Plan:
-    """The plan of the scene's own starts (the continuation left out) beside a forked
-    companion that solves the continuation: the first verified plan wins."""
-    robot, T = design_robot(scene), duration_guess(scene)
+def _beside_companion(scene: Scene, robot: Robot, T: float, attempts: list[Attempt],
+                      budget: Budget, progress: Handler | None) -> Plan:
+    """The plan of the scene's own starts (the continuation left out, `robot` and T [s]
+    the plan's starting ones) beside a forked companion that solves the continuation: the
+    first verified plan wins."""
     relaxed = continuation_start(scene, robot, T)
     companion = portfolio.Companion(lambda guard: planned(scene, relaxed, replace(budget), guard))
     try:
