@@ -50,6 +50,16 @@ def _functions(s: Structure) -> dict[str, ca.Function]:
                                 ["q", "p"], ["dMpa"])}
 
 
+def block_function(s: Structure) -> ca.Function:
+    """The SX function Mpa(q, p) -> r x c [kg m^2] of a structure."""
+    return _functions(s)["Mpa"]
+
+
+def block_jacobian(s: Structure) -> ca.Function:
+    """The SX function dMpa(q, p) -> (r c) x n, d vec(M_pa) / dq (column-major vec)."""
+    return _functions(s)["dMpa"]
+
+
 @lru_cache(maxsize=128)
 def _mapped(s: Structure, name: Output, size: int) -> ca.Function:
     """`name` mapped over `size` columns of q; a one-column p is shared."""

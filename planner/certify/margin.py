@@ -1,0 +1,130 @@
+"""Proven lower bounds of the coupling margin sigma_least(M_pa) over a box of
+configurations, and along a piecewise polynomial motion interval by interval.
+
+M_pa is enclosed over a box by running its CasADi expression graph in ball arithmetic
+(`ball`), bounded below by Weyl's inequality (`singular`), and the boxes are cut until the
+bound decides (`boxes`). Along a motion each interval's polynomial q(s), s in [0, 1], is
+itself evaluated on balls of s, so the bound holds between every pair of samples.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+from flint import arb
+
+from planner.certify.ball import BallFunction
+from planner.certify.boxes import Bound, minimise
+from planner.certify.singular import least_lower
+from planner.coupling_block import block_function, block_jacobian
+from planner.model import Robot, Structure, parameters
+from planner.ocp.interpolant import PiecewisePolynomial
+
+RTOL = 0.01
+"""Without a target, the bound is decided when within this fraction of the sampled minimum."""
+REGION_BOXES = 20_000
+"""Boxes a region may take before it is undecided."""
+INTERVAL_BOXES = 200
+"""Boxes one interval of a motion may take before it is undecided."""
+
+
+@lru_cache(maxsize=64)
+def _functions(s: Structure) -> tuple[BallFunction, BallFunction]:
+    """M_pa(q, p) and d vec(M_pa) / dq of a structure on balls."""
+    return BallFunction(block_function(s)), BallFunction(block_jacobian(s))
+
+
+class Block:
+    """Enclosures of M_pa (r x c) [kg m^2] of one robot over boxes of configurations."""
+
+    def __init__(self, robot: Robot):
+        s = Structure.of(robot)
+        self.value, self.jacobian = _functions(s)
+        self.p = [arb(float(x)) for x in parameters(robot, s)]
+
+    def at(self, q: np.ndarray) -> list[list[arb]]:
+        """M_pa at one configuration q (n,) [rad] (balls of rounding width)."""
+        return self.value([[arb(float(x)) for x in q], self.p])[0]
+
+    def over(self, box: list[arb], centre: np.ndarray) -> tuple[list[list[arb]], float]:
+        """Enclosure of M_pa over the configurations in `box` (n balls [rad]) joined to
+        `centre` (n,): the intersection of the direct enclosure and the mean-value form
+        M_pa(centre) + sum_i dM_pa/dq_i(box) (q_i - centre_i), which is tighter on small
+        boxes; and sigma_least at the centre (a float, not a bound)."""
+        box = [b.union(arb(float(c))) for b, c in zip(box, centre, strict=True)]
+        direct = self.value([box, self.p])[0]
+        mid = self.at(centre)
+        slopes = self.jacobian([box, self.p])[0]  # (r c) x n, column-major vec
+        shifts = [b - arb(float(c)) for b, c in zip(box, centre, strict=True)]
+        rows = len(mid)
+        out = []
+        for i, row in enumerate(direct):
+            line = []
+            for j, entry in enumerate(row):
+                form = mid[i][j]
+                for slope, shift in zip(slopes[j * rows + i], shifts, strict=True):
+                    form += slope * shift
+                line.append(entry.intersection(form))
+            out.append(line)
+        return out, _least(mid)
+
+
+def _balls(lo: np.ndarray, hi: np.ndarray) -> list[arb]:
+    """The smallest balls arb gives that hold [lo_i, hi_i]."""
+    return [arb(float(a)).union(arb(float(b))) for a, b in zip(lo, hi, strict=True)]
+
+
+def _least(values: list[list[arb]]) -> float:
+    """sigma_least of the midpoint matrix (a float, not a bound)."""
+    a = np.array([[float(b.mid()) for b in row] for row in values])
+    return float(np.linalg.svd(a, compute_uv=False)[-1])
+
+
+def region(robot: Robot, lower, upper, *, target: float | None = None, rtol: float = RTOL,
+           max_boxes: int = REGION_BOXES, deadline: float | None = None) -> Bound:
+    """Bound sigma_least(M_pa(q)) [kg m^2] below over the box lower <= q <= upper (n,)
+    [rad] (see `boxes.minimise` for target, rtol and the status)."""
+    m = Block(robot)
+    lower, upper = np.asarray(lower, float), np.asarray(upper, float)
+    free = np.flatnonzero(upper > lower)
+
+    def enclose(lo: np.ndarray, hi: np.ndarray) -> tuple[float, float]:
+        qlo, qhi = lower.copy(), upper.copy()
+        qlo[free], qhi[free] = lo, hi
+        box, centre = m.over(_balls(qlo, qhi), (qlo + qhi) / 2)
+        return least_lower(box), centre
+
+    if not len(free):
+        bound, value = enclose(lower[free], upper[free])
+        return Bound(bound, value, lower, "certified" if target is not None and bound >= target
+                     else "decided", 1, 0.0)
+    return minimise(enclose, lower[free], upper[free], target=target, rtol=rtol,
+                    max_boxes=max_boxes, deadline=deadline)
+
+
+def _horner(coeffs: np.ndarray, s: arb) -> list[arb]:
+    """q(s) on a ball s for ascending coefficients (m, n)."""
+    out = [arb(0)] * coeffs.shape[1]
+    for row in coeffs[::-1]:
+        out = [o * s + arb(float(c)) for o, c in zip(out, row, strict=True)]
+    return out
+
+
+def along(robot: Robot, q: PiecewisePolynomial, *, target: float | None = None,
+          rtol: float = RTOL, max_boxes: int = INTERVAL_BOXES,
+          deadline: float | None = None) -> list[Bound]:
+    """Bound sigma_least(M_pa(q(t))) below on every interval of a piecewise polynomial
+    q (coefficients (K, m, n) in s in [0, 1]): one Bound per interval, its `where` the
+    fraction s of the interval's smallest sampled value."""
+    m = Block(robot)
+    out = []
+    for coeffs in q.coeffs:
+        def enclose(lo: np.ndarray, hi: np.ndarray, c: np.ndarray = coeffs) -> tuple[float, float]:
+            s = _balls(lo, hi)[0]
+            centre = np.array([float(v.mid()) for v in _horner(c, arb(float(lo[0] + hi[0]) / 2))])
+            box, value = m.over(_horner(c, s), centre)
+            return least_lower(box), value
+        out.append(minimise(enclose, np.zeros(1), np.ones(1), target=target, rtol=rtol,
+                            max_boxes=max_boxes, deadline=deadline))
+    return out
