@@ -68,11 +68,11 @@ def test_the_final_state_initial_state_and_tip_are_checked_on_the_delivered_plan
     interp, robot = result.interpolant(), scene.robot
     t = np.asarray(result.dense.t)
     sigma = np.asarray(result.verification.sigma_min, float)
-    own = requirements(robot, interp, t, scene.task, sigma, 1e-3)
+    own = requirements(robot, interp, t, scene.task, sigma, None, 1e-3)
     assert own.violations == [] and own.initial_error < 1e-8 and own.final_error < 1e-8
     moved = with_task(scene, final={"q": [0.51, 0.6], "dq": [0.0, 0.0]},
                       initial={"q": [0.0, 0.1], "dq": [0.0, 0.02]}).task
-    found = requirements(robot, interp, t, moved, sigma, 1e-3)
+    found = requirements(robot, interp, t, moved, sigma, None, 1e-3)
     assert found.final_error == pytest.approx(0.01, abs=1e-8)
     assert found.initial_error == pytest.approx(0.02, abs=1e-8)
     assert found.violations[0].startswith("the plan's initial dq of joint 1 is ")
@@ -80,7 +80,7 @@ def test_the_final_state_initial_state_and_tip_are_checked_on_the_delivered_plan
                                           "task asks 0.51 rad (off by 0.01 rad")
     end = tip_of(robot, np.asarray(result.q[-1]))
     aimed = with_task(scene, tip_target={"x": float(end[0]) + 0.03, "y": float(end[1])}).task
-    found = requirements(robot, interp, t, aimed, sigma, 1e-3)
+    found = requirements(robot, interp, t, aimed, sigma, None, 1e-3)
     assert found.tip_error == pytest.approx(0.03, abs=1e-9)
     assert found.violations == [found.violations[0]] and "0.03 m from the task's target" \
         in found.violations[0]
@@ -92,16 +92,16 @@ def test_the_duration_and_the_coupling_margin_are_checked_on_the_delivered_plan(
     t = np.asarray(result.dense.t)
     sigma = np.asarray(result.verification.sigma_min, float)
     longer = with_task(scene, duration={"min": 1.2, "max": 2.0}).task
-    found = requirements(robot, interp, t, longer, sigma, 1e-3)
+    found = requirements(robot, interp, t, longer, sigma, None, 1e-3)
     assert found.duration_excess == pytest.approx(0.2)
     assert found.violations == ["the plan lasts 1 s, outside the task's [1.2, 2] s"]
     least = float(np.nanmin(sigma))
     kept = requirements(robot, interp, t, with_task(scene, coupling_margin=least).task,
-                        sigma, 1e-3)
+                        sigma, None, 1e-3)
     assert kept.margin_shortfall == 0.0 and kept.violations == []
     above = least * (1 + 10 * MARGIN_RTOL)
     found = requirements(robot, interp, t, with_task(scene, coupling_margin=above).task,
-                         sigma, 1e-3)
+                         sigma, None, 1e-3)
     assert found.margin_shortfall == pytest.approx(above - least)
     assert found.violations[0].startswith(f"sigma_min(M_pa) falls to {least:.6g} at t = ")
 

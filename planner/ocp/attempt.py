@@ -8,6 +8,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 from planner.model import Robot
 from planner.ocp import continuation, shortest
 from planner.ocp.guess import Guess, interpolant_guess
@@ -166,14 +168,24 @@ def refine(scene: Scene, made: Attempt, budget: Budget, progress: Handler | None
         if len(outcomes) > 1 and artefact(outcomes[-2], last) \
                 or not last.solution.success or last.accurate(tolerance):
             return
+        unproven = _unproven(last, tolerance)
         mesh = refined(last.inst.mesh, last.errors, last.inst.problem.transcription.order,
-                       tolerance, refinement.max_intervals)
+                       tolerance, refinement.max_intervals, unproven)
         if mesh is None:
             return
         inst = instance(scene, last.robot, mesh, last.T)
         made.add(solve_on(scene, inst, last.robot, last.T,
                           interpolant_guess(last.interp, last.T), budget, progress,
                           first_pass + len(made.passes), last.record.strategy))
+
+
+def _unproven(last: Outcome, tolerance: float) -> np.ndarray | None:
+    """The intervals to halve for the coupling margin (None: none): those it is not proven
+    on, once every interval is accurate; until then the errors decide the cuts alone (a
+    mesh that follows an inaccurate plan's margin dips leads elsewhere)."""
+    if last.margin is None or np.any(last.errors > tolerance):
+        return None
+    return last.margin.unproven()
 
 
 ARTEFACT_GROWTH = 2.0

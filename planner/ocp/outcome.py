@@ -15,6 +15,7 @@ from planner.ocp.accuracy import interval_errors
 from planner.ocp.codesign import solved_robot
 from planner.ocp.guess import Guess
 from planner.ocp.instance import Instance, initial_point
+from planner.ocp.margin_proof import MarginProof, prove
 from planner.ocp.monitor import Handler
 from planner.ocp.result import MeshPass, NlpSolution
 from planner.ocp.solve import Budget, Solution, solve
@@ -40,10 +41,14 @@ class Outcome:
     errors_status: str
     replayed: tuple[float | None, str]
     record: MeshPass
+    margin: MarginProof | None = None
+    """The coupling margin proven interval by interval (None without one, or not made)."""
 
     def accurate(self, tolerance: float) -> bool:
-        """Every interval error at most `tolerance` [rad]."""
-        return self.finite and bool(np.all(self.errors <= tolerance))
+        """Every interval error at most `tolerance` [rad], and the coupling margin proven on
+        every interval where the task has one."""
+        proven = self.margin is None or not self.margin.unproven().any()
+        return self.finite and bool(np.all(self.errors <= tolerance)) and proven
 
     def worst_error(self) -> float:
         """The largest interval error [rad] (inf where unknown)."""
@@ -72,12 +77,13 @@ def solve_on(scene: Scene, inst: Instance, robot: Robot, T: float, guess: Guess,
     errors, status = interval_errors(outcome.robot, outcome.interp, scene.solver.jit,
                                      budget.deadline)
     replayed = open_loop(outcome.robot, outcome.interp, scene.solver.jit, budget.deadline)
+    margin = prove(outcome.robot, outcome.interp, scene.task.coupling_margin, budget.deadline)
     budget.measured = time.perf_counter() - checked  # what the final checks will scale with
     record = outcome.record.model_copy(update={
         "max_local_error": finite_or_none(float(errors.max())),
         "resimulation_error": replayed[0], "time": time.perf_counter() - started})
     return replace(outcome, errors=errors, errors_status=status, replayed=replayed,
-                   record=record)
+                   record=record, margin=margin)
 
 
 def relaxed_solve(scene: Scene, inst: Instance, robot: Robot, T: float, name: str,

@@ -4,9 +4,11 @@ The error of an interval of width h is modelled as C h^p, p the transcription's 
 (`Transcription.order`). An interval whose error e exceeds the tolerance is cut into
 m = ceil((e / target)^(1/p)) equal parts, target = SAFETY * tolerance, at least 2 and at
 most MAX_SPLIT per pass (the model is rough far from convergence); intervals within the
-tolerance are kept. The number of intervals is then rounded up to the next of
-`INTERVAL_STEPS`, the extra cuts going where the model predicts the largest error, so
-that refined plans of different scenes share built NLPs.
+tolerance are kept, but for those the coupling margin is not proven on (`cut`), which are
+halved: the finer mesh's knots hold the margin where it dipped between them. The number
+of intervals is then rounded up to the next of `INTERVAL_STEPS`, the extra cuts going
+where the model predicts the largest error, so that refined plans of different scenes
+share built NLPs.
 """
 
 from __future__ import annotations
@@ -36,12 +38,15 @@ def pieces(errors: np.ndarray, order: int, tolerance: float) -> np.ndarray:
 
 
 def refined(mesh: Mesh, errors: np.ndarray, order: int, tolerance: float,
-            max_intervals: int) -> Mesh | None:
-    """The next mesh for interval errors (N,) [rad], or None when every interval is within
-    the tolerance or the refined mesh would exceed `max_intervals`."""
-    if not np.any(errors > tolerance):
+            max_intervals: int, cut: np.ndarray | None = None) -> Mesh | None:
+    """The next mesh for interval errors (N,) [rad] and the intervals to halve at least
+    (`cut`, (N,) bool), or None when every interval is within the tolerance and none is
+    to be cut, or the refined mesh would exceed `max_intervals`."""
+    cut = np.zeros(errors.shape, bool) if cut is None else cut
+    if not np.any(errors > tolerance) and not cut.any():
         return None
-    parts = pieces(errors, order, tolerance)
+    parts = np.where(cut, np.maximum(pieces(errors, order, tolerance), 2),
+                     pieces(errors, order, tolerance))
     count = int(parts.sum())
     if count > max_intervals:
         return None

@@ -109,7 +109,8 @@ def _checks(scene: Scene, best: Outcome, t_dense: np.ndarray, budget: Budget,
     if not best.finite:
         return unverified(scene.solver.resimulation_tolerance), None
     return verify(best.robot, best.interp, t_dense, best.errors, best.errors_status,
-                  best.replayed, scene.task, scene.solver, converged, budget.deadline)
+                  best.replayed, scene.task, scene.solver, converged, budget.deadline,
+                  best.margin)
 
 
 def _records(outcomes: list[Outcome], probe: Probe | None, after: int) -> list[MeshPass]:

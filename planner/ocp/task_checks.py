@@ -11,7 +11,9 @@ import numpy as np
 
 from planner.dynamics import Dynamics
 from planner.model import Robot
+from planner.ocp.margin_proof import MARGIN_RTOL, MarginProof
 from planner.ocp.transcription import Interpolant
+from planner.ocp.verification import MarginCertificate
 from planner.scene import Task
 
 STATE_TOL = 1e-6
@@ -22,8 +24,6 @@ TIP_TOL = 1e-6
 DURATION_RTOL = 1e-6
 """A planned duration within its range up to this relative tolerance (Ipopt relaxes a
 variable's bounds by 1e-8 of them)."""
-MARGIN_RTOL = 1e-6
-"""sigma_min(M_pa) keeps the margin m when it is at least m (1 - MARGIN_RTOL)."""
 
 
 @dataclass(frozen=True)
@@ -31,24 +31,27 @@ class Requirements:
     """How far the plan is from what the task asks: the largest departure of the initial
     state and of the given final entries [rad, rad/s], the final tip's distance to its
     target [m], how far the duration is outside the task's [s], how far sigma_min(M_pa)
-    falls below the coupling margin [kg m^2] and the passive joints from an exact prescribed
-    motion [rad]; each None when the task does not ask it."""
+    falls below the coupling margin [kg m^2] at the samples and what is proven of it on
+    whole intervals, and the passive joints from an exact prescribed motion [rad]; each None
+    when the task does not ask it."""
 
     initial_error: float
     final_error: float | None
     tip_error: float | None
     duration_excess: float
     margin_shortfall: float | None
+    margin_certificate: MarginCertificate | None
     tracking_error: float | None
     violations: list[str]
 
 
 def requirements(robot: Robot, interp: Interpolant, t: np.ndarray, task: Task,
-                 sigma: np.ndarray, tracking_tol: float) -> Requirements:
+                 sigma: np.ndarray, proof: MarginProof | None,
+                 tracking_tol: float) -> Requirements:
     """The plan's figures against `task`: its states at the first and last breakpoint,
     its tip at the end, its duration, sigma_min (K,) of M_pa at the samples t (K,) [s] and
-    the passive angles there (an exact prescribed motion holds within `tracking_tol`
-    [rad])."""
+    the margin's `proof` on whole intervals, and the passive angles at the samples (an
+    exact prescribed motion holds within `tracking_tol` [rad])."""
     violations: list[str] = []
     breaks = interp.q.breaks
     T = float(breaks[-1] - breaks[0])
@@ -59,9 +62,10 @@ def requirements(robot: Robot, interp: Interpolant, t: np.ndarray, task: Task,
     tip = _tip(robot, end[:robot.n], task, violations)
     duration = _duration(T, task, violations)
     margin = _margin(sigma, t, task.coupling_margin, violations)
+    certificate = _proven(proof, task.coupling_margin, breaks, violations)
     tracking = _tracking(robot, interp, t, T, task, tracking_tol, violations)
     return Requirements(initial if initial is not None else 0.0, final, tip, duration,
-                        margin, tracking, violations)
+                        margin, certificate, tracking, violations)
 
 
 def _state(interp: Interpolant, at: np.ndarray) -> np.ndarray:
@@ -130,6 +134,18 @@ def _margin(sigma: np.ndarray, t: np.ndarray, margin: float | None,
                           f"below the task's coupling margin of {margin:g} (relative "
                           f"tolerance {MARGIN_RTOL:g})")
     return shortfall
+
+
+def _proven(proof: MarginProof | None, margin: float | None, breaks: np.ndarray,
+            violations: list[str]) -> MarginCertificate | None:
+    """The margin's certificate on whole intervals (None without a proof: no margin, or
+    no passive joints), its failure said in `violations`."""
+    if proof is None:
+        return None
+    said = proof.violation(breaks)
+    if said is not None and margin is not None:
+        violations.append(said)
+    return proof.certificate()
 
 
 def _tracking(robot: Robot, interp: Interpolant, t: np.ndarray, T: float, task: Task,

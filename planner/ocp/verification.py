@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import Field
 
 from planner.ocp.output import Out
@@ -58,6 +60,23 @@ class Robustness(Out):
                                             "without a bound)")
 
 
+class MarginCertificate(Out):
+    """The coupling margin proven on whole intervals of the plan (ball arithmetic on M_pa
+    along each interval's polynomial; docs/planner.md, "The margin on whole intervals")."""
+
+    bound: float = Field(description="[kg m^2] proven: sigma_min(M_pa) is at least this "
+                                     "everywhere along the plan (0 where nothing is proven)")
+    target: float = Field(description="[kg m^2] what each interval's bound must reach: "
+                                      "task.coupling_margin (1 - 1e-3)")
+    status: Literal["certified", "refuted", "undecided"] = Field(
+        description="certified: every interval's bound reaches the target; refuted: "
+                    "sigma_min falls below it somewhere; undecided: some interval's bound "
+                    "stayed below it within its boxes (or the budget)")
+    unproven_intervals: list[int] = Field(description="the intervals without the proof")
+    boxes: int = Field(description="enclosures evaluated over all intervals")
+    seconds: float = Field(description="[s] wall time of the proof")
+
+
 class Verification(Out):
     """Checks computed independently of the NLP."""
 
@@ -105,8 +124,13 @@ class Verification(Out):
     margin_shortfall: float | None = Field(
         default=None, description="[kg m^2] how far sigma_min(M_pa) falls below "
                                   "task.coupling_margin at the dense samples (0: kept; None "
-                                  "without a margin); beyond 1e-6 of the margin (relative) the "
+                                  "without a margin); beyond 1e-3 of the margin (relative) the "
                                   "plan is not verified")
+    margin_certificate: MarginCertificate | None = Field(
+        default=None, description="the coupling margin proven on every interval (None "
+                                  "without a margin or passive joints, or in plans stored "
+                                  "before the field existed); a plan is verified only when "
+                                  "it is certified")
     tracking_error: float | None = Field(
         default=None, description="[rad] the largest departure of the passive angles from "
                                   "an exact task.tracking motion at the dense samples (None "

@@ -30,6 +30,7 @@ from planner.dynamics import functions
 from planner.model import Robot, Structure, parameters
 from planner.ocp.feedback import PERTURBATION, gains, growth_factor, linearise, replay
 from planner.ocp.interpolant import PiecewisePolynomial
+from planner.ocp.margin_proof import MarginProof, prove
 from planner.ocp.robustness import robustness
 from planner.ocp.task_checks import requirements
 from planner.ocp.transcription import Interpolant
@@ -214,24 +215,27 @@ def _feedback(robot: Robot, interp: Interpolant, torque_limit: list[float] | flo
 
 def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.ndarray,
            errors_status: str, replayed: tuple[float | None, str], task: Task,
-           settings: SolverSettings, converged: bool,
-           deadline: float | None = None) -> tuple[Verification, Feedback | None]:
+           settings: SolverSettings, converged: bool, deadline: float | None = None,
+           proof: MarginProof | None = None) -> tuple[Verification, Feedback | None]:
     """All checks of a plan of `robot` whose interpolant is `interp`, whose interval errors
     [rad] are `errors` and whose open-loop replay gave `replayed`, against its `task` and
     `settings` (solver.resimulation_tolerance, robustness, jit); verified when its solve
     `converged`, every interval error is at most the tolerance, the plan keeps the task's
     limits (`limits`) and meets its other requirements (`planner.ocp.task_checks`)
     everywhere and, with solver.robustness, when its feedback keeps the arm that close to
-    the plan on every model of task.uncertainty (`planner.ocp.robustness`). Also the plan's
-    feedback (None where the linearisation failed). Past `deadline` (time.perf_counter()
-    seconds), the optional checks, the closed-loop replays, are skipped
-    (`Verification.skipped`); a replay on a perturbed model stopped there counts as one that
-    did not stay within the bound."""
+    the plan on every model of task.uncertainty (`planner.ocp.robustness`). The coupling
+    margin's `proof` on whole intervals is made here unless the solve made it
+    (`planner.ocp.margin_proof`). Also the plan's feedback (None where the linearisation
+    failed). Past `deadline` (time.perf_counter() seconds), the optional checks, the
+    closed-loop replays, are skipped (`Verification.skipped`); a replay on a perturbed
+    model stopped there counts as one that did not stay within the bound."""
     tolerance, compiled = settings.resimulation_tolerance, settings.jit
     kept = limits(robot, interp, t_dense, task.torque_limit, task.position_bounds,
                   task.velocity_bounds)
     sigma, _ = coupling_along(robot, interp.q(t_dense))
-    asked = requirements(robot, interp, t_dense, task, sigma, tolerance)
+    if proof is None:
+        proof = prove(robot, interp, task.coupling_margin, deadline)
+    asked = requirements(robot, interp, t_dense, task, sigma, proof, tolerance)
     crossings, waveless = singular_crossings(robot, interp, t_dense)
     local = float(errors.max())
     fb, measured = _feedback(robot, interp, task.torque_limit, compiled, deadline)
@@ -250,7 +254,8 @@ def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.nd
         velocity_excess=kept.velocity, limit_violations=kept.violations,
         initial_error=asked.initial_error, final_error=asked.final_error,
         tip_error=asked.tip_error, duration_excess=asked.duration_excess,
-        margin_shortfall=asked.margin_shortfall, tracking_error=asked.tracking_error,
+        margin_shortfall=asked.margin_shortfall,
+        margin_certificate=asked.margin_certificate, tracking_error=asked.tracking_error,
         task_violations=asked.violations,
         min_sigma=_minimum(sigma), waveless_min_sigma=_minimum(waveless),
         waveless_singular_crossings=crossings,
