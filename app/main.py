@@ -37,6 +37,7 @@ from app.store import StoreDamaged, StoreUnavailable
 from app.store.open import open_store
 from app.sync_memory import MemoryBudget
 from app.worker import load_function
+from planner import prebuild
 
 log = logging.getLogger("undertow.main")
 
@@ -54,6 +55,7 @@ def create_app(settings: Settings | None = None, solve: SolveFunction | None = N
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         runner = _start(app, settings, solve)
+        builder = prebuild.start()  # the examples' compiled kernels, at the lowest priority
         app.state.store, app.state.runner = runner.store, runner
         app.state.limiter = CapacityLimiter(settings.compute_threads)
         app.state.sync_memory = MemoryBudget(settings.sync_memory_mb)
@@ -62,6 +64,8 @@ def create_app(settings: Settings | None = None, solve: SolveFunction | None = N
             yield
         finally:
             runner.shutdown()
+            if builder is not None and builder.poll() is None:
+                builder.terminate()
 
     app = FastAPIOffline(title="undertow", version="0.1.0", description=DESCRIPTION,
                          lifespan=lifespan, generate_unique_id_function=lambda route: route.name)

@@ -5,7 +5,9 @@ in a temporary folder) and renamed into place atomically, so processes sharing t
 folder never load a partial one. $UNDERTOW_CACHE_DIR names the folder (default
 ~/.cache/undertow). A caller that need not wait has the library built in the background,
 by a process of its own at the lowest priority (`python -m planner.compiled`), and goes on
-with the interpreted functions meanwhile.
+with the interpreted functions meanwhile. With $UNDERTOW_BUILDS=off no background build
+starts (libraries already on disk are still loaded), and a cache folder that cannot be
+made leaves every caller interpreted.
 """
 
 from __future__ import annotations
@@ -32,6 +34,12 @@ def cache_dir() -> Path:
     """Where compiled libraries are kept: $UNDERTOW_CACHE_DIR, else ~/.cache/undertow."""
     default = Path.home() / ".cache" / "undertow"
     return Path(os.environ.get("UNDERTOW_CACHE_DIR", default))
+
+
+def background_builds() -> bool:
+    """Whether libraries missing from the cache may be built in the background
+    ($UNDERTOW_BUILDS: "background", the default, or "off")."""
+    return os.environ.get("UNDERTOW_BUILDS", "background") != "off"
 
 
 def source_digest(*parts: str, sources: Iterable[Path] = ()) -> str:
@@ -63,13 +71,23 @@ def library(name: str, functions: Sequence[ca.Function], flags: str = "-O1",
         if not background and started is not None and started.poll() is None:
             started.wait()  # the build this process started in the background, not a second
         if not path.exists():
-            folder.mkdir(parents=True, exist_ok=True)
             if background:
-                _start(folder, name, functions, flags)
+                if background_builds() and _writable(folder):
+                    _start(folder, name, functions, flags)
                 return None
+            folder.mkdir(parents=True, exist_ok=True)
             _build(folder, name, functions, flags)
         _LOADED[path] = {f.name(): ca.external(f.name(), str(path)) for f in functions}
         return _LOADED[path]
+
+
+def _writable(folder: Path) -> bool:
+    """Whether the cache folder exists or can be made, and takes new files."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return False
+    return os.access(folder, os.W_OK)
 
 
 def _build(folder: Path, name: str, functions: Sequence[ca.Function], flags: str) -> None:
@@ -106,6 +124,12 @@ def building() -> list[str]:
     """Names of the libraries this process is building in the background."""
     with _CODEGEN:
         return [path.stem for path, proc in _BUILDING.items() if proc.poll() is None]
+
+
+def started() -> list[str]:
+    """Names of the libraries this process has started building in the background."""
+    with _CODEGEN:
+        return [path.stem for path in _BUILDING]
 
 
 def wait(timeout: float = 600.0) -> None:

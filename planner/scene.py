@@ -255,9 +255,11 @@ class SolverSettings(BaseModel):
                     "the active rows; inverse-dynamics: the classical inverse dynamics along "
                     "that passive path until it meets sigma_min(M_pa) = coupling margin (1e-3 "
                     "without one), the interpolation after")
-    jit: bool = Field(default=False, description="compile the NLP's derivative kernels and the "
-                                                 "verification's dynamics to C (once per "
-                                                 "structure, cached on disk)")
+    jit: bool = Field(default=True, description="compile the NLP's derivative kernels and the "
+                                                "verification's dynamics to C (once per "
+                                                "structure, cached on disk, built in the "
+                                                "background: the plans before the build "
+                                                "ends run interpreted)")
     warm_start: str | None = Field(
         default=None, max_length=64,
         description="the service's id of an earlier plan job to start from, or \"nearest\": "

@@ -28,6 +28,12 @@ from testbed.robots import random_robot
 # One solver process per plan: the tests run two at a time already (pytest -n 2), and which
 # process of a portfolio wins depends on timing; tests/test_portfolio.py sets its own.
 os.environ.setdefault("UNDERTOW_SOLVER_PROCESSES", "1")
+# No background compilations (solver.jit is on by default): each new structure would start
+# a gcc process beside the tests; tests/test_compiled.py and the compiled-check test of
+# tests/test_feedback.py turn them back on in a cache folder of their own. An empty cache
+# folder: no test loads a library an earlier run left.
+os.environ.setdefault("UNDERTOW_BUILDS", "off")
+os.environ.setdefault("UNDERTOW_CACHE_DIR", tempfile.mkdtemp(prefix="undertow-kernels-"))
 # Core tokens of this test process's own (planner.ocp.cores): the tests that fork a
 # companion find a free core whatever else runs on the machine.
 os.environ.setdefault("UNDERTOW_CORE_DIR", tempfile.mkdtemp(prefix="undertow-cores-"))

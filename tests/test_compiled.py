@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from planner import compiled
+from planner import compiled, prebuild
 from planner.ocp import plan
 from planner.scene import Scene
 
@@ -28,6 +28,7 @@ def _scene(goal: float) -> Scene:
 @pytest.fixture
 def cache(tmp_path, monkeypatch):
     monkeypatch.setenv("UNDERTOW_CACHE_DIR", str(tmp_path))
+    monkeypatch.setenv("UNDERTOW_BUILDS", "background")
     return tmp_path
 
 
@@ -48,3 +49,44 @@ def test_a_new_structure_plans_at_once_and_compiles_in_the_background(cache):
     assert np.allclose(again.tau, first.tau, atol=1e-9)
     assert again.verification.local_error == pytest.approx(first.verification.local_error,
                                                            rel=1e-6, abs=1e-12)
+
+
+def test_plans_are_compiled_by_default_and_interpreted_while_builds_are_off(cache,
+                                                                            monkeypatch):
+    scene = Scene.model_validate({**_scene(0.3).model_dump(exclude_unset=True),
+                                  "solver": {"retries": 0}})
+    assert scene.solver.jit
+    monkeypatch.setenv("UNDERTOW_BUILDS", "off")
+    off = plan(scene)
+    assert off.solver.success and not off.solver.compiled and not compiled.building()
+    assert not list(cache.glob("*.so"))
+
+
+def test_an_unwritable_cache_leaves_plans_interpreted(tmp_path, monkeypatch):
+    blocked = tmp_path / "file"
+    blocked.write_text("not a folder")
+    monkeypatch.setenv("UNDERTOW_CACHE_DIR", str(blocked / "kernels"))
+    monkeypatch.setenv("UNDERTOW_BUILDS", "background")
+    result = plan(_scene(0.31))
+    assert result.solver.success and not result.solver.compiled and not compiled.building()
+
+
+def test_the_examples_libraries_are_built_ahead(cache, monkeypatch):
+    """One small example stands for the built-in ones (each build takes gcc a while)."""
+    data = _scene(0.32).model_dump(exclude_unset=True)
+    example = Scene.model_validate({**data, "robot": {**data["robot"], "gravity": 0.0}})
+    monkeypatch.setattr(prebuild, "examples", lambda: [_Example(example)])
+    built = prebuild.build()
+    assert not compiled.building()
+    names = {p.stem for p in cache.glob("*.so")}
+    assert {name.split("_")[0] for name in names} == {"flow", "jacobians", "stages"}
+    assert names <= set(built)
+    assert prebuild.scenes()[0].solver.max_iter == 1
+    assert plan(example).solver.compiled
+
+
+class _Example:
+    kind = "plan"
+
+    def __init__(self, scene: Scene):
+        self.request = scene.model_dump(exclude_unset=True)

@@ -134,6 +134,7 @@ def test_a_start_that_diverges_leaves_the_other_replays_whole(seed_arm):
 
 def test_the_compiled_dynamics_give_the_same_checks(seed_arm, tmp_path, monkeypatch):
     monkeypatch.setenv("UNDERTOW_CACHE_DIR", str(tmp_path))
+    monkeypatch.setenv("UNDERTOW_BUILDS", "background")
     sc, result, interp = seed_arm
     interpreted, _ = interval_errors(sc.robot, interp)
     interval_errors(sc.robot, interp, compiled=True)  # interpreted while gcc builds the flow
