@@ -231,6 +231,7 @@ def test_coupling_margin_holds_at_every_knot():
         sigma, _ = coupling_along(sc.robot, np.asarray(result.q))
         assert result.solver.success
         assert sigma.min() >= 0.045 - 1e-7
+        assert result.wave_certificate is None  # no co-designed waves to prove
     assert sigma.min() > 0.045 + 1e-3 and result.verification.verified
     sigma, _ = coupling_along(sc.robot, np.asarray(plan(sc).q))
     assert sigma.min() <= 0.045 + 1e-6  # the margin binds on 20 intervals
@@ -261,6 +262,11 @@ def test_wave_co_design_returns_bounded_waves_that_keep_the_margin():
                                         "phase": wave.phase}})
     sigma, _ = coupling_along(designed, np.asarray(result.q))
     assert sigma.min() >= 0.008 - 1e-7
+    cert = result.wave_certificate  # proven along the plan's own polynomials
+    assert cert is not None and cert.status == "certified" and cert.target == 0.02 * (1 - 1e-3)
+    q = result.interpolant().q
+    fine, _ = coupling_along(designed, q(np.linspace(0.0, result.duration, 20 * len(q.coeffs) + 1)))
+    assert cert.target <= cert.bound <= min(fine.min(), cert.sampled_min)
 
 
 def test_progress_is_reported_and_cancellation_stops_the_solve():

@@ -10,7 +10,7 @@ import time
 
 import numpy as np
 
-from planner.ocp import infeasibility
+from planner.ocp import codesign, infeasibility
 from planner.ocp.attempt import Attempt
 from planner.ocp.feedback import REPLAY_SAMPLES
 from planner.ocp.outcome import NOT_FINITE, Outcome, finite_or_none
@@ -84,6 +84,9 @@ def plan_of(scene: Scene, attempts: list[Attempt], budget: Budget,
                             strategy=attempt.start.name + refined_by),
         mesh_passes=_records(outcomes, probe, probe_after),
         feedback=feedback, verification=verification, solution=_nlp_solution(best))
+    if best.finite:
+        plan = plan.model_copy(update={"wave_certificate": codesign.certificate(
+            scene, plan, t_dense, budget.deadline)})
     return with_verdict(infeasibility.annotate(plan, scene, attempts, best, attempt, probe))
 
 

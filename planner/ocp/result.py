@@ -10,6 +10,7 @@ import numpy as np
 from pydantic import Field
 from pydantic.json_schema import SkipJsonSchema
 
+from planner.certify import CouplingCertificate
 from planner.coupling_block import along
 from planner.dynamics import Dynamics
 from planner.errors import InputError
@@ -197,6 +198,12 @@ class Plan(Out):
     objective: float | None = Field(
         description="the objective at the returned iterate (None where it is not finite)")
     waves: list[WaveOut]
+    wave_certificate: CouplingCertificate | None = Field(
+        default=None,
+        description="with task.co_design and a coupling margin: the designed waves' "
+                    "sigma_min(M_pa) proven along the plan's angle polynomials (`states.q`), "
+                    "interval by interval, against the margin (1 - 1e-3), with the smallest "
+                    "value sampled, the boxes and the time it took; None otherwise")
     solver: SolverReport
     mesh_passes: list[MeshPass] = Field(default_factory=list)
     feedback: Feedback | None = None
