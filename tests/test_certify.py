@@ -4,7 +4,9 @@ A bound is never above the smallest sampled sigma_least(M_pa) (numpy's SVD of th
 planner evaluates, at points drawn inside the box or along the motion), and where it says
 "decided" it is within the stated RTOL of it. The enclosures are checked on their own too:
 M_pa at every sampled point lies in the balls. A planted fault (an operation that drops its
-radius, a Weyl step without the radius) makes these checks fail.
+radius, a Weyl step without the radius) makes these checks fail. A whole motion's bound
+(`path`) joins its intervals', and `decide` reads a target off a proof without calling an
+undecided one certified.
 """
 
 from __future__ import annotations
