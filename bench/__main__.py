@@ -88,6 +88,9 @@ BENCHES = {
                                            "commit"),
     "time_vs_error": ("bench.time_vs_error", "run time against error of every transcription "
                                              "on the reference scenes"),
+    "wave_certificates": ("bench.wave_certificates", "wave designs and co-designs proven along "
+                                                     "their motions and over regions: bound, "
+                                                     "boxes, time"),
 }
 """Every benchmark: its module (with main(argv)) and what it measures."""
 

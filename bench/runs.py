@@ -54,6 +54,7 @@ RESULTS: dict[str, tuple[str, ...]] = {
               "docs/img/suite.png"),
     "verification": ("bench/results/verification.csv",),
     "time_vs_error": ("bench/results/time_vs_error*.csv", "docs/img/pareto_*.png"),
+    "wave_certificates": ("bench/results/wave_certificates.csv",),
 }
 """Every benchmark's result files (glob patterns under the checkout), by its name in
 `bench.__main__.BENCHES`; none for one that writes a document section alone."""

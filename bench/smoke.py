@@ -81,6 +81,7 @@ SMALL: dict[str, Small] = {
     "verification": Small((("--repeats", "1", "--scenes", "seed-arm-plan", "--jit", "off"),)),
     "time_vs_error": Small((("--scenes", "arm-2", "--warm", "--quick",
                              "--transcriptions", "legendre-3"),)),
+    "wave_certificates": Small((("--arms", "two-link"),)),
 }
 """Every benchmark's small mode, by its name in `bench.__main__.BENCHES`."""
 

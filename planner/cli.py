@@ -245,8 +245,10 @@ def cmd_design_wave(args: argparse.Namespace) -> int:
     write(args.output, dump(result))
     waves = ", ".join(f"joint {w.joint}: a={w.amplitude:.4g} n={w.frequency} "
                       f"eps={w.phase:.4g}" for w in result.waves)
-    say(args, f"{result.status}: certified sigma_min {result.certified_sigma_min:.4g} "
-              f"(margin {request.margin:g}); {waves}")
+    c = result.certificate
+    say(args, f"{result.status}: sigma_min proven >= {c.bound:.4g} (sampled minimum "
+              f"{c.sampled_min:.4g}, margin {request.margin:g}; {c.boxes:,} boxes in "
+              f"{c.seconds:.2g} s); {waves}")
     return OK if result.status == "certified" else FAILED
 
 

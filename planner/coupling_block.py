@@ -16,7 +16,6 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Literal
 
 import casadi as ca
 import numpy as np
@@ -28,9 +27,6 @@ from planner.model import Robot, Structure, parameters
 
 CHUNK = 4096
 """Configurations per mapped CasADi call."""
-
-Output = Literal["Mpa", "dMpa"]
-"""What `evaluate` computes: the block, or d vec(M_pa) / dq."""
 
 Path = Callable[[np.ndarray, np.ndarray], np.ndarray]
 """path(u, k): the configurations (m, n) [rad] at the path parameters u (m,) of the
@@ -61,28 +57,27 @@ def block_jacobian(s: Structure) -> ca.Function:
 
 
 @lru_cache(maxsize=128)
-def _mapped(s: Structure, name: Output, size: int) -> ca.Function:
-    """`name` mapped over `size` columns of q; a one-column p is shared."""
-    return _functions(s)[name].map(size)
+def _mapped(s: Structure, size: int) -> ca.Function:
+    """Mpa mapped over `size` columns of q; a one-column p is shared."""
+    return _functions(s)["Mpa"].map(size)
 
 
-def evaluate(s: Structure, name: Output, configurations, p,
-             deadline: float | None = None) -> np.ndarray:
-    """M_pa ("Mpa") or its Jacobian d vec(M_pa) / dq ("dMpa") at every configuration.
+def evaluate(s: Structure, configurations, p, deadline: float | None = None) -> np.ndarray:
+    """M_pa (K, r, c) [kg m^2] at every configuration.
 
     configurations: (K, n) [rad]; p: one parameter vector (n_params,) or one per row
-    (K, n_params). Returns (K, r, c) for "Mpa", (K, r c, n) for "dMpa". Past `deadline`
-    (`time.monotonic()`, checked between chunks) it raises BudgetExceeded.
+    (K, n_params). Past `deadline` (`time.monotonic()`, checked between chunks) it raises
+    BudgetExceeded.
     """
     Q = np.atleast_2d(np.asarray(configurations, dtype=float))
     P = np.asarray(p, dtype=float)
     K = Q.shape[0]
     size = min(CHUNK, max(K, 1))
-    f = _mapped(s, name, size)
+    f = _mapped(s, size)
     rows, cols = f.size_out(0)
     cols //= size
     out = np.empty((K, rows, cols))
-    for part in budget.chunks(K, size, deadline, f"the evaluation of {name}", "configuration"):
+    for part in budget.chunks(K, size, deadline, "the evaluation of Mpa", "configuration"):
         args = [_pad(Q[part], size).T, P if P.ndim == 1 else _pad(P[part], size).T]
         flat = np.array(f(*args))  # (rows, cols * size): the outputs side by side
         stacked = flat.reshape(rows, cols, size, order="F").transpose(2, 0, 1)
@@ -100,7 +95,7 @@ def blocks(robot: Robot, configurations, structure: Structure | None = None,
            deadline: float | None = None) -> np.ndarray:
     """M_pa at every configuration: (K, r, c) [kg m^2] for q of shape (K, n) [rad]."""
     s = structure or Structure.of(robot)
-    return evaluate(s, "Mpa", configurations, parameters(robot, s), deadline)
+    return evaluate(s, configurations, parameters(robot, s), deadline)
 
 
 # --------------------------------------------------------------------------- measures
@@ -191,7 +186,7 @@ def refine(s: Structure, p: np.ndarray, path: Path, lo: np.ndarray, hi: np.ndarr
 
     def det_at(u: np.ndarray, k: np.ndarray) -> np.ndarray:
         q = path(u.ravel(), k.ravel().astype(int))
-        det = measures(evaluate(s, "Mpa", q, p, deadline)).det
+        det = measures(evaluate(s, q, p, deadline)).det
         if det is None:
             raise ValueError("det M_pa needs a square coupling block")
         return det.reshape(u.shape)
@@ -222,7 +217,7 @@ def zeros_along(robot: Robot, path: Callable[[np.ndarray], np.ndarray], u: np.nd
     (m, n) [rad]. None for a non-square block, which has no determinant."""
     s = structure or Structure.of(robot)
     p = parameters(robot, s)
-    det = measures(evaluate(s, "Mpa", path(u), p, deadline)).det
+    det = measures(evaluate(s, path(u), p, deadline)).det
     if det is None:
         return None
     k = np.flatnonzero(np.sign(det[:-1]) * np.sign(det[1:]) < 0.0)

@@ -4,17 +4,21 @@ A bound is never above the smallest sampled sigma_least(M_pa) (numpy's SVD of th
 planner evaluates, at points drawn inside the box or along the motion), and where it says
 "decided" it is within the stated RTOL of it. The enclosures are checked on their own too:
 M_pa at every sampled point lies in the balls. A planted fault (an operation that drops its
-radius, a Weyl step without the radius) makes these checks fail.
+radius, a Weyl step without the radius) makes these checks fail. A whole motion's bound
+(`path`) joins its intervals', and `decide` reads a target off a proof without calling an
+undecided one certified.
 """
 
 from __future__ import annotations
+
+import time
 
 import casadi as ca
 import numpy as np
 import pytest
 from flint import arb
 
-from planner.certify import along, ball, margin, region, singular
+from planner.certify import Bound, along, ball, decide, margin, path, region, singular
 from planner.certify.boxes import minimise
 from planner.certify.margin import RTOL, Block
 from planner.coupling_block import along as sampled
@@ -158,6 +162,61 @@ def test_the_box_cap_leaves_the_bound_undecided_but_true():
         return -1.0, 1.0  # never decides
     out = minimise(enclose, np.zeros(2), np.ones(2), target=0.5, rtol=RTOL, max_boxes=9)
     assert out.status == "undecided" and out.lower == -1.0 and out.boxes == len(calls) <= 9
+
+
+def test_a_half_keeps_its_parents_bound():
+    """An enclosure whose bound worsens as boxes shrink: the first box's bound stands."""
+    out = minimise(lambda lo, hi: (-1.0 / float((hi - lo).sum()), 1.0), np.zeros(2),
+                   np.ones(2), target=None, rtol=RTOL, max_boxes=9)
+    assert out.lower == -0.5 and out.boxes == 9
+
+
+def test_a_path_joins_its_intervals_and_skips_those_past_the_deadline():
+    robot, q0 = ARMS[1]
+    q = _motion(q0, 1)
+    bounds, whole = along(robot, q), path(robot, q)
+    k = int(np.argmin([b.sampled for b in bounds]))
+    assert whole.lower == min(b.lower for b in bounds) and whole.sampled == bounds[k].sampled
+    assert whole.boxes == sum(b.boxes for b in bounds)
+    assert q.breaks[k] < whole.where[0] < q.breaks[k + 1]
+    assert whole.status == ("decided" if all(b.status == "decided" for b in bounds)
+                            else "undecided")
+    late = path(robot, q, target=0.0, deadline=time.monotonic() - 1.0)
+    assert (late.status, late.lower, late.boxes) == ("undecided", 0.0, 0)
+
+
+def _runs(*bounds: Bound):
+    """A proof that answers `bounds` in turn, and the targets it was asked for."""
+    asked: list[float | None] = []
+
+    def run(target: float | None) -> Bound:
+        asked.append(target)
+        return bounds[len(asked) - 1]
+    return run, asked
+
+
+def _bound(lower: float, sampled: float, status) -> Bound:
+    return Bound(lower, sampled, np.zeros(1), status, 3, 0.5)
+
+
+def test_a_target_between_a_decided_bound_and_the_samples_is_proven_for_itself():
+    run, asked = _runs(_bound(0.97, 1.0, "decided"), _bound(0.99, 1.01, "certified"))
+    cert = decide(run, 0.98)
+    assert asked == [None, 0.98] and cert.status == "certified"
+    assert (cert.bound, cert.sampled_min, cert.boxes, cert.seconds) == (0.99, 1.0, 6, 1.0)
+
+
+def test_a_bound_stopped_by_its_cap_is_undecided_and_not_run_again():
+    run, asked = _runs(_bound(0.5, 1.0, "undecided"))
+    cert = decide(run, 0.8)
+    assert asked == [None] and cert.status == "undecided" and cert.bound == 0.5
+
+
+def test_a_sample_below_the_target_refutes_it_and_nothing_proven_reads_zero():
+    run, asked = _runs(_bound(-0.1, 1.0, "decided"))
+    cert = decide(run, 0.5, sampled=0.4)
+    assert asked == [None] and cert.status == "refuted"
+    assert (cert.bound, cert.sampled_min) == (0.0, 0.4)
 
 
 def test_an_unsupported_operation_is_named():

@@ -8,10 +8,12 @@
 - `boxes`: branch and bound, cutting boxes until the bound decides or a cap is reached
   ("undecided" is said, never hidden).
 - `margin`: over a box of configurations (`region`) and along a piecewise polynomial
-  motion, interval by interval (`along`).
+  motion, interval by interval (`along`) or joined over the whole of it (`path`).
+- `decision`: what a proof says of a target margin (`decide`, `CouplingCertificate`).
 """
 
 from planner.certify.boxes import Bound
-from planner.certify.margin import along, region
+from planner.certify.decision import PROOF_RTOL, CouplingCertificate, decide
+from planner.certify.margin import along, path, region
 
-__all__ = ["Bound", "along", "region"]
+__all__ = ["PROOF_RTOL", "Bound", "CouplingCertificate", "along", "decide", "path", "region"]

@@ -1,8 +1,9 @@
 """Branch and bound over boxes: a proven lower bound of a function's minimum over a box.
 
 A box's enclosure gives a proven lower bound of the function on the box and its value at
-the centre (an upper bound of the minimum). The box with the lowest bound is bisected
-along its widest side (measured against the first box) until one of:
+the centre (an upper bound of the minimum); a half keeps its parent's bound where its own
+is lower, so the lowest bound never falls as the boxes are cut. The box with the lowest
+bound is bisected along its widest side (measured against the first box) until one of:
 - "certified": every box's bound reaches the target;
 - "refuted": a centre's value is below the target (the target fails there);
 - "decided" (no target): the lowest bound is within `rtol` of the smallest centre value;
@@ -55,9 +56,10 @@ def minimise(enclose: Enclosure, lo: np.ndarray, hi: np.ndarray, *, target: floa
         out_of_time = deadline is not None and time.monotonic() > deadline
         if status != "undecided" or count + 2 > max_boxes or out_of_time:
             return Bound(lowest, best, where, status, count, time.perf_counter() - start)
-        _, _, a, b = heapq.heappop(heap)
+        parent, _, a, b = heapq.heappop(heap)
         for half in _halves(a, b, scale):
             bound, value = enclose(*half)
+            bound = max(bound, parent)  # a half lies in its parent: the parent's bound holds
             count += 1
             if value < best:
                 best, where = value, (half[0] + half[1]) / 2

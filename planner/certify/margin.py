@@ -9,17 +9,22 @@ itself evaluated on balls of s, so the bound holds between every pair of samples
 
 from __future__ import annotations
 
+import math
+import time
 from functools import lru_cache
+from typing import TYPE_CHECKING
 
 import numpy as np
 from flint import arb
 
 from planner.certify.ball import BallFunction
-from planner.certify.boxes import Bound, minimise
+from planner.certify.boxes import Bound, Status, minimise
 from planner.certify.singular import least_lower
 from planner.coupling_block import block_function, block_jacobian
 from planner.model import Robot, Structure, parameters
-from planner.ocp.interpolant import PiecewisePolynomial
+
+if TYPE_CHECKING:  # planner.ocp imports the planner, which proves its margin with these
+    from planner.ocp.interpolant import PiecewisePolynomial
 
 RTOL = 0.01
 """Without a target, the bound is decided when within this fraction of the sampled minimum."""
@@ -116,10 +121,16 @@ def along(robot: Robot, q: PiecewisePolynomial, *, target: float | None = None,
           deadline: float | None = None) -> list[Bound]:
     """Bound sigma_least(M_pa(q(t))) below on every interval of a piecewise polynomial
     q (coefficients (K, m, n) in s in [0, 1]): one Bound per interval, its `where` the
-    fraction s of the interval's smallest sampled value."""
+    fraction s of the interval's smallest sampled value. Past `deadline`
+    (time.monotonic()) an interval is not evaluated: lower 0, nothing sampled (inf),
+    undecided, 0 boxes."""
     m = Block(robot)
     out = []
     for coeffs in q.coeffs:
+        if deadline is not None and time.monotonic() > deadline:
+            out.append(Bound(0.0, math.inf, np.array([0.5]), "undecided", 0, 0.0))
+            continue
+
         def enclose(lo: np.ndarray, hi: np.ndarray, c: np.ndarray = coeffs) -> tuple[float, float]:
             s = _balls(lo, hi)[0]
             centre = np.array([float(v.mid()) for v in _horner(c, arb(float(lo[0] + hi[0]) / 2))])
@@ -128,3 +139,23 @@ def along(robot: Robot, q: PiecewisePolynomial, *, target: float | None = None,
         out.append(minimise(enclose, np.zeros(1), np.ones(1), target=target, rtol=rtol,
                             max_boxes=max_boxes, deadline=deadline))
     return out
+
+
+def path(robot: Robot, q: PiecewisePolynomial, *, target: float | None = None,
+         rtol: float = RTOL, max_boxes: int = INTERVAL_BOXES,
+         deadline: float | None = None) -> Bound:
+    """`along`, joined over the whole motion: the least interval bound and sampled value,
+    `where` the time [s] of that value, the boxes summed and the whole wall time [s].
+    Refuted when an interval is, certified (decided) when every interval is, else
+    undecided."""
+    started = time.perf_counter()
+    bounds = along(robot, q, target=target, rtol=rtol, max_boxes=max_boxes,
+                   deadline=deadline)
+    k = int(np.argmin([b.sampled for b in bounds]))
+    h = q.breaks[k + 1] - q.breaks[k]
+    statuses = {b.status for b in bounds}
+    status: Status = ("refuted" if "refuted" in statuses else
+                      statuses.pop() if len(statuses) == 1 else "undecided")
+    return Bound(min(b.lower for b in bounds), bounds[k].sampled,
+                 np.array([q.breaks[k] + h * float(bounds[k].where[0])]), status,
+                 sum(b.boxes for b in bounds), time.perf_counter() - started)

@@ -51,7 +51,8 @@ class MarginProof:
         bad = [k for k, b in enumerate(self.bounds) if b.status != "certified"]
         refuted = any(self.bounds[k].status == "refuted" for k in bad)
         return MarginCertificate(
-            bound=max(min(b.lower for b in self.bounds), 0.0), target=self.target,
+            bound=max(min(b.lower for b in self.bounds), 0.0),
+            sampled_min=min(b.sampled for b in self.bounds), target=self.target,
             status="refuted" if refuted else "undecided" if bad else "certified",
             unproven_intervals=bad, boxes=sum(b.boxes for b in self.bounds),
             seconds=self.seconds)

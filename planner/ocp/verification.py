@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-from typing import Literal
-
 from pydantic import Field
 
+from planner.certify.decision import CouplingCertificate
 from planner.ocp.output import Out
 from planner.scene import Uncertainty
 
@@ -60,21 +59,13 @@ class Robustness(Out):
                                             "without a bound)")
 
 
-class MarginCertificate(Out):
+class MarginCertificate(CouplingCertificate):
     """The coupling margin proven on whole intervals of the plan (ball arithmetic on M_pa
-    along each interval's polynomial; docs/planner.md, "The margin on whole intervals")."""
+    along each interval's polynomial; docs/planner.md, "The margin on whole intervals"):
+    the target is task.coupling_margin (1 - 1e-3), undecided where an interval's bound
+    stayed below it within its boxes or the budget."""
 
-    bound: float = Field(description="[kg m^2] proven: sigma_min(M_pa) is at least this "
-                                     "everywhere along the plan (0 where nothing is proven)")
-    target: float = Field(description="[kg m^2] what each interval's bound must reach: "
-                                      "task.coupling_margin (1 - 1e-3)")
-    status: Literal["certified", "refuted", "undecided"] = Field(
-        description="certified: every interval's bound reaches the target; refuted: "
-                    "sigma_min falls below it somewhere; undecided: some interval's bound "
-                    "stayed below it within its boxes (or the budget)")
     unproven_intervals: list[int] = Field(description="the intervals without the proof")
-    boxes: int = Field(description="enclosures evaluated over all intervals")
-    seconds: float = Field(description="[s] wall time of the proof")
 
 
 class Verification(Out):

@@ -16,15 +16,19 @@ How (one module each):
    lambda_min(M_pa M_pa^T) >= s^2 at every sample, as smooth dimensionless constraints.
    Along a motion the samples are the nodes of a collocation of the inverse dynamics
    whose active states are NLP variables.
-3. Certification (`certificate`), independent of the NLP's samples: a dense grid of the
-   box with a Lipschitz bound between grid points, or the inverse dynamics of
-   `planner.inverse.solve` at dense samples with a bound between samples. Where the
-   dense check falls below the NLP's bound, the worst configurations join the samples
-   (or the collocation intervals around the worst times are halved) and the NLP is
-   solved again (exchange method; the loop is `design`).
+3. Check (`certificate`), independent of the NLP's samples: sigma_min on a dense grid of
+   the box, or at dense samples of the inverse dynamics of `planner.inverse.solve`. Where
+   the check falls below the NLP's bound, the worst configurations join the samples (or
+   the collocation intervals around the worst times are halved) and the NLP is solved
+   again (exchange method; the loop is `design`). The best checked design wins.
+4. Proof (`planner.certify`), of the winner only: a lower bound of sigma_min(M_pa) that
+   holds on the whole box (`region`), or along the whole piecewise cubic Hermite
+   interpolant of the check's inverse-dynamics samples (`path`), in ball arithmetic on
+   M_pa with branch and bound.
 
-The result is "certified" when the certified value reaches the margin, else
-"infeasible" with the best value found (which proves nothing about other waves). The
+The result is "certified" when the proven bound reaches the margin, "infeasible" when a
+sampled value falls below it (the best design found, which proves nothing about other
+waves), and "undecided" when the proof's box cap or the deadline leaves it between. The
 request and result are `schemas`'.
 """
 

@@ -1,6 +1,6 @@
-"""The design loop: screen the candidates, then from the best starts solve the NLP,
-certify, and exchange samples until the certificate meets the NLP's bound; the best
-certified design wins."""
+"""The design loop: screen the candidates, then from the best starts solve the NLP, check
+it densely, and exchange samples until the check meets the NLP's bound; the best checked
+design wins and is proven (`planner.certify`)."""
 
 from __future__ import annotations
 
@@ -10,18 +10,22 @@ from typing import Protocol
 import numpy as np
 
 from planner import budget
+from planner.certify import CouplingCertificate
 from planner.model import Robot
-from planner.waves.certificate import EXCHANGE_TOL, Certificate
+from planner.waves.certificate import EXCHANGE_TOL, Check
 from planner.waves.motion import MotionProblem
 from planner.waves.nlp import WHAT, wave_structure
 from planner.waves.region import RegionProblem
-from planner.waves.schemas import WaveDesignRequest, WaveDesignResult, WaveSpec
+from planner.waves.schemas import Status, WaveDesignRequest, WaveDesignResult, WaveSpec
 from planner.waves.screening import Candidate, candidates, diverse, phases_per_joint
 
 AMPLITUDE_FRACTION = 0.95
 """Largest amplitude as a fraction of the link length (r stays >= 5 % of l)."""
 EXCHANGE_ROUNDS = 6
 """Largest number of NLP solves per starting point (exchange iterations)."""
+STATUS: dict[str, Status] = {"certified": "certified", "refuted": "infeasible",
+                             "undecided": "undecided"}
+"""The design's status by its certificate's."""
 
 
 class Problem(Protocol):
@@ -36,15 +40,19 @@ class Problem(Protocol):
     def optimise(self, c: Candidate, upper: np.ndarray) -> Candidate:
         """The NLP from c, amplitudes below `upper` [m]."""
 
-    def certify(self, c: Candidate) -> Certificate:
+    def check(self, c: Candidate) -> Check:
         """The dense check of c's waves."""
 
-    def exchange(self, cert: Certificate) -> None:
-        """Add samples where the certificate fell short."""
+    def prove(self, c: Candidate, check: Check) -> tuple[CouplingCertificate, str]:
+        """c's waves proven against the margin where `check` sampled, and how in words."""
+
+    def exchange(self, check: Check) -> None:
+        """Add samples where the check fell short."""
 
 
 def design(request: WaveDesignRequest, *, deadline: float | None = None) -> WaveDesignResult:
-    """Waves that keep sigma_min(M_pa) >= margin, certified on dense samples.
+    """Waves that keep sigma_min(M_pa) >= margin, proven over the region or along the
+    motion ("certified"), refuted at a sample ("infeasible"), or neither ("undecided").
 
     Past `deadline` (a `time.monotonic()` value) it raises BudgetExceeded: between starts
     and exchange rounds, between chunks of evaluations, inside the inverse dynamics, and
@@ -66,24 +74,24 @@ def _design(request: WaveDesignRequest, deadline: float | None) -> WaveDesignRes
     scores = problem.screen(cands)
     order = diverse(cands, scores, request.starts)
 
-    best: tuple[Candidate, Certificate] | None = None
+    best: tuple[Candidate, Check] | None = None
     for i, k in enumerate(order):
         budget.check(deadline, f"{WHAT} (after {i} of {len(order)} starts)")
         start = cands[k]
         start.bound = float(scores[k])
-        floor = max(request.margin, best[1].value if best else -math.inf)
-        c, cert = _exchange(problem, start, upper, floor)
-        if cert.beats(best[1] if best else None):
-            best = (c, cert)
-    assert best is not None  # starts >= 1, and the first certificate beats None
-    c, cert = best
-    status = "certified" if cert.value >= request.margin else "infeasible"
-    certified = max(cert.value, 0.0)
+        floor = max(request.margin, best[1].sampled if best else -math.inf)
+        c, check = _exchange(problem, start, upper, floor)
+        if check.beats(best[1] if best else None):
+            best = (c, check)
+    assert best is not None  # starts >= 1, and the first check beats None
+    c, check = best
+    certificate, proof = problem.prove(c, check)
     method = (f"From the {len(order)} best of {len(cands)} screened starts (integer "
               f"frequencies 1..{request.frequency_max}, {phases} phases "
               f"per joint), Ipopt maximised a lower bound on sigma_min(M_pa) at the "
-              f"{problem.SAMPLES}; certified: {cert.describe}.")
-    return WaveDesignResult(status=status, waves=_specs(c, base), certified_sigma_min=certified,
+              f"{problem.SAMPLES}; checked: {check.describe}; {proof}.")
+    return WaveDesignResult(status=STATUS[certificate.status], waves=_specs(c, base),
+                            certified_sigma_min=certificate.bound, certificate=certificate,
                             method=method, robot=c.robot(base))
 
 
@@ -94,22 +102,22 @@ def _specs(c: Candidate, base: Robot) -> list[WaveSpec]:
 
 
 def _exchange(problem: Problem, start: Candidate, upper: np.ndarray,
-              floor: float) -> tuple[Candidate, Certificate]:
-    """Solve the NLP, certify, add the failing samples, solve again; keep the best certified.
+              floor: float) -> tuple[Candidate, Check]:
+    """Solve the NLP, check, add the failing samples, solve again; keep the best checked.
 
     Stops early when the NLP's bound falls below `floor` (the margin, or the best value
-    certified so far): more samples would only lower it further."""
+    checked so far): more samples would only lower it further."""
     c, previous = start, math.inf
-    best: tuple[Candidate, Certificate] | None = None
+    best: tuple[Candidate, Check] | None = None
     for _ in range(EXCHANGE_ROUNDS):
         c = problem.optimise(c, upper)
-        cert = problem.certify(c)
-        if cert.beats(best[1] if best else None):
-            best = (c, cert)
+        check = problem.check(c)
+        if check.beats(best[1] if best else None):
+            best = (c, check)
         stalled = c.bound > previous * (1 - EXCHANGE_TOL)  # the added samples changed nothing
-        if cert.converged or not c.solved or stalled or c.bound < floor:
+        if check.converged or not c.solved or stalled or c.bound < floor:
             break
         previous = c.bound
-        problem.exchange(cert)
-    assert best is not None  # the first round's certificate beats None
+        problem.exchange(check)
+    assert best is not None  # the first round's check beats None
     return best

@@ -4,19 +4,23 @@ dynamics of a prescribed passive motion produces.
 Samples: the nodes of a collocation of the inverse dynamics whose active states are NLP
 variables (passive rows M_pp ddq_p + M_pa ddq_a + h_p = 0 at the nodes, ddq_a piecewise
 linear in time); the intervals around the worst times are halved at every exchange.
-Screening: a fixed-step RK4 inverse dynamics of all candidates at once. Certification:
-the inverse dynamics of `planner.inverse.solve` at dense samples with a bound between
-samples.
+Screening: a fixed-step RK4 inverse dynamics of all candidates at once. Check: the
+inverse dynamics of `planner.inverse.solve` at dense samples. Proof: `planner.certify.path`
+along the piecewise cubic Hermite interpolant of those samples (their angles and rates),
+which is how the motion between samples is represented: the inverse dynamics returns
+samples only.
 """
 
 from __future__ import annotations
 
+import math
 from functools import lru_cache
 
 import casadi as ca
 import numpy as np
 
 from planner import budget
+from planner.certify import PROOF_RTOL, Bound, CouplingCertificate, decide, path
 from planner.coupling_block import evaluate, measures
 from planner.inverse import (
     InverseDynamicsRequest,
@@ -25,9 +29,10 @@ from planner.inverse import (
     solve,
 )
 from planner.model import Robot, Structure, parameters
+from planner.ocp.interpolant import PiecewisePolynomial, hermite
 from planner.rk4 import rk4_step
 from planner.waves import motion_nlp
-from planner.waves.certificate import EXCHANGE_TOL, Certificate
+from planner.waves.certificate import EXCHANGE_TOL, Check
 from planner.waves.motion_nlp import n_bound
 from planner.waves.nlp import WHAT, candidate_from, lbx, normalisers, ubx
 from planner.waves.schemas import WaveDesignRequest
@@ -36,14 +41,14 @@ from planner.waves.screening import SCREEN_STEPS, Candidate, params
 ROLLOUT_CHUNK = 16
 """Candidates per call of the screening's RK4 (0.07 s on an 8-link arm): the deadline is
 checked between calls."""
-CERTIFY_FLOOR = 1e-3
-"""sigma_min [kg m^2] down to which the certificate of a motion follows it: a design short
-of the margin still reports what it certifies."""
+CHECK_FLOOR = 1e-3
+"""sigma_min [kg m^2] down to which the check of a motion follows it: a design short of
+the margin still gets a whole motion to prove its bound along."""
 
 
 class MotionProblem:
-    """Keep sigma_min >= s along the inverse-dynamics motion: collocation NLP and a dense
-    inverse-dynamics check."""
+    """Keep sigma_min >= s along the inverse-dynamics motion: collocation NLP, a dense
+    inverse-dynamics check and the proof along it."""
 
     SAMPLES = ("collocation nodes of the inverse dynamics, refined around the times where "
                "the dense check fell short")
@@ -58,7 +63,7 @@ class MotionProblem:
         self.p = parameters(base, s)
         self.times = np.linspace(0.0, self.motion.duration, self.LADDER[0] + 1)
         self.dense = request.certification_points or 2001
-        self.threshold = request.margin / 2
+        self.threshold, self.margin = request.margin / 2, request.margin
 
     def screen(self, cands: list[Candidate]) -> list[float]:
         """Score every candidate by a fixed-step RK4 inverse dynamics (all at once).
@@ -82,7 +87,7 @@ class MotionProblem:
         q[1:, :, self.s.active_idx] = X[:na].reshape(na, C, steps).transpose(2, 1, 0)
         finite = np.isfinite(q).all(axis=2)
         q[~finite] = 0.0
-        mpa = evaluate(self.s, "Mpa", q.reshape(-1, self.s.n), np.tile(P, (steps + 1, 1)),
+        mpa = evaluate(self.s, q.reshape(-1, self.s.n), np.tile(P, (steps + 1, 1)),
                        self.deadline)
         sigma = measures(mpa).sigma_min.reshape(steps + 1, C)
         bad = (sigma < self.threshold) | ~finite
@@ -148,7 +153,7 @@ class MotionProblem:
         init = self.motion.active_initial
         q = np.empty((len(self.times), self.s.n))
         q[:, self.s.passive_idx], q[:, self.s.active_idx] = qp, Z[:len(init.q)].T
-        C = normalisers(evaluate(self.s, "Mpa", q, params(self.s, self.p, [c])[0],
+        C = normalisers(evaluate(self.s, q, params(self.s, self.p, [c])[0],
                                   self.deadline))
         par = np.concatenate([self.p, c.frequency, qp.ravel(), dqp.ravel(), ddqp.ravel(),
                               np.diff(self.times), init.q, init.dq, C.ravel()])
@@ -163,40 +168,50 @@ class MotionProblem:
         Z = x[2 * na + 1:].reshape(nz, K + 1, order="F")
         return candidate_from(stats, x, c, upper, Z)
 
-    def certify(self, c: Candidate) -> Certificate:
-        """Dense inverse-dynamics samples: their minimum minus the bound between samples.
-        The inverse dynamics runs on below the margin, down to CERTIFY_FLOOR, so that a
-        design short of the margin still certifies what it reaches."""
-        result = self.inverse(c, self.dense, threshold=min(self.threshold, CERTIFY_FLOOR))
+    def check(self, c: Candidate) -> Check:
+        """sigma_min at dense inverse-dynamics samples. The inverse dynamics runs on below
+        the margin, down to CHECK_FLOOR, so that a design short of the margin still has a
+        whole motion to prove its bound along."""
+        floor = min(self.threshold, CHECK_FLOOR)
+        result = self.inverse(c, self.dense, threshold=floor)
         sigma = np.array(result.sigma_min)
         if result.status != "completed" or len(sigma) == 0:
             stop = result.singularity.time if result.singularity else 0.0
-            return Certificate(0.0, False,
-                               f"the inverse dynamics with these waves stopped at t = "
-                               f"{stop:.4g} s of {self.motion.duration:g} s, where sigma_min "
-                               f"fell to {min(self.threshold, CERTIFY_FLOOR):g}",
-                               np.array([stop]), reached=stop / self.motion.duration)
-        q, dq = np.array(result.q), np.array(result.dq)
-        p = params(self.s, self.p, [c])[0]
-        jac = evaluate(self.s, "dMpa", q, p, self.deadline)  # (K, r*c, n)
-        rate = np.sqrt((np.einsum("kij,kj->ki", jac, dq) ** 2).sum(axis=1)).max()
-        dt = self.motion.duration / (self.dense - 1)
-        value = float(sigma.min() - rate * dt / 2)
+            least = result.singularity.sigma_min if result.singularity else 0.0
+            return Check(least, False,
+                         f"the inverse dynamics with these waves stopped at t = {stop:.4g} s "
+                         f"of {self.motion.duration:g} s, where sigma_min fell to {floor:g}",
+                         np.array([stop]), reached=stop / self.motion.duration)
+        t, q, dq = np.array(result.t), np.array(result.q), np.array(result.dq)
         converged = sigma.min() >= c.bound * (1 - EXCHANGE_TOL)
-        t = np.array(result.t)
         describe = (f"sigma_min evaluated at {self.dense:,} evenly spaced samples of the "
                     f"inverse dynamics (DOP853, rtol = atol = 1e-10), independent of the "
-                    f"{len(self.times) - 1} collocation intervals of the NLP; between samples "
-                    f"it can fall by at most {rate * dt / 2:.3g} (largest |dM_pa/dt| times "
-                    f"half the spacing), which the certified value subtracts")
+                    f"{len(self.times) - 1} collocation intervals of the NLP")
         low = t[sigma < c.bound * (1 - EXCHANGE_TOL)]
-        return Certificate(value, bool(converged), describe, low)
+        return Check(float(sigma.min()), bool(converged), describe, low,
+                     motion=PiecewisePolynomial(t, hermite(q, dq, np.diff(t))))
 
-    def exchange(self, cert: Certificate) -> None:
+    def prove(self, c: Candidate, check: Check) -> tuple[CouplingCertificate, str]:
+        """sigma_min proven along the whole checked motion, and what that is in words."""
+        robot, q = c.robot(self.base), check.motion
+
+        def run(target: float | None) -> Bound:
+            if q is None:  # the motion stopped: there is no whole motion to prove along
+                return Bound(0.0, math.inf, np.zeros(1), "undecided", 0, 0.0)
+            return path(robot, q, target=target, rtol=PROOF_RTOL, deadline=self.deadline)
+        cert = decide(run, self.margin, check.sampled)
+        if q is None:
+            return cert, "nothing proven: the motion stopped"
+        return cert, (f"proven along the piecewise cubic Hermite interpolant of those "
+                      f"samples (their angles and rates; {len(q.coeffs):,} intervals), "
+                      f"interval by interval, by ball arithmetic on M_pa in {cert.boxes:,} "
+                      f"boxes ({cert.seconds:.2g} s)")
+
+    def exchange(self, check: Check) -> None:
         """Halve the collocation intervals around the failing times (all of them when
         none is given), then split the longest ones up to the next size of LADDER."""
         t, K = self.times, len(self.times) - 1
-        k = np.clip(np.searchsorted(t, cert.worst) - 1, 0, K - 1)
+        k = np.clip(np.searchsorted(t, check.worst) - 1, 0, K - 1)
         split = np.zeros(K, bool)
         for shift in (-1, 0, 1):
             split[np.clip(k + shift, 0, K - 1)] = True

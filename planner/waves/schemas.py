@@ -7,6 +7,7 @@ from typing import Literal
 
 from pydantic import BaseModel, Field, model_validator
 
+from planner.certify import CouplingCertificate
 from planner.inverse import ACTIVE_INITIAL, check_motion, check_prescribable
 from planner.model import Robot
 from planner.profiles import PassiveMotion
@@ -54,7 +55,8 @@ class WaveDesignRequest(BaseModel):
     certification_points: int | None = Field(
         default=None, ge=100, le=200_000,
         description="dense check: grid points of the region (default 40,000) or "
-                    "inverse-dynamics samples of the motion (default 2,001)")
+                    "inverse-dynamics samples of the motion (default 2,001), whose cubic "
+                    "Hermite interpolant the proof runs along")
 
     @model_validator(mode="after")
     def _consistent(self) -> WaveDesignRequest:
@@ -99,12 +101,24 @@ class WaveSpec(BaseModel):
     phase: float
 
 
-class WaveDesignResult(BaseModel):
-    """The designed waves, the certified smallest sigma_min [kg m^2] and how it was
-    certified. `robot` is the request's robot carrying these waves."""
+Status = Literal["certified", "infeasible", "undecided"]
+"""What a design's certificate says of the margin."""
 
-    status: Literal["certified", "infeasible"]
+
+class WaveDesignResult(BaseModel):
+    """The designed waves, the proven smallest sigma_min [kg m^2] and how it was proven.
+    `robot` is the request's robot carrying these waves."""
+
+    status: Status = Field(
+        description="certified: sigma_min(M_pa) >= margin is proven over the whole region "
+                    "or along the whole motion; infeasible: sigma_min falls below the margin "
+                    "at a sample (the best design found; this proves nothing about other "
+                    "waves); undecided: neither within the proof's boxes or the deadline")
     waves: list[WaveSpec]
-    certified_sigma_min: float
-    method: str
+    certified_sigma_min: float = Field(
+        description="[kg m^2] proven lower bound of sigma_min(M_pa) over the region or along "
+                    "the motion (certificate.bound)")
+    certificate: CouplingCertificate = Field(description="the proof against the margin")
+    method: str = Field(description="how the waves were found, checked and proven, and "
+                                    "what the proof covers")
     robot: Robot
