@@ -4,6 +4,8 @@ and the mesh refinement cuts the intervals the proof does not cover."""
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 
@@ -90,3 +92,12 @@ def test_the_refinement_halves_the_intervals_without_the_proof():
     assert finer is not None and finer.intervals >= 12
     widths = np.diff(finer.breaks)
     assert widths.min() <= 0.05 + 1e-12
+
+
+def test_a_proof_past_its_deadline_is_undecided_and_finite(done):
+    scene, result = done
+    proof = prove(result.robot_of(scene.robot), result.interpolant(),
+                  scene.task.coupling_margin, deadline=time.perf_counter() - 1.0)
+    cert = proof.certificate()
+    assert cert.status == "undecided" and cert.boxes == 0 and cert.sampled_min is None
+    assert "Infinity" not in cert.model_dump_json() and "NaN" not in cert.model_dump_json()

@@ -135,8 +135,10 @@ def test_unused_features_build_no_constraints():
     margin = problem(ProblemKey.of(scene(UNDERACTUATED, N=10, coupling_margin=0.01)))
     plain = problem(ProblemKey.of(scene(UNDERACTUATED, N=10)))
     assert tip.lbg.size == bare.lbg.size + 2
-    # the kept sign of M_pa per knot and node (1 x 1 block: the margin itself)
-    assert margin.lbg.size == plain.lbg.size + (10 * 3 + 11)
+    # the kept sign of M_pa (1 x 1 block: the margin itself) at every stage's node, its 3
+    # collocation points and the 4 points midway between them and the interval's end, and
+    # at the final node
+    assert margin.lbg.size == plain.lbg.size + (10 * 8 + 1)
     names = set(bare.params.common) | set(bare.params.local)
     assert not names & {"tracking", "margin", "tip", "time", "smoothness"}
     no_gravity = ProblemKey.of(scene(UNDERACTUATED, N=10)).structure

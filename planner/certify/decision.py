@@ -38,10 +38,10 @@ class CouplingCertificate(BaseModel):
 
     bound: float = Field(description="[kg m^2] proven: sigma_min(M_pa) is at least this "
                                      "everywhere it covers (0 where nothing is proven)")
-    sampled_min: float = Field(
+    sampled_min: float | None = Field(
         description="[kg m^2] the smallest sigma_min(M_pa) evaluated, at the dense samples "
                     "and the centres of the proof's boxes: the true minimum lies between "
-                    "bound and sampled_min")
+                    "bound and sampled_min (None: the deadline came before any sample)")
     target: float = Field(description="[kg m^2] what the bound must reach")
     status: Literal["certified", "refuted", "undecided"] = Field(
         description="certified: bound >= target; refuted: sampled_min < target (the target "
@@ -63,5 +63,7 @@ def decide(run: Run, target: float, sampled: float = math.inf) -> CouplingCertif
         boxes, seconds = boxes + again.boxes, seconds + again.seconds
     status: Literal["certified", "refuted", "undecided"] = (
         "certified" if low >= target else "refuted" if seen < target else "undecided")
-    return CouplingCertificate(bound=max(low, 0.0), sampled_min=seen, target=target,
+    return CouplingCertificate(bound=max(low, 0.0),
+                               sampled_min=seen if math.isfinite(seen) else None,
+                               target=target,
                                status=status, boxes=boxes, seconds=seconds)

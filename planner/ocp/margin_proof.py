@@ -11,6 +11,7 @@ verified.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 
@@ -49,10 +50,12 @@ class MarginProof:
     def certificate(self) -> MarginCertificate:
         """What the proof says, for the plan's verification."""
         bad = [k for k, b in enumerate(self.bounds) if b.status != "certified"]
+        seen = min(b.sampled for b in self.bounds)
         refuted = any(self.bounds[k].status == "refuted" for k in bad)
         return MarginCertificate(
             bound=max(min(b.lower for b in self.bounds), 0.0),
-            sampled_min=min(b.sampled for b in self.bounds), target=self.target,
+            sampled_min=seen if math.isfinite(seen) else None,
+            target=self.target,
             status="refuted" if refuted else "undecided" if bad else "certified",
             unproven_intervals=bad, boxes=sum(b.boxes for b in self.bounds),
             seconds=self.seconds)
