@@ -22,7 +22,9 @@ After the run /healthz must answer 200 and a small plan must still succeed.
 
 Writes bench/results/fuzz.csv (one row per operation, then a total row with the run's
 figures) and the section "Fuzzing every operation" of docs/benchmarks.md; exits 1 when a
-5xx, a dead worker, a failed check or a server that no longer serves was found.
+5xx, a dead worker, a failed check or a server that no longer serves was found, and then
+keeps the server's log, schemathesis' output and its reports in the temporary folder it
+names (deleted otherwise).
 
     python -m bench fuzz [--max-examples 100] [--seed 1] [--phases coverage,fuzzing,stateful]
 """
@@ -31,6 +33,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import subprocess
 import tempfile
 import time
@@ -159,9 +162,9 @@ def serve_and_fuzz(folder: Path, args: argparse.Namespace) -> dict:
             "plan_after": after_plan}
 
 
-def measure(args: argparse.Namespace) -> tuple[list[dict], dict]:
-    """The rows by operation and the total row with the run's figures."""
-    folder = Path(tempfile.mkdtemp(prefix="undertow-fuzz-"))
+def measure(args: argparse.Namespace, folder: Path) -> tuple[list[dict], dict]:
+    """The rows by operation and the total row with the run's figures (the server's store
+    and log, schemathesis' output and reports under `folder`)."""
     figures = serve_and_fuzz(folder, args)
     report = json.loads((folder / "report.json").read_text())
     rows = fuzz_cases.rows(folder / "events.ndjson", json.loads(DOCUMENT.read_text()))
@@ -171,7 +174,6 @@ def measure(args: argparse.Namespace) -> tuple[list[dict], dict]:
              "operations": report["operations"]["total"], "seed": args.seed,
              "max_examples": args.max_examples, "phases": args.phases,
              "date": time.strftime("%Y-%m-%d"), **figures}
-    print(f"schemathesis output and reports under {folder}", flush=True)
     return rows, total
 
 
@@ -188,9 +190,10 @@ def failed(total: dict) -> list[str]:
     return problems
 
 
-def summary(total: dict) -> str:
+def summary(total: dict, rows: list[dict]) -> str:
     """The run's figures, as a list."""
     goal = "reached" if total["cases"] >= GOAL else "NOT reached"
+    refused = ", ".join(f"`{r['operation']}`" for r in rows if not r["2xx"]) or "none"
     return "\n".join([
         f"- **{total['cases']:,} cases** (requests; schemathesis counted "
         f"{total['cases_reported']:,}) on {total['operations_tested']} of "
@@ -203,9 +206,9 @@ def summary(total: dict) -> str:
         f"{total['worker_processes']} ran, {total['workers_ended']} ended while the server "
         f"ran, {total['workers_stopped']} stopped by the supervisor (a job past its budget, "
         f"an ignored cancel). Server log lines of level ERROR: {total['errors_logged']}.",
-        f"- Plan solves by the worker during the run: {total['solves']}. After the run "
-        f"/healthz answered {total['health_after']} and a small plan ended "
-        f"{total['plan_after']}."])
+        f"- Plan solves by the worker during the run: {total['solves']}. Operations that "
+        f"accepted no generated request: {refused}. After the run /healthz answered "
+        f"{total['health_after']} and a small plan ended {total['plan_after']}."])
 
 
 def text(rows: list[dict], total: dict, argv: list[str], started: float, note: str) -> str:
@@ -221,7 +224,7 @@ def text(rows: list[dict], total: dict, argv: list[str], started: float, note: s
     columns = [("operation", "operation"), ("cases", "cases"), *[(p, p) for p in
                fuzz_cases.PHASES if total[p]], *[(c, c) for c in fuzz_cases.CLASSES]]
     return "\n\n".join([
-        setup, summary(total), harness.table([*rows, total], columns),
+        setup, summary(total, rows), harness.table([*rows, total], columns),
         f"Rows: `bench/results/fuzz.csv`. {harness.manifest('fuzz', argv, started, note)}"])
 
 
@@ -235,11 +238,16 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--request-timeout", type=float, default=300.0, help="[s]")
     args = parser.parse_args(argv)
     started, note = time.perf_counter(), harness.machine_note()
-    rows, total = measure(args)
+    folder = Path(tempfile.mkdtemp(prefix="undertow-fuzz-"))
+    rows, total = measure(args, folder)
     harness.write_csv(CSV, [*rows, total])
     harness.write_section(DOC, SECTION, text(rows, total, argv, started, note))
-    print(summary(total), flush=True)
+    print(summary(total, rows), flush=True)
     problems = failed(total)
     for problem in problems:
         print(f"FOUND {problem}", flush=True)
-    return 1 if problems else 0
+    if problems:
+        print(f"the server's log, schemathesis' output and reports: {folder}", flush=True)
+        return 1
+    shutil.rmtree(folder)  # its event report alone is some 100 MB
+    return 0
