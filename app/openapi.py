@@ -24,6 +24,8 @@ _DESCRIPTIONS = {
     415: "the request body is labelled as another media type than JSON (Content-Type)",
     422: "invalid request: `errors` lists each offending field",
     429: "the job queue is full; retry after the Retry-After header's seconds",
+    431: "the request head (request line with its query, and header fields) exceeds 16 KiB; "
+         "the connection is closed (app/server.py)",
     503: "no compute thread, or no room in the synchronous computations' memory budget "
          "(UNDERTOW_SYNC_MEMORY_MB), came free within UNDERTOW_COMPUTE_WAIT; retry after the "
          "Retry-After header's seconds",
@@ -84,5 +86,6 @@ def document(app: FastAPI) -> dict[str, Any]:
                     responses[str(status)] = problem_response(status)
             if operation.get("security"):
                 responses["401"] = problem_response(401)
+            responses["431"] = problem_response(431)  # refused before routing, any path
     app.openapi_schema = doc
     return doc

@@ -37,6 +37,8 @@ BENCHES = {
                                "from scratch: time, and how often the optimum is the same"),
     "moved_goals": ("bench.moved_goals", "the built-in plan examples with their goals moved by "
                                          "up to 0.05 rad: how many verify, how fast"),
+    "fuzz": ("bench.fuzz", "generated requests on every operation of a live server with a "
+                           "solver worker: 5xx answers and dead workers"),
     "faults": ("bench.faults", "process and store faults against a live server: does an "
                                "accepted job get lost"),
     "initial_guess": ("bench.initial_guess", "interpolation against inverse-dynamics initial "

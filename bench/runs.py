@@ -28,6 +28,7 @@ RESULTS: dict[str, tuple[str, ...]] = {
     "memory": ("bench/results/memory.csv",),
     "moved_goals": ("bench/results/moved_goals.csv",),
     "faults": ("bench/results/faults.csv", "bench/results/faults_postgres.csv"),
+    "fuzz": ("bench/results/fuzz.csv",),
     "initial_guess": ("bench/results/initial_guess.csv",),
     "ipopt_settings": ("bench/results/ipopt_settings.csv",),
     "limits": ("bench/results/limits.csv",),

@@ -47,6 +47,7 @@ SMALL: dict[str, Small] = {
     "moved_goals": Small((("--variants", "1", "--examples", "two-link-plan"),)),
     "faults": Small((("--tries", "1", "--probes", "1"),
                      ("--postgres", "--tries", "1", "--probes", "1")), needs=("postgres",)),
+    "fuzz": Small((("--max-examples", "1", "--phases", "fuzzing,stateful"),)),
     "initial_guess": Small((("--scenes", "under-2", "--grids", "3:10"),)),
     "ipopt_settings": Small((("--repeats", "1", "--scenes", "arm-2:10"),)),
     "limits": Small((("--methods", "trapezoidal"),)),

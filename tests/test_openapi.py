@@ -33,6 +33,17 @@ def test_every_error_response_is_a_problem():
                 assert "401" in operation["responses"], (method, path)
 
 
+def test_every_operation_documents_the_431_of_an_over_long_head():
+    """The server answers any request whose head (request line, query, header fields)
+    exceeds 16 KiB with a 431 problem before routing it (app/server.py): a long query
+    string of GET /v1/plans/{job_id}/sample gets one as well as any other operation."""
+    for path, operations in app.openapi()["paths"].items():
+        for method, operation in operations.items():
+            response = operation["responses"].get("431")
+            assert response is not None, (method, path)
+            assert list(response["content"]) == ["application/problem+json"], (method, path)
+
+
 def test_the_export_command_writes_the_document(tmp_path):
     from app.openapi_export import main
 
