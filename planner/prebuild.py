@@ -22,24 +22,25 @@ WAIT = 900.0
 """[s] The longest the builds are waited for."""
 
 
+def one_iteration(scene: Scene) -> Scene:
+    """The scene stopped after one iteration of one start."""
+    request = scene.model_dump(exclude_unset=True)
+    request["solver"] = {**request.get("solver", {}), "max_iter": 1, "retries": 0}
+    return Scene.model_validate(request)
+
+
 def scenes() -> list[Scene]:
     """The built-in plan examples, each stopped after one iteration and one start."""
-    out = []
-    for example in examples():
-        if example.kind != "plan":
-            continue
-        request = dict(example.request)
-        request["solver"] = {**request.get("solver", {}), "max_iter": 1, "retries": 0}
-        out.append(Scene.model_validate(request))
-    return out
+    return [one_iteration(Scene.model_validate(example.request)) for example in examples()
+            if example.kind == "plan"]
 
 
-def build() -> list[str]:
-    """Build the examples' libraries (those missing from the cache) and wait for them;
-    the names of those built."""
+def build(ahead: list[Scene] | None = None) -> list[str]:
+    """Build the libraries of `ahead` (default: the examples' `scenes()`), those missing
+    from the cache, and wait for them; the names of those this process built."""
     if not compiled.background_builds():
         return []
-    for scene in scenes():
+    for scene in scenes() if ahead is None else ahead:
         plan(scene)
     compiled.wait(WAIT)
     return compiled.started()
