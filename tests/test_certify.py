@@ -223,3 +223,29 @@ def test_an_unsupported_operation_is_named():
     x = ca.SX.sym("x")
     with pytest.raises(ball.Unsupported, match="has no ball enclosure"):
         ball.BallFunction(ca.Function("f", [x], [ca.erf(x)]))
+
+
+def _keeps_agrees(robot: Robot, q0: np.ndarray, seed: int, block: Block) -> bool:
+    """Whether the row test never proves a target that the samples break (targets a
+    little below and above the sampled minimum of a 0.02 rad box)."""
+    rng = np.random.default_rng(seed)
+    box = [arb(float(x), 0.01) for x in q0]
+    least = sampled(robot, q0 + rng.uniform(-0.01, 0.01, (4000, robot.n))).least.min()
+    return not block.keeps(box, q0, 1.02 * least) and (
+        block.keeps(box, q0, 0.5 * least) or least < 1e-3)
+
+
+@pytest.mark.parametrize("k", range(len(ARMS)))
+def test_the_margin_rows_prove_only_what_holds(k):
+    robot, q0 = ARMS[k]
+    assert _keeps_agrees(robot, q0, k, Block(robot))
+
+
+def test_rows_without_their_slopes_prove_too_much():
+    robot, q0 = ARMS[0]
+    block = Block(robot)
+    flat = ball.BallFunction(ca.Function("flat", [ca.SX.sym("q", 4), ca.SX.sym("p", 18),
+                                                  ca.SX.sym("m"), ca.SX.sym("s")],
+                                         [ca.SX.zeros(2, 4)]))
+    block.row_slopes = flat
+    assert not all(_keeps_agrees(robot, q0 + 0.3 * j, j, block) for j in range(6))

@@ -1,4 +1,4 @@
-"""The coupling margin's NLP rows (planner.ocp.terms.margin_function): every row at or
+"""The coupling margin's NLP rows (planner.margin_rows.margin_function): every row at or
 above 0 exactly where sigma_min(M_pa) >= margin with det M_pa of the kept sign, against
 numpy's singular values, for the 2 x 2 block of the seed arm (its own rows) and the 2 x 1
 and 1 x 1 blocks (leading principal minors); derivatives against central differences."""
@@ -10,8 +10,8 @@ import pytest
 
 from planner.coupling_block import blocks
 from planner.examples import seed_arm
+from planner.margin_rows import margin_function
 from planner.model import Robot, Structure, parameters
-from planner.ocp.terms import margin_function
 from testbed.robots import chain
 
 ARMS = {"2x2": seed_arm(True), "2x1": Robot.model_validate(chain(3, True)),

@@ -44,7 +44,15 @@ _UNARY: dict[int, Callable[[arb], arb]] = {
     ca.OP_FABS: abs,
     ca.OP_ATAN: lambda x: x.atan(),
 }
+def _indicator(certain: bool, impossible: bool) -> arb:
+    """1 or 0 where a comparison is decided on the balls, [0, 1] where it is not: what the
+    derivative of fmax, fmin and fabs multiplies by (the hull of both one-sided ones)."""
+    return arb(1) if certain else arb(0) if impossible else arb(0.5, 0.5)
+
+
 _BINARY: dict[int, Callable[[arb, arb], arb]] = {
+    ca.OP_LE: lambda x, y: _indicator(bool(x <= y), bool(x > y)),
+    ca.OP_LT: lambda x, y: _indicator(bool(x < y), bool(x >= y)),
     ca.OP_ADD: lambda x, y: x + y,
     ca.OP_SUB: lambda x, y: x - y,
     ca.OP_MUL: lambda x, y: x * y,

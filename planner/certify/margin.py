@@ -14,6 +14,7 @@ import time
 from functools import lru_cache
 from typing import TYPE_CHECKING
 
+import casadi as ca
 import numpy as np
 from flint import arb
 
@@ -21,6 +22,7 @@ from planner.certify.ball import BallFunction
 from planner.certify.boxes import Bound, Status, minimise
 from planner.certify.singular import least_lower
 from planner.coupling_block import block_function, block_jacobian
+from planner.margin_rows import margin_function
 from planner.model import Robot, Structure, parameters
 
 if TYPE_CHECKING:  # planner.ocp imports the planner, which proves its margin with these
@@ -40,12 +42,24 @@ def _functions(s: Structure) -> tuple[BallFunction, BallFunction]:
     return BallFunction(block_function(s)), BallFunction(block_jacobian(s))
 
 
+@lru_cache(maxsize=64)
+def _rows(s: Structure) -> tuple[BallFunction, BallFunction]:
+    """The margin's rows (`planner.margin_rows`) and their Jacobian in q on balls."""
+    f = margin_function(s)
+    args = [f.sx_in(i) for i in range(f.n_in())]
+    rows = f(*args)
+    return (BallFunction(ca.Function("rows", args, [rows])),
+            BallFunction(ca.Function("drows", args, [ca.jacobian(rows, args[0])])))
+
+
 class Block:
     """Enclosures of M_pa (r x c) [kg m^2] of one robot over boxes of configurations."""
 
     def __init__(self, robot: Robot):
         s = Structure.of(robot)
         self.value, self.jacobian = _functions(s)
+        self.rows, self.row_slopes = _rows(s)
+        self.square = len(robot.passive) == len(robot.active)
         self.p = [arb(float(x)) for x in parameters(robot, s)]
 
     def at(self, q: np.ndarray) -> list[list[arb]]:
@@ -75,6 +89,40 @@ class Block:
         return out, _least(mid)
 
 
+    def keeps(self, box: list[arb], centre: np.ndarray, target: float) -> bool:
+        """Whether sigma_least(M_pa) >= target is proven on the box (n balls [rad], joined
+        to `centre` (n,)): every margin row, in the mean-value form row(centre) +
+        sum_i drow/dq_i(box) (q_i - centre_i), is positive, the sign of a square block's
+        determinant taken at the centre. Along a motion that keeps sigma_least nearly
+        constant the rows barely change while M_pa does, so this decides on boxes far
+        wider than Weyl's bound needs."""
+        box = [b.union(arb(float(c))) for b, c in zip(box, centre, strict=True)]
+        mid = np.array([[float(b.mid()) for b in row] for row in self.at(centre)])
+        sign = 1.0 if not self.square or np.linalg.det(mid) >= 0 else -1.0
+        extra = [[arb(target)], [arb(sign)]]
+        at = self.rows([[arb(float(c)) for c in centre], self.p, *extra])[0]
+        slopes = self.row_slopes([box, self.p, *extra])[0]
+        shifts = [b - arb(float(c)) for b, c in zip(box, centre, strict=True)]
+        for value, row in zip(at, slopes, strict=True):
+            form = value[0]
+            for slope, shift in zip(row, shifts, strict=True):
+                form += slope * shift
+            if not form > 0:
+                return False
+        return True
+
+
+def _proven(m: Block, box: list[arb], centre: np.ndarray,
+            target: float | None) -> tuple[float, float]:
+    """A proven lower bound of sigma_least(M_pa) on the box (Weyl's, or the target where
+    the margin's rows prove it) and sigma_least at the centre."""
+    enclosure, value = m.over(box, centre)
+    bound = least_lower(enclosure)
+    if target is not None and bound < target and m.keeps(box, centre, target):
+        return target, value
+    return bound, value
+
+
 def _balls(lo: np.ndarray, hi: np.ndarray) -> list[arb]:
     """The smallest balls arb gives that hold [lo_i, hi_i]."""
     return [arb(float(a)).union(arb(float(b))) for a, b in zip(lo, hi, strict=True)]
@@ -97,8 +145,7 @@ def region(robot: Robot, lower, upper, *, target: float | None = None, rtol: flo
     def enclose(lo: np.ndarray, hi: np.ndarray) -> tuple[float, float]:
         qlo, qhi = lower.copy(), upper.copy()
         qlo[free], qhi[free] = lo, hi
-        box, centre = m.over(_balls(qlo, qhi), (qlo + qhi) / 2)
-        return least_lower(box), centre
+        return _proven(m, _balls(qlo, qhi), (qlo + qhi) / 2, target)
 
     if not len(free):
         bound, value = enclose(lower[free], upper[free])
@@ -134,8 +181,7 @@ def along(robot: Robot, q: PiecewisePolynomial, *, target: float | None = None,
         def enclose(lo: np.ndarray, hi: np.ndarray, c: np.ndarray = coeffs) -> tuple[float, float]:
             s = _balls(lo, hi)[0]
             centre = np.array([float(v.mid()) for v in _horner(c, arb(float(lo[0] + hi[0]) / 2))])
-            box, value = m.over(_horner(c, s), centre)
-            return least_lower(box), value
+            return _proven(m, _horner(c, s), centre, target)
         out.append(minimise(enclose, np.zeros(1), np.ones(1), target=target, rtol=rtol,
                             max_boxes=max_boxes, deadline=deadline))
     return out

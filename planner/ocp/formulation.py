@@ -17,7 +17,7 @@ FORMULATION_SOURCES = ("dynamics.py", "model.py", "rk4.py", "ocp/transcription.p
                        "ocp/interpolant.py", "ocp/methods", "ocp/terms.py", "ocp/assembly.py",
                        "ocp/layout.py", "ocp/key.py", "ocp/parameters.py",
                        "ocp/stage_function.py", "ocp/boundary.py", "ocp/stages.py",
-                       "ocp/problem.py")
+                       "ocp/problem.py", "margin_rows.py")
 """The modules and packages (under planner/) whose code decides an NLP's symbolic form."""
 
 

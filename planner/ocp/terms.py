@@ -16,7 +16,8 @@ from typing import Generic
 import casadi as ca
 import numpy as np
 
-from planner.dynamics import derive, functions
+from planner.dynamics import functions
+from planner.margin_rows import margin_function
 from planner.model import Robot, Structure
 from planner.ocp.key import ProblemKey
 from planner.ocp.mesh import Mesh
@@ -261,44 +262,6 @@ class CouplingMargin(Term):
         det = coupling_along(num.robot, np.array([num.scene.task.initial.q]))[1]
         return np.array([num.scene.task.coupling_margin,
                          1.0 if det is None or det[0] >= 0 else -1.0])
-
-
-def margin_function(s: Structure) -> ca.Function:
-    """Rows that are all >= 0 exactly where sigma_min(M_pa) >= margin (the least singular
-    value) and a square block's determinant keeps the sign it has at the start.
-
-    In general: the leading principal minors of G / margin^2 - I, G the smaller Gram matrix
-    of M_pa (all > 0 <=> G - margin^2 I positive definite <=> sigma_min(M_pa) > margin). A
-    square block adds sign * det(M_pa) / margin^p - 1 >= 0, necessary for the margin
-    (|det| >= margin^p) and what stops a path from jumping through det = 0 between two
-    knots. A 1 x 1 block needs that row alone (sign * M_pa / margin >= 1 is the margin):
-    its minor M_pa^2 / margin^2 - 1 would be active at the same points with a parallel
-    gradient, which breaks the linear independence of the active constraints' gradients
-    that Ipopt's steps rely on. A 2 x 2 block, the seed arm's, replaces the minors by one
-    row of the order of sigma_min / margin, sign * det / (margin sqrt(|M_pa|_F^2 -
-    margin^2)) - 1 >= 0: with sigma_1 >= sigma_2, det = sigma_1 sigma_2 and |M_pa|_F^2 =
-    sigma_1^2 + sigma_2^2, it holds where both singular values are at least the margin or
-    both at most it, and the sign row (det >= margin^2) leaves the first. The minors grow
-    as sigma^4 / margin^4 (1e5 for entries of 0.1 kg m^2 and a margin of 0.005), which
-    left Ipopt in its restoration phase for hundreds of iterations on the hard suite's
-    co-design tasks (docs/benchmarks.md, "Hard suite").
-    """
-    sym = derive(s)
-    margin, sign = ca.SX.sym("margin"), ca.SX.sym("sign")
-    mpa = sym.mass[s.passive_idx, s.active_idx]
-    square = mpa.size1() == mpa.size2()
-    if square and mpa.size1() == 1:
-        rows = []
-    elif square and mpa.size1() == 2:
-        rest = ca.fmax(ca.sumsqr(mpa) - margin**2, 1e-6 * margin**2)
-        rows = [sign * ca.det(mpa) / (margin * ca.sqrt(rest)) - 1]
-    else:
-        gram = ca.mtimes(mpa, mpa.T) if mpa.size1() <= mpa.size2() else ca.mtimes(mpa.T, mpa)
-        shifted = gram / margin**2 - ca.SX.eye(gram.size1())
-        rows = [ca.det(shifted[:k, :k]) for k in range(1, gram.size1() + 1)]
-    if square:
-        rows.append(sign * ca.det(mpa) / margin ** mpa.size1() - 1)
-    return ca.Function("margin", [sym.q, sym.p, margin, sign], [ca.vertcat(*rows)])
 
 
 class TorqueLimit(Term):
