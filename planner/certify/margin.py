@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
 from functools import lru_cache
 from typing import TYPE_CHECKING
 
@@ -52,6 +53,16 @@ def _rows(s: Structure) -> tuple[BallFunction, BallFunction]:
             BallFunction(ca.Function("drows", args, [ca.jacobian(rows, args[0])])))
 
 
+@dataclass(frozen=True)
+class Piece:
+    """A piece of an interval of a motion q(s): dq/ds over it (n balls), s - s_c over it
+    (a ball) and q(s_c) (n balls holding the exact value at the piece's centre s_c)."""
+
+    tangent: list[arb]
+    step: arb
+    centre: list[arb]
+
+
 class Block:
     """Enclosures of M_pa (r x c) [kg m^2] of one robot over boxes of configurations."""
 
@@ -89,36 +100,43 @@ class Block:
         return out, _least(mid)
 
 
-    def keeps(self, box: list[arb], centre: np.ndarray, target: float) -> bool:
+    def keeps(self, box: list[arb], centre: np.ndarray, target: float,
+              along: Piece | None = None) -> bool:
         """Whether sigma_least(M_pa) >= target is proven on the box (n balls [rad], joined
         to `centre` (n,)): every margin row, in the mean-value form row(centre) +
         sum_i drow/dq_i(box) (q_i - centre_i), is positive, the sign of a square block's
-        determinant taken at the centre. Along a motion that keeps sigma_least nearly
-        constant the rows barely change while M_pa does, so this decides on boxes far
-        wider than Weyl's bound needs."""
+        determinant taken at the centre. On a piece of a motion q(s), `along` makes it the
+        form in s, row(q(s_c)) + (sum_i drow/dq_i(box) dq_i/ds(piece)) (s - s_c): where the motion
+        keeps sigma_least nearly constant, that derivative nearly vanishes while M_pa and
+        the rows' gradient do not, so this decides on pieces far wider than Weyl's bound
+        needs."""
         box = [b.union(arb(float(c))) for b, c in zip(box, centre, strict=True)]
         mid = np.array([[float(b.mid()) for b in row] for row in self.at(centre)])
         sign = 1.0 if not self.square or np.linalg.det(mid) >= 0 else -1.0
         extra = [[arb(target)], [arb(sign)]]
-        at = self.rows([[arb(float(c)) for c in centre], self.p, *extra])[0]
+        point = [arb(float(c)) for c in centre] if along is None else along.centre
+        at = self.rows([point, self.p, *extra])[0]
         slopes = self.row_slopes([box, self.p, *extra])[0]
         shifts = [b - arb(float(c)) for b, c in zip(box, centre, strict=True)]
         for value, row in zip(at, slopes, strict=True):
-            form = value[0]
-            for slope, shift in zip(row, shifts, strict=True):
-                form += slope * shift
+            if along is None:
+                form = value[0] + sum((g * d for g, d in zip(row, shifts, strict=True)), arb(0))
+            else:
+                rate = sum((g * d for g, d in zip(row, along.tangent, strict=True)), arb(0))
+                form = value[0] + rate * along.step
             if not form > 0:
                 return False
         return True
 
 
-def _proven(m: Block, box: list[arb], centre: np.ndarray,
-            target: float | None) -> tuple[float, float]:
+def _proven(m: Block, box: list[arb], centre: np.ndarray, target: float | None,
+            along: Piece | None = None) -> tuple[float, float]:
     """A proven lower bound of sigma_least(M_pa) on the box (Weyl's, or the target where
-    the margin's rows prove it) and sigma_least at the centre."""
+    the margin's rows prove it; `along` as in `Block.keeps`) and sigma_least at the
+    centre."""
     enclosure, value = m.over(box, centre)
     bound = least_lower(enclosure)
-    if target is not None and bound < target and m.keeps(box, centre, target):
+    if target is not None and bound < target and m.keeps(box, centre, target, along):
         return target, value
     return bound, value
 
@@ -179,9 +197,11 @@ def along(robot: Robot, q: PiecewisePolynomial, *, target: float | None = None,
             continue
 
         def enclose(lo: np.ndarray, hi: np.ndarray, c: np.ndarray = coeffs) -> tuple[float, float]:
-            s = _balls(lo, hi)[0]
-            centre = np.array([float(v.mid()) for v in _horner(c, arb(float(lo[0] + hi[0]) / 2))])
-            return _proven(m, _horner(c, s), centre, target)
+            s, mid = _balls(lo, hi)[0], float(lo[0] + hi[0]) / 2
+            centre = np.array([float(v.mid()) for v in _horner(c, arb(mid))])
+            rate = c[1:] * np.arange(1, len(c))[:, None]  # dq/ds, ascending
+            piece = Piece(_horner(rate, s), s - arb(mid), _horner(c, arb(mid)))
+            return _proven(m, _horner(c, s), centre, target, piece if len(rate) else None)
         out.append(minimise(enclose, np.zeros(1), np.ones(1), target=target, rtol=rtol,
                             max_boxes=max_boxes, deadline=deadline))
     return out
