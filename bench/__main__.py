@@ -90,6 +90,8 @@ BENCHES = {
                                            "commit"),
     "time_vs_error": ("bench.time_vs_error", "run time against error of every transcription "
                                              "on the reference scenes"),
+    "test_times": ("bench.test_times", "make test from a fresh clone, quiet and with every "
+                                       "core kept busy: passes, and its time"),
     "wave_certificates": ("bench.wave_certificates", "wave designs and co-designs proven along "
                                                      "their motions and over regions: bound, "
                                                      "boxes, time"),

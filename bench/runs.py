@@ -55,6 +55,7 @@ RESULTS: dict[str, tuple[str, ...]] = {
               "docs/img/suite.png"),
     "verification": ("bench/results/verification.csv",),
     "time_vs_error": ("bench/results/time_vs_error*.csv", "docs/img/pareto_*.png"),
+    "test_times": ("bench/results/test_times.csv",),
     "wave_certificates": ("bench/results/wave_certificates.csv",),
 }
 """Every benchmark's result files (glob patterns under the checkout), by its name in

@@ -82,6 +82,8 @@ SMALL: dict[str, Small] = {
     "verification": Small((("--repeats", "1", "--scenes", "seed-arm-plan", "--jit", "off"),)),
     "time_vs_error": Small((("--scenes", "arm-2", "--warm", "--quick",
                              "--transcriptions", "legendre-3"),)),
+    "test_times": Small((("--runs", "quiet,loaded", "--venv", sys.prefix,
+                          "--pytest-args", "tests/test_certify.py"),)),
     "wave_certificates": Small((("--arms", "two-link"),)),
 }
 """Every benchmark's small mode, by its name in `bench.__main__.BENCHES`."""

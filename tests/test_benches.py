@@ -28,10 +28,10 @@ SLOW_AFTER = 20.0
 """[s] A small mode that takes longer on this 2-core machine is `slow`."""
 SLOW = frozenset({"container", "faults", "iteration_cost", "peer_opty", "pickup",
                   "planner_internals", "reliability", "replan", "scale_out",
-                  "seed_iterations", "stress", "suite"})
+                  "seed_iterations", "stress", "suite", "test_times"})
 """The benchmarks whose small mode takes over SLOW_AFTER (bench/smoke.py says what they
 run): live servers and clusters, faults and their recovery, compiled NLPs (jit), peers
-in processes of their own, the horizontal seed arm."""
+in processes of their own, the horizontal seed arm, make test itself."""
 TIMEOUT = 900.0  # [s] a small mode still running then has hung
 
 
