@@ -135,10 +135,8 @@ def test_unused_features_build_no_constraints():
     margin = problem(ProblemKey.of(scene(UNDERACTUATED, N=10, coupling_margin=0.01)))
     plain = problem(ProblemKey.of(scene(UNDERACTUATED, N=10)))
     assert tip.lbg.size == bare.lbg.size + 2
-    # the kept sign of M_pa (1 x 1 block: the margin itself) at every stage's node, its 3
-    # collocation points and the 4 points midway between them and the interval's end, and
-    # at the final node
-    assert margin.lbg.size == plain.lbg.size + (10 * 8 + 1)
+    # the kept sign of M_pa per knot and node (1 x 1 block: the margin itself)
+    assert margin.lbg.size == plain.lbg.size + (10 * 3 + 11)
     names = set(bare.params.common) | set(bare.params.local)
     assert not names & {"tracking", "margin", "tip", "time", "smoothness"}
     no_gravity = ProblemKey.of(scene(UNDERACTUATED, N=10)).structure
@@ -226,9 +224,9 @@ MARGIN_TASK = dict(method="hermite-simpson", N=20, duration=3.0, coupling_margin
 
 def test_coupling_margin_holds_at_every_knot():
     # sigma_min(M_pa) is 0.0471 at the final state; on 20 intervals the optimum under a
-    # margin of 0.045 binds it, and dips below it between the knots: the margin is not
-    # proven there, and the plan not verified. The refined plan, a better optimum, keeps
-    # it everywhere, proven on every interval.
+    # margin of 0.045 binds it and dips below it between the knots, by less than the
+    # margin's tolerance (1e-3 relative): proven so, though the plan is not accurate. The
+    # refined plan, a better optimum, keeps it everywhere, proven on every interval.
     sc = scene(UNDERACTUATED, **{**MARGIN_TASK, "coupling_margin": 0.045}, refine=False)
     coarse, refined = (plan(sc),
                        plan(scene(UNDERACTUATED, **{**MARGIN_TASK, "coupling_margin": 0.045})))
@@ -240,8 +238,10 @@ def test_coupling_margin_holds_at_every_knot():
     assert refined.verification.margin_certificate.status == "certified"
     sigma, _ = coupling_along(sc.robot, np.asarray(coarse.q))
     assert sigma.min() <= 0.045 + 1e-6  # the margin binds on 20 intervals
-    assert coarse.verification.margin_certificate.status in ("refuted", "undecided")
-    assert not coarse.verification.verified
+    between = coupling_along(sc.robot, coarse.interpolant().q(np.linspace(0.0, 3.0, 30_001)))
+    assert 0.045 * (1 - 1e-3) <= between[0].min() < 0.045 - 1e-6
+    assert coarse.verification.margin_certificate.status == "certified"
+    assert not coarse.verification.verified  # its interval errors
 
 
 def test_a_margin_the_start_violates_is_reported_infeasible():

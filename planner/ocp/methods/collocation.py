@@ -41,11 +41,6 @@ class Collocation:
         self.hulls = tuple(kind for kind, rows in (("q", self.state_hull),
                                                    ("dq", self.state_hull),
                                                    ("tau", self.tau_hull)) if rows.size)
-        # path constraints also midway between the node, the collocation points and the
-        # interval's end: a binding coupling margin dips between its points by O(gap^2)
-        ends = (0.0, *self.knot_positions, 1.0)
-        self.between = _lagrange((0.0, *self.knot_positions),
-                                 [(a + b) / 2 for a, b in zip(ends[:-1], ends[1:], strict=True)])
 
     def node_count(self) -> int:
         return self.intervals * (self.degree + 1)
@@ -70,9 +65,8 @@ class Collocation:
         values = {"q": Q, "dq": DQ, "tau": tau}
         rows = {"q": self.state_hull, "dq": self.state_hull, "tau": self.tau_hull}
         hulls = {kind: ca.mtimes(values[kind], ca.DM(rows[kind].T)) for kind in self.hulls}
-        path = ca.horzcat(Q, ca.mtimes(Q, ca.DM(self.between)))
-        return StagePiece(defects, qc, dqc, ddqc, tau, path, tau, self.knot_positions, gaps,
-                          hulls)
+        return StagePiece(defects, qc, dqc, ddqc, tau, ca.horzcat(w["q"], qc), tau,
+                          self.knot_positions, gaps, hulls)
 
     def terminal(self, w: dict[str, ca.SX], model: Model[ca.SX]) -> StagePiece[ca.SX]:
         empty, none = ca.SX(model.n, 0), ca.SX(model.na, 0)
@@ -98,9 +92,3 @@ class Collocation:
                            PiecewisePolynomial(breaks, state(dq, dqc)),
                            PiecewisePolynomial(breaks, monomial(points, tau.reshape(N, d, -1))))
 
-
-def _lagrange(points: tuple[float, ...], at: list[float]) -> np.ndarray:
-    """(m x k): column j holds the Lagrange basis of `points` (m) at `at[j]` (k), so that
-    values (n x m) @ it are the interpolating polynomial's values there."""
-    coeffs = monomial(np.array(points), np.eye(len(points)))  # (powers, basis)
-    return (np.vander(np.array(at), len(points), increasing=True) @ coeffs).T
