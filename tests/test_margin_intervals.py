@@ -91,7 +91,7 @@ def test_the_refinement_halves_the_intervals_without_the_proof():
     finer = refined(mesh, errors, 4, 1e-3, 200, cut)
     assert finer is not None and finer.intervals >= 12
     widths = np.diff(finer.breaks)
-    assert widths.min() <= 0.05 + 1e-12
+    assert widths.min() <= 0.025 + 1e-12  # cut into 4
 
 
 def test_a_proof_past_its_deadline_is_undecided_and_finite(done):

@@ -5,7 +5,8 @@ The error of an interval of width h is modelled as C h^p, p the transcription's 
 m = ceil((e / target)^(1/p)) equal parts, target = SAFETY * tolerance, at least 2 and at
 most MAX_SPLIT per pass (the model is rough far from convergence); intervals within the
 tolerance are kept, but for those the coupling margin is not proven on (`cut`), which are
-halved: the finer mesh's knots hold the margin where it dipped between them. The number
+cut into MAX_SPLIT: the finer mesh's knots hold the margin where it dipped between them,
+and a dip between knots shrinks as the square of their spacing. The number
 of intervals is then rounded up to the next of `INTERVAL_STEPS`, the extra cuts going
 where the model predicts the largest error, so that refined plans of different scenes
 share built NLPs.
@@ -39,14 +40,13 @@ def pieces(errors: np.ndarray, order: int, tolerance: float) -> np.ndarray:
 
 def refined(mesh: Mesh, errors: np.ndarray, order: int, tolerance: float,
             max_intervals: int, cut: np.ndarray | None = None) -> Mesh | None:
-    """The next mesh for interval errors (N,) [rad] and the intervals to halve at least
+    """The next mesh for interval errors (N,) [rad] and the intervals to cut into MAX_SPLIT
     (`cut`, (N,) bool), or None when every interval is within the tolerance and none is
     to be cut, or the refined mesh would exceed `max_intervals`."""
     cut = np.zeros(errors.shape, bool) if cut is None else cut
     if not np.any(errors > tolerance) and not cut.any():
         return None
-    parts = np.where(cut, np.maximum(pieces(errors, order, tolerance), 2),
-                     pieces(errors, order, tolerance))
+    parts = np.where(cut, MAX_SPLIT, pieces(errors, order, tolerance))
     count = int(parts.sum())
     if count > max_intervals:
         return None
