@@ -10,7 +10,7 @@ time only, so the test suite's tests that depend on how fast something runs woul
 here; none should.
 
 Writes bench/results/test_times.csv (a row per run: how it ran, passed or not, the
-counts pytest printed, wall time) and the section "make test, quiet and loaded" of
+counts pytest printed, the failed tests' ids, wall time) and the section "make test, quiet and loaded" of
 docs/benchmarks.md.
 
     python -m bench test_times [--runs quiet,loaded,loaded] [--pytest-args ARGS]
@@ -57,6 +57,12 @@ def _counts(output: str) -> str:
     return lines[-1] if lines else "no summary"
 
 
+def _failed(output: str) -> str:
+    """The ids of the tests pytest reported as failed or in error, `;`-separated."""
+    ids = re.findall(r"^(?:FAILED|ERROR) (\S+)", output, flags=re.MULTILINE)
+    return ";".join(dict.fromkeys(ids))
+
+
 def _run(make: list[str], loaded: bool, pytest_args: str) -> dict:
     """One timed `make test`, with one busy process per core when `loaded`."""
     busy = [multiprocessing.Process(target=_busy, daemon=True)
@@ -73,7 +79,7 @@ def _run(make: list[str], loaded: bool, pytest_args: str) -> dict:
             proc.terminate()
     return {"run": "loaded" if loaded else "quiet", "busy_processes": len(busy),
             "passed": run.returncode == 0, "pytest": _counts(run.stdout + run.stderr),
-            "wall_s": elapsed}
+            "failed": _failed(run.stdout + run.stderr), "wall_s": elapsed}
 
 
 def text(rows: list[dict], argv: list[str], started: float, note: str) -> str:
@@ -81,7 +87,7 @@ def text(rows: list[dict], argv: list[str], started: float, note: str) -> str:
              "virtualenv built first and not timed; a loaded run with one busy process per "
              "core started before it and stopped after it.")
     columns = [("run", "run"), ("busy_processes", "busy processes"), ("passed", "passed"),
-               ("pytest", "pytest's summary"), ("wall_s", "wall [s]")]
+               ("pytest", "pytest's summary"), ("failed", "failed tests"), ("wall_s", "wall [s]")]
     return "\n\n".join([setup, harness.table(rows, columns),
                         f"Rows: `bench/results/test_times.csv`. "
                         f"{harness.manifest('test_times', argv, started, note)}"])
