@@ -1,6 +1,7 @@
 """The task suite (testbed.suites.ordinary): how often a plan verifies, and how long a
-verified plan takes, against the same planner with mesh refinement off, without retries or
-with fatrop instead of Ipopt, and its peers on the same 50 intervals: a plain CasADi Opti
+verified plan takes, against the same planner with mesh refinement off, without retries,
+with fatrop instead of Ipopt or with Ipopt's own inertia correction (`IPOPT_INERTIA`, no
+idle variable), and its peers on the same 50 intervals: a plain CasADi Opti
 script (bench/peers/opti.py, Legendre degree 3), rockit (bench/peers/rockit.py: direct
 collocation with Ipopt, multiple shooting with fatrop) and opty (bench/peers/opty.py,
 midpoint, in its own virtualenv `.venv-opty`).
@@ -71,6 +72,8 @@ CONFIGS = {
     "refinement off": "transcription.refinement.enabled false",
     "retries off": "solver.retries 0",
     "fatrop": "solver.name fatrop",
+    "Ipopt inertia": "Ipopt's own inertia correction: no idle variable, perturb_dec_fact 1/3, "
+                     "perturb_inc_fact 8, first_hessian_perturbation 1e-4",
     "before": f"the planner of {BEFORE}, before plans were refined and checked interval by "
               "interval (verified: the whole-horizon replay within 1e-3 rad)",
     "Opti script": "plain CasADi Opti, Legendre 3, 50 intervals, Ipopt defaults",
@@ -178,6 +181,20 @@ def per_iteration(rows: list[dict]) -> float:
 
 
 
+IPOPT_INERTIA = {"perturb_dec_fact": 1 / 3, "perturb_inc_fact": 8.0,
+                 "first_hessian_perturbation": 1e-4}
+"""Ipopt's own settings of its inertia correction (the "Ipopt inertia" configuration, which
+also leaves the idle variable out: `planner.ocp.solvers.ipopt`)."""
+
+
+def _ipopt(config: str, hard: bool) -> tuple[dict, bool | None]:
+    """The Ipopt options and idle variable (None: the planner's) of a planner configuration."""
+    options = {"print_level": LOG_LEVEL} if hard else {}
+    if config == "Ipopt inertia":
+        return {**options, **IPOPT_INERTIA}, False
+    return options, None
+
+
 def _settings(config: str) -> dict:
     """Scene changes of a planner configuration."""
     changes: dict[str, dict] = {
@@ -199,7 +216,7 @@ UNCERTAINTY = {"mass": 0.1}
 link's mass 10 % off, both ways (docs/planner.md, "Robustness to model error")."""
 
 
-def _with_uncertainty(scene: dict) -> dict:
+def with_uncertainty(scene: dict) -> dict:
     """The scene with UNCERTAINTY unless it states one of its own."""
     if scene["task"].get("uncertainty") is None:
         scene = {**scene, "task": {**scene["task"], "uncertainty": UNCERTAINTY}}
@@ -226,10 +243,10 @@ def run_planner(config: str, count: int, seed: int, suite: str = "default",
         changes = _merged(changes, {"solver": {"max_wall_time": cap}})
     hard = suite == "hard"
     rows = []
-    with harness.ipopt_options({"print_level": LOG_LEVEL} if hard else {}):
+    with harness.ipopt_options(*_ipopt(config, hard)):
         for name, scene in suite_tasks(suite, count, seed, tuple(categories)):
             try:
-                scene = Scene.model_validate(_with_uncertainty(
+                scene = Scene.model_validate(with_uncertainty(
                     _merged(scene.model_dump(mode="json"), changes)))
             except ValidationError:  # a task this configuration cannot state (fatrop: free
                 continue  # time, co-design), left out as the peers leave theirs

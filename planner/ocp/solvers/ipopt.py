@@ -6,8 +6,19 @@ from typing import Any
 
 from planner.ocp.solvers.solver import Nlp
 
+INERTIA_OPTIONS = {"perturb_dec_fact": 0.5, "perturb_inc_fact": 4.0,
+                   "first_hessian_perturbation": 1e-8}
+"""How Ipopt perturbs the Hessian when the KKT matrix has the wrong inertia, with the idle
+variable (`Ipopt.idle_variable`; docs/benchmarks.md, "Ipopt settings: inertia
+corrections"). Every iteration first factors with the last perturbation times
+perturb_dec_fact (Ipopt's 1/3: the perturbation then lingers less than half as long as
+with 1/2, and too small every other iteration), raised by perturb_inc_fact (Ipopt's 8)
+until the inertia is right; the first one tried in a solve is first_hessian_perturbation
+(Ipopt's 1e-4, large beside the reduced Hessian's eigenvalues of 1e-6 to 1e-3 on the hard
+suite's crossings, so that the first iterations' steps are short)."""
+
 IPOPT_OPTIONS = {"linear_solver": "mumps", "mumps_pivot_order": 0, "mumps_scaling": 0,
-                 "mu_strategy": "adaptive"}
+                 "mu_strategy": "adaptive", **INERTIA_OPTIONS}
 """Ipopt settings every NLP is built with (docs/benchmarks.md, "Ipopt settings"). MUMPS orders
 the KKT matrix by approximate minimum degree (0): on the banded collocation matrices Ipopt's
 own work per iteration is lower than with its automatic choice on five of the six reference
@@ -37,6 +48,12 @@ class Ipopt:
     name = "ipopt"
     monitored = True
     warm_options: dict[str, Any] | None = WARM_OPTIONS
+    idle_variable = True
+    """Ipopt finds the Hessian singular (the idle variable's row and column are empty) in
+    its first iterations, concludes that it is structurally so, and from then on perturbs
+    it in every iteration, starting from the last perturbation (INERTIA_OPTIONS), instead
+    of first factoring it unperturbed: on the hard suite that first factorization had the
+    wrong inertia in most iterations, one wasted factorization each."""
 
     def options(self, nlp: Nlp) -> dict[str, Any]:
         opts: dict[str, Any] = {
