@@ -298,8 +298,8 @@ def inertia_summary(rows: list[dict], variant: str, base: dict) -> dict:
     (Ipopt's own) where the counts exist."""
     mine = [r for r in rows if r["variant"] == variant]
     counted = [r for r in mine if math.isfinite(float(r["factorizations"]))]
-    fact = sum(float(r["factorizations"]) for r in counted)
-    its = sum(float(r["logged_iterations"]) for r in counted)
+    fact = sum(int(r["factorizations"]) for r in counted)
+    its = sum(int(r["logged_iterations"]) for r in counted)
     failed = sorted({r["status"] for r in mine if not r["verified"]})
     return {"variant": variant, "settings": INERTIA_VARIANTS[variant].settings(),
             "tasks": len(mine), "verified": sum(bool(r["verified"]) for r in mine),
@@ -325,9 +325,10 @@ def inertia_text(rows: list[dict], argv: list[str], started: float, note: str) -
     variants = [v for v in INERTIA_VARIANTS if any(r["variant"] == v for r in rows)]
     base = inertia_summary(rows, "Ipopt's own", {}) if "Ipopt's own" in variants else {}
     table = [inertia_summary(rows, v, base) for v in variants]
-    pair = [r for r in rows if r["variant"] in ("Ipopt's own", DEFAULT)]
+    pair = [{**r, "ok": "yes" if r["verified"] else "no"} for r in rows
+            if r["variant"] in ("Ipopt's own", DEFAULT)]
     tasks = harness.table(sorted(pair, key=lambda r: r["task"]), [
-        ("task", "task"), ("variant", "variant"), ("verified", "verified"),
+        ("task", "task"), ("variant", "variant"), ("ok", "verified"),
         ("status", "status"), ("logged_iterations", "iterations"),
         ("factorizations", "KKT factorizations"), ("restoration", "restoration iterations")])
     return "\n\n".join([
