@@ -832,7 +832,9 @@ def report_hard(args, argv: list[str], configs: list[str], rows: list[dict],
         "(nearest rank) and maximum. Iterations are Ipopt's over every solve of a plan; "
         "restoration iterations and KKT factorizations (the trial factorizations of every "
         "search direction and the least-squares multiplier estimates) are counted in Ipopt's "
-        f"log at print level {LOG_LEVEL}; CPU is this process's and its children's. Peers "
+        f"log at print level {LOG_LEVEL}, which holds the companion process's solves too, "
+        "and factorizations per iteration divide by that log's own iterations (`log_counts`); "
+        "CPU is this process's and its children's. Peers "
         "run only the tasks they can state (fixed duration, state to state, effort), a "
         "planner configuration the tasks its settings can state (fatrop: no free time or "
         "co-design); fatrop writes no log to count in.",
