@@ -45,7 +45,7 @@ import casadi as ca
 from bench import harness, suite
 from bench.scenes import make_scene
 from planner.ocp import plan, stages
-from planner.ocp.assembly import Blocks, Derivatives
+from planner.ocp.assembly import Blocks, Derivatives, Kernels
 from planner.ocp.portfolio import ENVIRONMENT
 from planner.ocp.problem import ProblemKey, cached_problem, problem
 from planner.ocp.solvers.ipopt import INERTIA_OPTIONS, IPOPT, IPOPT_OPTIONS
@@ -158,8 +158,8 @@ INERTIA_TASKS = ",".join([
     "seed-swing-02", "seed-swing-38", "links-5to8-15", "links-5to8-39", "torque-limit-16",
     "torque-limit-40", "free-time-05", "free-time-41", "tip-target-06", "tip-target-30",
     "bounds-19", "bounds-43", "co-design-32"])
-"""Tasks of `testbed.suites.hard` (its own seed), two of every category but co-design,
-whose plans take a minute and none of which verifies."""
+"""Tasks of `testbed.suites.hard` (its own seed), two of every category but co-design, of
+which one (its plans take up to a minute and none verifies)."""
 INERTIA_SECTION = "Ipopt settings: inertia corrections"
 
 
@@ -190,7 +190,7 @@ def objective_hessian() -> Iterator[None]:
     positive semidefinite where the objective is convex) in place of the Lagrangian's."""
     own = stages.derivatives
 
-    def derivatives(kernels):
+    def derivatives(kernels: Kernels) -> Derivatives | None:
         found = own(kernels)
         return None if found is None else Derivatives(_objective_only(found.stage),
                                                       _objective_only(found.terminal))

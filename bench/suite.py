@@ -180,7 +180,6 @@ def per_iteration(rows: list[dict]) -> float:
     return sum(f for f, _ in pairs) / total if total else math.nan
 
 
-
 IPOPT_INERTIA = {"perturb_dec_fact": 1 / 3, "perturb_inc_fact": 8.0,
                  "first_hessian_perturbation": 1e-4}
 """Ipopt's own settings of its inertia correction (the "Ipopt inertia" configuration, which
