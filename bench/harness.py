@@ -32,7 +32,7 @@ import casadi as ca
 import numpy as np
 
 from planner.ocp.problem import ProblemKey, cached_problem, problem
-from planner.ocp.solvers.ipopt import IPOPT_OPTIONS
+from planner.ocp.solvers.ipopt import IPOPT, IPOPT_OPTIONS
 from planner.scene import Scene
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -105,17 +105,21 @@ def build_instrumented(scene: Scene) -> tuple[float, CpuTimed]:
 
 
 @contextlib.contextmanager
-def ipopt_options(options: dict) -> Iterator[None]:
-    """NLPs built within use `planner.ocp.solvers.ipopt.IPOPT_OPTIONS` updated with `options`; the
+def ipopt_options(options: dict, idle: bool | None = None) -> Iterator[None]:
+    """NLPs built within use `planner.ocp.solvers.ipopt.IPOPT_OPTIONS` updated with `options`
+    and, unless idle is None, have the idle variable or not (`Ipopt.idle_variable`); the
     cache of built NLPs is cleared on entry and on exit (a solver holds its options)."""
-    saved = dict(IPOPT_OPTIONS)
+    saved, saved_idle = dict(IPOPT_OPTIONS), IPOPT.idle_variable
     IPOPT_OPTIONS.update(options)
+    if idle is not None:
+        IPOPT.idle_variable = idle
     cached_problem.cache_clear()
     try:
         yield
     finally:
         IPOPT_OPTIONS.clear()
         IPOPT_OPTIONS.update(saved)
+        IPOPT.idle_variable = saved_idle
         cached_problem.cache_clear()
 
 

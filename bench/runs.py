@@ -30,7 +30,7 @@ RESULTS: dict[str, tuple[str, ...]] = {
     "faults": ("bench/results/faults.csv", "bench/results/faults_postgres.csv"),
     "fuzz": ("bench/results/fuzz.csv",),
     "initial_guess": ("bench/results/initial_guess.csv",),
-    "ipopt_settings": ("bench/results/ipopt_settings.csv",),
+    "ipopt_settings": ("bench/results/ipopt_settings.csv", "bench/results/ipopt_inertia.csv"),
     "limits": ("bench/results/limits.csv",),
     "passive_margin": ("bench/results/passive_margin.csv",),
     "peer_opty": ("bench/results/peer_opty.csv",),

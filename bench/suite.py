@@ -1,6 +1,7 @@
 """The task suite (testbed.suites.ordinary): how often a plan verifies, and how long a
-verified plan takes, against the same planner with mesh refinement off, without retries or
-with fatrop instead of Ipopt, and its peers on the same 50 intervals: a plain CasADi Opti
+verified plan takes, against the same planner with mesh refinement off, without retries,
+with fatrop instead of Ipopt or with Ipopt's own inertia correction (`IPOPT_INERTIA`, no
+idle variable), and its peers on the same 50 intervals: a plain CasADi Opti
 script (bench/peers/opti.py, Legendre degree 3), rockit (bench/peers/rockit.py: direct
 collocation with Ipopt, multiple shooting with fatrop) and opty (bench/peers/opty.py,
 midpoint, in its own virtualenv `.venv-opty`).
@@ -74,6 +75,8 @@ CONFIGS = {
     "refinement off": "transcription.refinement.enabled false",
     "retries off": "solver.retries 0",
     "fatrop": "solver.name fatrop",
+    "Ipopt inertia": "Ipopt's own inertia correction: no idle variable, perturb_dec_fact 1/3, "
+                     "perturb_inc_fact 8, first_hessian_perturbation 1e-4",
     "before": f"the planner of {BEFORE}, before plans were refined and checked interval by "
               "interval (verified: the whole-horizon replay within 1e-3 rad)",
     "Opti script": "plain CasADi Opti, Legendre 3, 50 intervals, Ipopt defaults",
@@ -98,7 +101,7 @@ LOG_LEVEL = 6
 """Ipopt's print level on the hard suite: its iteration table (restoration iterations marked
 "r") and, per search direction, "Number of trial factorizations performed" (level 6,
 J_DETAILED); about 4 kB a iteration, a few per cent of a solve's time."""
-_ITERATION = re.compile(r"^\s*\d+(r?)\s+[-+]?\d\.\d+e[-+]\d+\s", re.MULTILINE)
+_ITERATION = re.compile(r"^\s*(\d+)(r?)\s+[-+]?\d\.\d+e[-+]\d+\s", re.MULTILINE)
 _TRIALS = re.compile(r"^Number of trial factorizations performed:\s*(\d+)", re.MULTILINE)
 _ESTIMATES = re.compile(r"^Least square estimates", re.MULTILINE)
 
@@ -153,17 +156,45 @@ def solver_log() -> Iterator[Callable[[], str]]:
 
 
 def log_counts(text: str, iterations: int) -> dict:
-    """Restoration iterations and KKT factorizations in Ipopt's log at LOG_LEVEL: iteration
-    rows marked "r", and the trial factorizations of every search direction plus one for
-    each least-squares multiplier estimate. NaN when the log holds no iteration row while
-    the plan made iterations (a solver that writes none: fatrop)."""
+    """Restoration iterations, KKT factorizations and iterations in Ipopt's log at
+    LOG_LEVEL: iteration rows marked "r"; the trial factorizations of every search direction
+    plus one for each least-squares multiplier estimate; iteration rows numbered above 0.
+    The log holds the companion process's solves too (`planner.ocp.portfolio`), whose
+    iterations a plan counts only when the companion's plan is chosen: factorizations per
+    iteration divide by the log's own iterations. NaN when the log holds no iteration row
+    while the plan made iterations (a solver that writes none: fatrop)."""
     rows = _ITERATION.findall(text)
     if not rows and iterations > 0:
-        return {"restoration": math.nan, "factorizations": math.nan}
-    return {"restoration": sum(1 for r in rows if r),
+        return {"restoration": math.nan, "factorizations": math.nan,
+                "logged_iterations": math.nan}
+    return {"restoration": sum(1 for _, r in rows if r),
             "factorizations": sum(int(k) for k in _TRIALS.findall(text))
-            + len(_ESTIMATES.findall(text))}
+            + len(_ESTIMATES.findall(text)),
+            "logged_iterations": sum(1 for k, _ in rows if int(k) > 0)}
 
+
+def per_iteration(rows: list[dict]) -> float:
+    """KKT factorizations per Ipopt iteration over rows: their sums, both counted in the
+    logs (NaN without any; a row from before the log's iterations were counted has none)."""
+    pairs = [(float(r["factorizations"]), float(r["logged_iterations"])) for r in rows
+             if r.get("logged_iterations") not in (None, "")]
+    pairs = [(f, k) for f, k in pairs if math.isfinite(f) and math.isfinite(k) and k > 0]
+    total = sum(k for _, k in pairs)
+    return sum(f for f, _ in pairs) / total if total else math.nan
+
+
+IPOPT_INERTIA = {"perturb_dec_fact": 1 / 3, "perturb_inc_fact": 8.0,
+                 "first_hessian_perturbation": 1e-4}
+"""Ipopt's own settings of its inertia correction (the "Ipopt inertia" configuration, which
+also leaves the idle variable out: `planner.ocp.solvers.ipopt`)."""
+
+
+def _ipopt(config: str, hard: bool) -> tuple[dict, bool | None]:
+    """The Ipopt options and idle variable (None: the planner's) of a planner configuration."""
+    options = {"print_level": LOG_LEVEL} if hard else {}
+    if config == "Ipopt inertia":
+        return {**options, **IPOPT_INERTIA}, False
+    return options, None
 
 
 def _settings(config: str) -> dict:
@@ -187,7 +218,7 @@ UNCERTAINTY = {"mass": 0.1}
 link's mass 10 % off, both ways (docs/planner.md, "Robustness to model error")."""
 
 
-def _with_uncertainty(scene: dict) -> dict:
+def with_uncertainty(scene: dict) -> dict:
     """The scene with UNCERTAINTY unless it states one of its own."""
     if scene["task"].get("uncertainty") is None:
         scene = {**scene, "task": {**scene["task"], "uncertainty": UNCERTAINTY}}
@@ -233,10 +264,10 @@ def run_planner(config: str, count: int, seed: int, suite: str = "default",
     hard = suite == "hard"
     _build_ahead(suite, count, seed, categories, changes)
     rows = []
-    with harness.ipopt_options({"print_level": LOG_LEVEL} if hard else {}):
+    with harness.ipopt_options(*_ipopt(config, hard)):
         for name, scene in suite_tasks(suite, count, seed, tuple(categories)):
             try:
-                scene = Scene.model_validate(_with_uncertainty(
+                scene = Scene.model_validate(with_uncertainty(
                     _merged(scene.model_dump(mode="json"), changes)))
             except ValidationError:  # a task this configuration cannot state (fatrop: free
                 continue  # time, co-design), left out as the peers leave theirs
@@ -288,7 +319,7 @@ def _peer_row(name: str, config: str, scene, out: dict, elapsed: float,
     if hard:
         row = {"task": name, "category": hard_suite.category(name), **row,
                "restoration": math.nan, "factorizations": math.nan,
-               "cpu": out.get("cpu", math.nan),
+               "logged_iterations": math.nan, "cpu": out.get("cpu", math.nan),
                "time_to_plan": elapsed if out["success"] and elapsed <= WALL_TIME else math.nan,
                "duration": scene.task.duration}
     return row
@@ -453,7 +484,8 @@ def run_before(count: int, seed: int, commit: str, suite: str = "default",
              "strategy": "direct"} for out in harness.result_lines(run.stdout)]
     if suite == "hard":
         rows = [{"task": r["task"], "category": hard_suite.category(r["task"]), **r,
-                 "restoration": math.nan, "factorizations": math.nan, "cpu": math.nan,
+                 "restoration": math.nan, "factorizations": math.nan,
+                 "logged_iterations": math.nan, "cpu": math.nan,
                  "time_to_plan": math.nan, "duration": math.nan} for r in rows]
     if len(rows) != count:
         raise RuntimeError(f"before: {len(rows)} of {count} tasks ran: {harness.last_error(run)}")
@@ -692,8 +724,8 @@ def hard_summary(rows: list[dict], config: str, key: str = "config") -> dict:
     """Of a configuration's (or category's, `key`) rows: the share verified; the median,
     90th percentile and maximum time to a verified plan with unverified tasks counted as
     never, the median over the verified ones; median iterations, restoration iterations,
-    factorizations and CPU time; the median time to a plan the solver accepted (verified
-    or not)."""
+    factorizations and CPU time; KKT factorizations per iteration (`per_iteration`); the
+    median time to a plan the solver accepted (verified or not)."""
     mine = [r for r in rows if r[key] == config]
     verified = sum(bool(r["verified"]) for r in mine)
     every = [r["time_to_verified"] if r["verified"] else math.inf for r in mine]
@@ -709,6 +741,7 @@ def hard_summary(rows: list[dict], config: str, key: str = "config") -> dict:
             "median_iterations": harness.median([r["iterations"] for r in mine]),
             "median_restoration": harness.median([r["restoration"] for r in mine]),
             "median_factorizations": harness.median([r["factorizations"] for r in mine]),
+            "per_iteration": per_iteration(mine),
             "median_cpu": harness.median([r["cpu"] for r in mine])}
 
 
@@ -720,6 +753,7 @@ _SUMMARY_COLUMNS = [("tasks", "tasks"), ("verified", "verified"), ("share", "sha
                     ("median_iterations", "median iterations"),
                     ("median_restoration", "median restoration iterations"),
                     ("median_factorizations", "median KKT factorizations"),
+                    ("per_iteration", "KKT factorizations per iteration"),
                     ("median_cpu", "median CPU [s]")]
 
 
@@ -730,7 +764,8 @@ def hard_task_table(rows: list[dict], configs: list[str]) -> str:
     return harness.table(lines, [
         ("task", "task"), ("config", "configuration"), ("ok", "verified"), ("status", "status"),
         ("iterations", "iterations"), ("restoration", "restoration iterations"),
-        ("factorizations", "KKT factorizations"), ("solves", "solves"),
+        ("factorizations", "KKT factorizations"),
+        ("logged_iterations", "iterations in the log"), ("solves", "solves"),
         ("cpu", "CPU [s]"), ("time", "wall [s]"), ("time_to_verified", "time to verified [s]"),
         ("local_error", "interval error [rad]"),
         ("robust_tracking_error", "mass ±10 %: tracking [rad]"),
@@ -818,7 +853,9 @@ def report_hard(args, argv: list[str], configs: list[str], rows: list[dict],
         "(nearest rank) and maximum. Iterations are Ipopt's over every solve of a plan; "
         "restoration iterations and KKT factorizations (the trial factorizations of every "
         "search direction and the least-squares multiplier estimates) are counted in Ipopt's "
-        f"log at print level {LOG_LEVEL}; CPU is this process's and its children's. Peers "
+        f"log at print level {LOG_LEVEL}, which holds the companion process's solves too, "
+        "and factorizations per iteration divide by that log's own iterations (`log_counts`); "
+        "CPU is this process's and its children's. Peers "
         "run only the tasks they can state (fixed duration, state to state, effort), a "
         "planner configuration the tasks its settings can state (fatrop: no free time or "
         "co-design); fatrop writes no log to count in.",

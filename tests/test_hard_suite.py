@@ -276,10 +276,15 @@ Number of trial factorizations performed: 2
 
 
 def test_the_bench_counts_restoration_iterations_and_factorizations_in_ipopts_log():
-    from bench.suite import log_counts, supported
+    from bench.suite import log_counts, per_iteration, supported
 
-    assert log_counts(IPOPT_LOG, 3) == {"restoration": 2, "factorizations": 7}
+    assert log_counts(IPOPT_LOG, 3) == {"restoration": 2, "factorizations": 7,
+                                        "logged_iterations": 3}
     assert all(math.isnan(v) for v in log_counts("no log here", 10).values())
-    assert log_counts("", 0) == {"restoration": 0, "factorizations": 0}
+    assert log_counts("", 0) == {"restoration": 0, "factorizations": 0, "logged_iterations": 0}
+    rows = [{"factorizations": 7, "logged_iterations": 3},
+            {"factorizations": math.nan, "logged_iterations": math.nan},
+            {"factorizations": 5, "logged_iterations": ""}]
+    assert per_iteration(rows) == pytest.approx(7 / 3)
     kinds = {category(name) for name, scene in hard_tasks(12, SEED) if supported(scene)}
     assert kinds == {"seed-g0-cross", "seed-g9.81-cross", "seed-swing", "links-5to8"}

@@ -11,7 +11,9 @@ from testbed.suites.ordinary import tasks
 
 
 def test_fatrop_and_ipopt_reach_the_same_verified_optimum():
-    sc = dict(tasks())["2-PA-g0-x00"]
+    # a task with one optimum near the guess (on 2-PA-g0-x00 Ipopt finds one of effort 1.76
+    # where fatrop ends in one of 10.3, both verified)
+    sc = dict(tasks())["2-PA-g9.81-x15"]
     results = {}
     for name in ("ipopt", "fatrop"):
         scene = sc.model_copy(update={"solver": sc.solver.model_copy(

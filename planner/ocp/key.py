@@ -50,6 +50,8 @@ class ProblemKey:
     jit: bool
     solver: str = "ipopt"
     max_iter: int = 0  # fixed when the solver is built: one that calls no iteration callback
+    idle: bool = False
+    """One variable that no row or cost reads (`Solver.idle_variable`), after the others."""
     relaxed: bool = False
     """Virtual torques on the passive joints too (the relaxed dynamics of a continuation,
     `planner.ocp.continuation`): the torque vector holds the active joints' torques, then
@@ -87,6 +89,7 @@ class ProblemKey:
             jit=settings.jit,
             solver=settings.name,
             max_iter=0 if SOLVERS[settings.name].monitored else settings.max_iter,
+            idle=SOLVERS[settings.name].idle_variable,
         )
         hulls = _hulls(key.method, key.degree, key.integrator, key.steps, key.form)
         return replace(key, torque_limit=key.torque_limit and "tau" in hulls,
@@ -104,9 +107,11 @@ class ProblemKey:
 
     def global_variables(self) -> tuple[tuple[str, int], ...]:
         """The variables of no stage (name, size): the duration T when it is free, the
-        wave (amplitude, phase) of every active joint when they are co-designed."""
-        out = (("T", 1),) if self.free_time else ()
-        return out + ((("wave", 2 * len(self.structure.active_idx)),) if self.codesign else ())
+        wave (amplitude, phase) of every active joint when they are co-designed, the idle
+        variable last."""
+        out: tuple[tuple[str, int], ...] = (("T", 1),) if self.free_time else ()
+        out += (("wave", 2 * len(self.structure.active_idx)),) if self.codesign else ()
+        return out + ((("idle", 1),) if self.idle else ())
 
     def fingerprint(self) -> str:
         """A stable hash of the whole key (its number of intervals too) and of the code that

@@ -2,7 +2,7 @@
 
 The variables of interval k (a stage, the same parts for every k) come first, interval
 after interval, then those of the final node (the terminal), then the global variables
-(a free duration, co-designed waves):
+(a free duration, co-designed waves, the idle variable of `ProblemKey.idle`):
 
     x = [w_0, w_1, ..., w_{N-1}, w_N (terminal), globals]
 

@@ -25,6 +25,7 @@ class Fatrop:
     name = "fatrop"
     monitored = False
     warm_options: dict[str, Any] | None = None
+    idle_variable = False
 
     def options(self, nlp: Nlp) -> dict[str, Any]:
         """The stage structure (per stage: the node state, the other stage variables, the

@@ -43,7 +43,9 @@ class Solver(Protocol):
     callback at every iteration, so that the monitor reports progress and stops a solve at
     the plan's limits (otherwise its iteration limit is fixed when it is built, and a solve
     runs to its end); warm_options: its own options (nested under its name in nlpsol's)
-    of a solve that starts from given primal and dual values, None when it takes none."""
+    of a solve that starts from given primal and dual values, None when it takes none;
+    idle_variable: its NLP carries one variable that no row or cost reads
+    (`ProblemKey.idle`)."""
 
     @property
     def name(self) -> str: ...
@@ -53,6 +55,9 @@ class Solver(Protocol):
 
     @property
     def warm_options(self) -> dict[str, Any] | None: ...
+
+    @property
+    def idle_variable(self) -> bool: ...
 
     def options(self, nlp: Nlp) -> dict[str, Any]:
         """The nlpsol options of a solver of `nlp`."""
