@@ -24,7 +24,7 @@ from planner.ocp.result import (
     waves_of,
 )
 from planner.ocp.shortest import Probe
-from planner.ocp.solve import Budget
+from planner.ocp.solve import Budget, Clock
 from planner.ocp.verdict import verdict
 from planner.ocp.verification import Feedback, Verification
 from planner.ocp.verify import verify
@@ -84,7 +84,19 @@ def plan_of(scene: Scene, attempts: list[Attempt], budget: Budget,
                             strategy=attempt.start.name + refined_by),
         mesh_passes=_records(outcomes, probe, probe_after),
         feedback=feedback, verification=verification, solution=_nlp_solution(best))
-    return with_verdict(infeasibility.annotate(plan, scene, attempts, best, attempt, probe))
+    return stamped(with_verdict(infeasibility.annotate(plan, scene, attempts, best, attempt,
+                                                       probe)), budget)
+
+
+def stamped(plan: Plan, budget: Budget) -> Plan:
+    """The plan with what its checks cost since the budget's latest solve ended, in wall
+    and CPU time (unchanged before any solve)."""
+    if budget.solved is None:
+        return plan
+    now = Clock.now()
+    report = plan.solver.model_copy(update={"checks_time": now.wall - budget.solved.wall,
+                                            "checks_cpu_time": now.cpu - budget.solved.cpu})
+    return plan.model_copy(update={"solver": report})
 
 
 def with_verdict(plan: Plan) -> Plan:
