@@ -1,0 +1,134 @@
+"""The checks' share of a plan on the task suite: `python -m bench verification --parts
+suite` (bench/verification.py).
+
+Every task of the default suite (`testbed.suites.ordinary`), stated as `python -m bench
+suite` states it for the default planner (with its `task.uncertainty`, so that the
+robustness replays run), is planned in a fresh process of each version: once to build
+its NLPs (as a service worker keeps them), then `--repeats` times measured. Per plan:
+its wall time and CPU time (the process and its waited-for children, the companion
+among them), its solves' time (`solver.solve_time`) and its checks after the last solve
+(`solver.checks_time`, `solver.checks_cpu_time`: that solve's interval errors and
+open-loop replay, the verification with the feedback, closed-loop replays and
+robustness, and assembling the plan), and their share of the plan.
+"""
+
+from __future__ import annotations
+
+import json
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from bench import harness
+from bench.suite import UNCERTAINTY
+from testbed.suites.ordinary import COUNT, SEED, tasks
+
+SECTION = "Verification: the checks' share of a plan on the task suite"
+CSV = harness.RESULTS / "verification_suite.csv"
+
+_RUN = """
+import json, resource, sys, time
+sys.path.insert(0, {root!r})
+from planner import compiled
+from planner.ocp import plan
+from planner.scene import Scene
+def cpu():
+    child = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return time.process_time() + child.ru_utime + child.ru_stime
+chosen = [(name, Scene.model_validate(body)) for name, body in json.load(open(sys.argv[1]))]
+for _, scene in chosen:
+    plan(scene)
+compiled.wait()
+rows = []
+for _ in range({repeats}):
+    for name, scene in chosen:
+        started, used = time.perf_counter(), cpu()
+        result = plan(scene)
+        wall, spent = time.perf_counter() - started, cpu() - used
+        s = result.solver
+        rows.append({{"task": name, "verified": bool(s.success and result.verification.verified),
+                      "intervals": len(result.t) - 1, "solves": len(result.mesh_passes),
+                      "wall": wall, "cpu": spent, "solve": s.solve_time,
+                      "checks": getattr(s, "checks_time", None),
+                      "checks_cpu": getattr(s, "checks_cpu_time", None)}})
+print("RESULT " + json.dumps({{"rows": rows}}))
+"""
+COLUMNS = [("task", "task"), ("version", "version"), ("verified", "verified"),
+           ("intervals", "intervals"), ("solves", "solves"), ("wall", "plan [s]"),
+           ("cpu", "plan CPU [s]"), ("solve", "solves [s]"), ("checks", "checks [s]"),
+           ("checks_cpu", "checks CPU [s]"), ("share", "checks / plan [%]"),
+           ("cpu_share", "checks CPU / plan CPU [%]")]
+SUMMARY = [("version", "version"), ("plans", "plans"), ("verified", "verified"),
+           ("wall", "median plan [s]"), ("checks", "median checks [s]"),
+           ("share", "median checks / plan [%]"), ("p90", "90th percentile [%]"),
+           ("worst", "worst [%]"), ("total", "all checks / all plans [%]"),
+           ("cpu_share", "median checks CPU / plan CPU [%]"), ("cpu_worst", "worst, CPU [%]")]
+
+
+def scenes(count: int, seed: int) -> list[tuple[str, dict]]:
+    """The suite's tasks as `python -m bench suite` plans them with the default planner:
+    each with the suite bench's UNCERTAINTY."""
+    out = []
+    for name, scene in tasks(count, seed):
+        body = scene.model_dump(mode="json")
+        out.append((name, {**body, "task": {**body["task"], "uncertainty": UNCERTAINTY}}))
+    return out
+
+
+def measured(root: Path, chosen: list[tuple[str, dict]], repeats: int) -> list[dict]:
+    """The rows of one version (the checkout at `root`), in a fresh process."""
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "tasks.json"
+        path.write_text(json.dumps(chosen))
+        out = harness.run_at(root, _RUN.format(root=str(root), repeats=repeats), [str(path)],
+                             3600)
+    if "failure" in out:
+        raise RuntimeError(f"{root}: {out['failure']}")
+    return [{**row, "share": _ratio(row["checks"], row["wall"]),
+             "cpu_share": _ratio(row["checks_cpu"], row["cpu"])} for row in out["rows"]]
+
+
+def _ratio(part: float | None, whole: float) -> float | None:
+    """part / whole [%] (None without the part)."""
+    return None if part is None or whole <= 0 else 100.0 * part / whole
+
+
+def summary(version: str, rows: Sequence[dict]) -> dict:
+    """Medians, the 90th percentile and the worst of the checks' share over the plans."""
+    shares = [r["share"] for r in rows if r["share"] is not None]
+    cpu = [r["cpu_share"] for r in rows if r["cpu_share"] is not None]
+    checks = [r["checks"] for r in rows if r["checks"] is not None]
+    return {"version": version, "plans": len(rows), "verified": sum(r["verified"] for r in rows),
+            "wall": harness.median(r["wall"] for r in rows), "checks": harness.median(checks),
+            "share": harness.median(shares),
+            "p90": float(np.percentile(shares, 90)) if shares else None,
+            "worst": max(shares, default=None),
+            "total": _ratio(sum(checks), sum(r["wall"] for r in rows)) if checks else None,
+            "cpu_share": harness.median(cpu), "cpu_worst": max(cpu, default=None)}
+
+
+def run(before: str | None, count: int, seed: int, repeats: int) -> tuple[str, list[dict]]:
+    """The section's text and the rows of this checkout and, unless None, of `before`."""
+    chosen = scenes(count, seed)
+    rows = [{**r, "version": "now"} for r in measured(harness.ROOT, chosen, repeats)]
+    if before is not None:
+        with harness.checkout(before) as old:
+            rows += [{**r, "version": before} for r in measured(old, chosen, repeats)]
+    versions = list(dict.fromkeys(r["version"] for r in rows))
+    table = [summary(v, [r for r in rows if r["version"] == v]) for v in versions]
+    ordered = sorted(rows, key=lambda r: (r["task"], versions.index(r["version"])))
+    suite = "" if (count, seed) == (COUNT, SEED) else f" ({count} tasks, seed {seed})"
+    text = "\n\n".join([
+        f"Every task of the default suite{suite}, stated as `python -m bench suite` states "
+        f"it for the default planner (every link's mass ±{UNCERTAINTY['mass']:.0%}, so the "
+        "robustness replays run), planned in a fresh process of each version of one run: "
+        f"once to build its NLPs, then measured ({repeats} plan(s) a task). The checks "
+        "are everything after the plan's last solve (`solver.checks_time`): that solve's "
+        "interval errors and open-loop replay, the verification with the feedback, its "
+        "closed-loop replays and the robustness replays, and assembling the plan; CPU "
+        "times count the process and its companion."
+        + (f" {before}: the planner before its checks were batched." if before else ""),
+        harness.table(table, SUMMARY), harness.table(ordered, COLUMNS)])
+    return text, rows
