@@ -12,8 +12,8 @@ import numpy as np
 
 from planner.ocp import infeasibility
 from planner.ocp.attempt import Attempt
-from planner.ocp.feedback import REPLAY_SAMPLES
 from planner.ocp.outcome import NOT_FINITE, Outcome, finite_or_none
+from planner.ocp.replays import REPLAY_SAMPLES
 from planner.ocp.result import (
     DenseTrajectory,
     MeshPass,
