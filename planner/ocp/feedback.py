@@ -56,7 +56,7 @@ class Linearisation:
 @lru_cache(maxsize=64)
 def _jacobians(s: Structure) -> ca.Function:
     """(x, tau, p) -> (df/dx (2n x 2n), df/dtau (2n x na)) of the first-order dynamics."""
-    ode = functions(s)["ode"]
+    ode = functions(s)["ode_ldl"]
     x, tau, p = ode.sx_in()
     dx = ode(x, tau, p)
     return ca.Function("jacobians", [x, tau, p], [ca.jacobian(dx, x), ca.jacobian(dx, tau)])

@@ -38,7 +38,7 @@ _SOURCES = [Path(__file__).resolve().parents[1] / name
 
 def _dae(s: Structure, degree: int) -> ca.Function:
     """The right-hand side in normalised time: (t, x, z, p, u) -> (ode, alg, quad, zero)."""
-    f = functions(s)["ode"]
+    f = functions(s)["ode_ldl"]
     na = len(s.active_idx)
     x, u = ca.SX.sym("x", 2 * s.n), ca.SX.sym("u", na)
     sn, h = ca.SX.sym("s"), ca.SX.sym("h")
