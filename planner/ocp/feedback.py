@@ -114,14 +114,14 @@ def _rk4(y, a0, am, a1, b0, bm, b1, dt):
 def growth_factor(lin: Linearisation) -> float | None:
     """max_k ||Phi(t_k, 0)||_2 along the plan; None where the product of the intervals'
     transition matrices overflows (a plan far too fast for its duration)."""
-    phi, worst = np.eye(lin.A.shape[1]), 1.0
+    phi, products = np.eye(lin.A.shape[1]), []
     with np.errstate(over="ignore", invalid="ignore"):
         for A in lin.A:
             phi = A @ phi
             if not np.all(np.isfinite(phi)):
                 return None
-            worst = max(worst, float(np.linalg.norm(phi, 2)))
-    return worst
+            products.append(phi)
+    return max(1.0, float(np.linalg.norm(np.stack(products), 2, axis=(1, 2)).max()))
 
 
 def gains(lin: Linearisation, h: np.ndarray, tau_scale: float) -> Feedback | None:
