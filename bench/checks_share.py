@@ -1,10 +1,11 @@
 """The checks' share of a plan on the task suite: `python -m bench verification --parts
 suite` (bench/verification.py).
 
-Every task of the default suite (`testbed.suites.ordinary`), stated as `python -m bench
-suite` states it for the default planner (with its `task.uncertainty`, so that the
-robustness replays run), is planned in a fresh process of each version: once to build
-its NLPs (as a service worker keeps them), then `--repeats` times measured. Per plan:
+Every task of the default suite (`testbed.suites.ordinary`), as the suite generates it
+("plain") and as `python -m bench suite` states it for the default planner, with its
+`task.uncertainty`, so that the robustness replays run ("uncertain"), is planned in a
+fresh process of each version: once to build its NLPs (as a service worker keeps them),
+then `--repeats` times measured. Per plan:
 its wall time and CPU time (the process and its waited-for children, the companion
 among them), its solves' time (`solver.solve_time`) and its checks after the last solve
 (`solver.checks_time`, `solver.checks_cpu_time`: that solve's interval errors and
@@ -14,6 +15,7 @@ robustness, and assembling the plan), and their share of the plan.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import tempfile
 from collections.abc import Sequence
@@ -55,25 +57,38 @@ for _ in range({repeats}):
                       "checks_cpu": getattr(s, "checks_cpu_time", None)}})
 print("RESULT " + json.dumps({{"rows": rows}}))
 """
-COLUMNS = [("task", "task"), ("version", "version"), ("verified", "verified"),
-           ("intervals", "intervals"), ("solves", "solves"), ("wall", "plan [s]"),
-           ("cpu", "plan CPU [s]"), ("solve", "solves [s]"), ("checks", "checks [s]"),
-           ("checks_cpu", "checks CPU [s]"), ("share", "checks / plan [%]"),
-           ("cpu_share", "checks CPU / plan CPU [%]")]
-SUMMARY = [("version", "version"), ("plans", "plans"), ("verified", "verified"),
-           ("wall", "median plan [s]"), ("checks", "median checks [s]"),
-           ("share", "median checks / plan [%]"), ("p90", "90th percentile [%]"),
-           ("worst", "worst [%]"), ("total", "all checks / all plans [%]"),
+VARIANTS = {"plain": "as the suite generates them",
+            "uncertain": "as `python -m bench suite` states them for the default planner, "
+                         "with its task.uncertainty"}
+"""The ways the suite's tasks are stated: plain (no uncertainty: no robustness replays)
+and uncertain (every link's mass off both ways: the robustness replays run)."""
+SUMMARY = [("variant", "tasks"), ("version", "version"), ("plans", "plans"),
+           ("verified", "verified"), ("wall", "median plan [s]"),
+           ("checks", "median checks [s]"), ("share", "median checks / plan [%]"),
+           ("p90", "90th percentile [%]"), ("worst", "worst [%]"),
+           ("total", "all checks / all plans [%]"),
            ("cpu_share", "median checks CPU / plan CPU [%]"), ("cpu_worst", "worst, CPU [%]")]
 
 
-def scenes(count: int, seed: int) -> list[tuple[str, dict]]:
-    """The suite's tasks as `python -m bench suite` plans them with the default planner:
-    each with the suite bench's UNCERTAINTY."""
+def columns(versions: Sequence[str]) -> list[tuple[str, str]]:
+    """The per-task table's columns: each version's plan, checks and shares side by side."""
+    out = [("task", "task"), ("variant", "tasks"), ("intervals", "intervals"),
+           ("solves", "solves")]
+    for v in versions:
+        out += [(f"wall {v}", f"{v}: plan [s]"), (f"checks {v}", "checks [s]"),
+                (f"share {v}", "checks / plan [%]"),
+                (f"cpu_share {v}", "checks CPU / plan CPU [%]")]
+    return out
+
+
+def scenes(count: int, seed: int, variant: str) -> list[tuple[str, dict]]:
+    """The suite's tasks, plain or with the suite bench's UNCERTAINTY (`VARIANTS`)."""
     out = []
     for name, scene in tasks(count, seed):
         body = scene.model_dump(mode="json")
-        out.append((name, {**body, "task": {**body["task"], "uncertainty": UNCERTAINTY}}))
+        if variant == "uncertain":
+            body = {**body, "task": {**body["task"], "uncertainty": UNCERTAINTY}}
+        out.append((name, body))
     return out
 
 
@@ -95,12 +110,13 @@ def _ratio(part: float | None, whole: float) -> float | None:
     return None if part is None or whole <= 0 else 100.0 * part / whole
 
 
-def summary(version: str, rows: Sequence[dict]) -> dict:
+def summary(variant: str, version: str, rows: Sequence[dict]) -> dict:
     """Medians, the 90th percentile and the worst of the checks' share over the plans."""
     shares = [r["share"] for r in rows if r["share"] is not None]
     cpu = [r["cpu_share"] for r in rows if r["cpu_share"] is not None]
     checks = [r["checks"] for r in rows if r["checks"] is not None]
-    return {"version": version, "plans": len(rows), "verified": sum(r["verified"] for r in rows),
+    return {"variant": variant, "version": version, "plans": len(rows),
+            "verified": sum(r["verified"] for r in rows),
             "wall": harness.median(r["wall"] for r in rows), "checks": harness.median(checks),
             "share": harness.median(shares),
             "p90": float(np.percentile(shares, 90)) if shares else None,
@@ -109,26 +125,48 @@ def summary(version: str, rows: Sequence[dict]) -> dict:
             "cpu_share": harness.median(cpu), "cpu_worst": max(cpu, default=None)}
 
 
-def run(before: str | None, count: int, seed: int, repeats: int) -> tuple[str, list[dict]]:
-    """The section's text and the rows of this checkout and, unless None, of `before`."""
-    chosen = scenes(count, seed)
-    rows = [{**r, "version": "now"} for r in measured(harness.ROOT, chosen, repeats)]
-    if before is not None:
-        with harness.checkout(before) as old:
-            rows += [{**r, "version": before} for r in measured(old, chosen, repeats)]
+def run(before: str | None, count: int, seed: int, repeats: int,
+        variants: Sequence[str]) -> tuple[str, list[dict]]:
+    """The section's text and the rows of this checkout and, unless None, of `before`, for
+    each variant of the tasks."""
+    rows: list[dict] = []
+    with harness.checkout(before) if before else contextlib.nullcontext(None) as old:
+        for variant in variants:
+            chosen = scenes(count, seed, variant)
+            for version, root in (("now", harness.ROOT), (before, old)):
+                if root is not None:
+                    rows += [{**r, "variant": variant, "version": version}
+                             for r in measured(root, chosen, repeats)]
     versions = list(dict.fromkeys(r["version"] for r in rows))
-    table = [summary(v, [r for r in rows if r["version"] == v]) for v in versions]
-    ordered = sorted(rows, key=lambda r: (r["task"], versions.index(r["version"])))
+    table = [summary(a, v, [r for r in rows if (r["variant"], r["version"]) == (a, v)])
+             for a in variants for v in versions]
+    return _text(before, count, seed, repeats, variants, table, _side_by_side(rows)), rows
+
+
+def _side_by_side(rows: Sequence[dict]) -> list[dict]:
+    """One row per task and variant, each version's figures in columns of their own."""
+    out: dict[tuple[str, str], dict] = {}
+    for r in rows:
+        row = out.setdefault((r["task"], r["variant"]), {
+            "task": r["task"], "variant": r["variant"], "intervals": r["intervals"],
+            "solves": r["solves"]})
+        row.update({f"{k} {r['version']}": r[k] for k in ("wall", "checks", "share",
+                                                           "cpu_share")})
+    return [out[k] for k in sorted(out)]
+
+
+def _text(before: str | None, count: int, seed: int, repeats: int, variants: Sequence[str],
+          table: list[dict], tasks_table: list[dict]) -> str:
     suite = "" if (count, seed) == (COUNT, SEED) else f" ({count} tasks, seed {seed})"
-    text = "\n\n".join([
-        f"Every task of the default suite{suite}, stated as `python -m bench suite` states "
-        f"it for the default planner (every link's mass ±{UNCERTAINTY['mass']:.0%}, so the "
-        "robustness replays run), planned in a fresh process of each version of one run: "
-        f"once to build its NLPs, then measured ({repeats} plan(s) a task). The checks "
-        "are everything after the plan's last solve (`solver.checks_time`): that solve's "
-        "interval errors and open-loop replay, the verification with the feedback, its "
-        "closed-loop replays and the robustness replays, and assembling the plan; CPU "
-        "times count the process and its companion."
+    stated = "; ".join(f"{v}: {VARIANTS[v]}" for v in variants)
+    return "\n\n".join([
+        f"Every task of the default suite{suite} ({stated}; uncertainty: every link's mass "
+        f"±{UNCERTAINTY['mass']:.0%}), planned in a fresh process of each version of one "
+        f"run: once to build its NLPs, then measured ({repeats} plan(s) a task). The "
+        "checks are everything after the plan's last solve (`solver.checks_time`): that "
+        "solve's interval errors and open-loop replay, the verification with the feedback "
+        "and its closed-loop replays (and the robustness replays, with an uncertainty), "
+        "and assembling the plan; CPU times count the process and its companion."
         + (f" {before}: the planner before its checks were batched." if before else ""),
-        harness.table(table, SUMMARY), harness.table(ordered, COLUMNS)])
-    return text, rows
+        harness.table(table, SUMMARY),
+        harness.table(tasks_table, columns([c for c in ("now", before) if c]))])

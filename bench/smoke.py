@@ -79,7 +79,8 @@ SMALL: dict[str, Small] = {
                      "rockit fatrop"),
                     ("--suite", "hard", "--count", "1", "--cap", "20"))),
     "verification": Small((("--repeats", "1", "--scenes", "seed-arm-plan", "--jit", "off"),
-                           ("--parts", "suite", "--count", "1", "--before", "none"))),
+                           ("--parts", "suite", "--count", "1", "--before", "none",
+                            "--variants", "uncertain"))),
     "time_vs_error": Small((("--scenes", "arm-2", "--warm", "--quick",
                              "--transcriptions", "legendre-3"),)),
 }

@@ -23,7 +23,7 @@ the whole plan, on every task of the default suite (bench/checks_share.py says h
     python -m bench verification [--before 40cfc2f] [--repeats 5]
         [--scenes seed-arm-plan,seed-hang] [--jit off,on]
     python -m bench verification --parts suite [--before f853d1f] [--repeats 1]
-        [--count 48] [--seed 20261123]
+        [--count 48] [--seed 20261123] [--variants plain,uncertain]
 """
 
 from __future__ import annotations
@@ -153,12 +153,15 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--count", type=int, default=checks_share.COUNT,
                         help="suite: the suite's first tasks")
     parser.add_argument("--seed", type=int, default=checks_share.SEED, help="suite: its seed")
+    parser.add_argument("--variants", default=",".join(checks_share.VARIANTS),
+                        help="suite: comma-separated, from: " + ", ".join(checks_share.VARIANTS))
     args = parser.parse_args(argv)
     for part in args.parts.split(","):
         started, note = time.perf_counter(), harness.machine_note()
         if part == "suite":
             before = _before(args.before, SUITE_BEFORE)
-            text, rows = checks_share.run(before, args.count, args.seed, args.repeats or 1)
+            text, rows = checks_share.run(before, args.count, args.seed, args.repeats or 1,
+                                          args.variants.split(","))
             harness.write_csv(checks_share.CSV, rows)
             section, csv = checks_share.SECTION, checks_share.CSV
         else:
