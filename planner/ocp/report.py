@@ -65,8 +65,9 @@ def plan_of(scene: Scene, attempts: list[Attempt], budget: Budget,
     plan = Plan(
         t=breaks.tolist(), q=_finite(interp.q(breaks)), dq=_finite(interp.dq(breaks)),
         ddq=_finite(interp.dq(breaks, derivative=1)), tau=_finite(interp.tau(breaks)),
-        dense=DenseTrajectory(t=t_dense.tolist(), q=_finite(interp.q(t_dense)),
-                              tau=_finite(interp.tau(t_dense))),
+        dense=DenseTrajectory.model_construct(  # lists of floats by construction: a
+            # validation of its 2000 rows took as long as a replay of a two-link plan
+            t=t_dense.tolist(), q=_finite(interp.q(t_dense)), tau=_finite(interp.tau(t_dense))),
         torque=TorquePolynomial(breaks=breaks.tolist(), coefficients=_finite(interp.tau.coeffs)),
         states=StatePolynomials(breaks=breaks.tolist(), q=_finite(interp.q.coeffs),
                                 dq=_finite(interp.dq.coeffs)),
