@@ -5,7 +5,9 @@ Every task of the default suite (`testbed.suites.ordinary`), as the suite genera
 ("plain") and as `python -m bench suite` states it for the default planner, with its
 `task.uncertainty`, so that the robustness replays run ("uncertain"), is planned in a
 fresh process of each version: once to build its NLPs (as a service worker keeps them),
-then `--repeats` times measured. Per plan:
+then `--repeats` times measured, with core tokens of its own (`UNDERTOW_CORE_DIR`: a
+plan with passive joints forks its companion whatever else holds the machine's tokens,
+in both versions alike). Per plan:
 its wall time and CPU time (the process and its waited-for children, the companion
 among them), its solves' time (`solver.solve_time`) and its checks after the last solve
 (`solver.checks_time`, `solver.checks_cpu_time`: that solve's interval errors and
@@ -31,7 +33,8 @@ SECTION = "Verification: the checks' share of a plan on the task suite"
 CSV = harness.RESULTS / "verification_suite.csv"
 
 _RUN = """
-import json, resource, sys, time
+import json, os, resource, sys, tempfile, time
+os.environ["UNDERTOW_CORE_DIR"] = tempfile.mkdtemp(prefix="undertow-cores-")
 sys.path.insert(0, {root!r})
 from planner import compiled
 from planner.ocp import plan
@@ -166,7 +169,9 @@ def _text(before: str | None, count: int, seed: int, repeats: int, variants: Seq
         "checks are everything after the plan's last solve (`solver.checks_time`): that "
         "solve's interval errors and open-loop replay, the verification with the feedback "
         "and its closed-loop replays (and the robustness replays, with an uncertainty), "
-        "and assembling the plan; CPU times count the process and its companion."
+        "and assembling the plan; CPU times count the process and its companion (each "
+        "process has core tokens of its own, so every plan whose continuation applies "
+        "forks one)."
         + (f" {before}: the planner before its checks were batched." if before else ""),
         harness.table(table, SUMMARY),
         harness.table(tasks_table, columns([c for c in ("now", before) if c]))])
