@@ -5,6 +5,7 @@ companion process that solves the continuation beside the plan's own starts."""
 from __future__ import annotations
 
 import os
+import time
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -163,6 +164,15 @@ def test_a_companion_stops_once_the_process_that_forked_it_is_gone(
     assert guard(None) is True  # type: ignore[arg-type]
     monkeypatch.setattr(os, "getppid", lambda: 1)
     assert guard(None) is False  # type: ignore[arg-type]
+
+
+def test_a_deferred_companion_runs_at_the_lowest_priority():
+    companion = portfolio.Companion(lambda guard: time.sleep(30))
+    try:
+        companion.defer()
+        assert os.getpriority(os.PRIO_PROCESS, companion.pid) == portfolio.LOWEST
+    finally:
+        companion.stop()
 
 
 def test_a_service_plan_may_use_every_core_unless_told(monkeypatch: pytest.MonkeyPatch):
