@@ -13,10 +13,11 @@ torques), x_{k+1} = A_k x_k + B_k u_k with u_k a torque offset held over interva
   limit, else the plan's largest torque, at least 1 N m), each times the interval's length
   h_k; the correction -K_k (x(t_k) - x_plan(t_k)) is held over interval k;
 - a replay simulates the plan's torque (and the feedback, when given) interval by
-  interval with CVODES from a start state; the open-loop replay from the planned initial
-  state (rtol = atol = 1e-10, as planner.simulate.run by default) is the plan's
-  resimulation_error; the closed-loop ones (rtol = atol = REPLAY_TOL) start there and at
-  a state perturbed by PERTURBATION on every angle and rate.
+  interval with CVODES from a start state, many at once (`planner.ocp.replays`); the
+  open-loop replay from the planned initial state (rtol = atol = 1e-10, as
+  planner.simulate.run by default) is the plan's resimulation_error; the closed-loop ones
+  (rtol = atol = REPLAY_TOL) start there and at a state perturbed by PERTURBATION on every
+  angle and rate.
 """
 
 from __future__ import annotations
