@@ -4,7 +4,8 @@ suite` (bench/verification.py).
 Every task of the default suite (`testbed.suites.ordinary`), as the suite generates it
 ("plain") and as `python -m bench suite` states it for the default planner, with its
 `task.uncertainty`, so that the robustness replays run ("uncertain"), is planned in a
-fresh process of each version: once to build its NLPs (as a service worker keeps them),
+fresh process of each version, BLOCK tasks a process, the versions taking turns: once to
+build its NLPs (as a service worker keeps them),
 then `--repeats` times measured, with core tokens of its own (`UNDERTOW_CORE_DIR`: a
 plan with passive joints forks its companion whatever else holds the machine's tokens,
 in both versions alike). Per plan:
@@ -30,6 +31,8 @@ from bench.suite import UNCERTAINTY
 from testbed.suites.ordinary import COUNT, SEED, tasks
 
 SECTION = "Verification: the checks' share of a plan on the task suite"
+BLOCK = 6
+"""Tasks one process plans before the other version's process plans the same ones."""
 CSV = harness.RESULTS / "verification_suite.csv"
 
 _RUN = """
@@ -136,10 +139,12 @@ def run(before: str | None, count: int, seed: int, repeats: int,
     with harness.checkout(before) if before else contextlib.nullcontext(None) as old:
         for variant in variants:
             chosen = scenes(count, seed, variant)
-            for version, root in (("now", harness.ROOT), (before, old)):
-                if root is not None:
-                    rows += [{**r, "variant": variant, "version": version}
-                             for r in measured(root, chosen, repeats)]
+            for first in range(0, len(chosen), BLOCK):  # the versions in turn, block by
+                # block: both meet the machine's other work alike
+                for version, root in (("now", harness.ROOT), (before, old)):
+                    if root is not None:
+                        rows += [{**r, "variant": variant, "version": version} for r in
+                                 measured(root, chosen[first:first + BLOCK], repeats)]
     versions = list(dict.fromkeys(r["version"] for r in rows))
     table = [summary(a, v, [r for r in rows if (r["variant"], r["version"]) == (a, v)])
              for a in variants for v in versions]
@@ -164,8 +169,9 @@ def _text(before: str | None, count: int, seed: int, repeats: int, variants: Seq
     stated = "; ".join(f"{v}: {VARIANTS[v]}" for v in variants)
     return "\n\n".join([
         f"Every task of the default suite{suite} ({stated}; uncertainty: every link's mass "
-        f"±{UNCERTAINTY['mass']:.0%}), planned in a fresh process of each version of one "
-        f"run: once to build its NLPs, then measured ({repeats} plan(s) a task). The "
+        f"±{UNCERTAINTY['mass']:.0%}), planned in fresh processes of each version of one "
+        f"run, {BLOCK} tasks a process, the versions taking turns: once to build its NLPs, "
+        f"then measured ({repeats} plan(s) a task). The "
         "checks are everything after the plan's last solve (`solver.checks_time`): that "
         "solve's interval errors and open-loop replay, the verification with the feedback "
         "and its closed-loop replays (and the robustness replays, with an uncertainty), "
