@@ -81,7 +81,9 @@ SMALL: dict[str, Small] = {
                      "undertow,refinement off,retries off,fatrop,before,Opti script,rockit,"
                      "rockit fatrop"),
                     ("--suite", "hard", "--count", "1", "--cap", "20"))),
-    "verification": Small((("--repeats", "1", "--scenes", "seed-arm-plan", "--jit", "off"),)),
+    "verification": Small((("--repeats", "1", "--scenes", "seed-arm-plan", "--jit", "off"),
+                           ("--parts", "suite", "--count", "1", "--before", "none",
+                            "--variants", "uncertain"))),
     "time_vs_error": Small((("--scenes", "arm-2", "--warm", "--quick",
                              "--transcriptions", "legendre-3"),)),
     "test_times": Small((("--runs", "quiet,loaded", "--venv", sys.prefix,

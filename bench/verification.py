@@ -17,25 +17,32 @@ the plan's.
 Scenes: `seed-arm-plan` as shipped (50 intervals) and the same task on 100 intervals with
 one solve ("seed-hang", bench/scenes.py).
 
+`--parts suite` measures instead what the checks after a plan's last solve cost against
+the whole plan, on every task of the default suite (bench/checks_share.py says how).
+
     python -m bench verification [--before 40cfc2f] [--repeats 5]
         [--scenes seed-arm-plan,seed-hang] [--jit off,on]
+    python -m bench verification --parts suite [--before f853d1f] [--repeats 1]
+        [--count 48] [--seed 20261123] [--variants plain,uncertain]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import tempfile
 import time
 from pathlib import Path
 
-from bench import harness
+from bench import checks_share, harness
 from bench.scenes import make_scene
 from planner.examples import example
 
 DOC = harness.DOCS / "benchmarks.md"
 SECTION = "Verification: what a plan's checks cost"
 BEFORE = "40cfc2f"  # the last commit whose checks integrated by BDF only
+SUITE_BEFORE = "f853d1f"  # the planner reporting its checks' time, before they were batched
 JIT = {"off": False, "on": True}
 
 _RUN = """
@@ -131,38 +138,73 @@ def _row(name: str, jit: bool, version: str, out: dict) -> dict:
 
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench verification", description=__doc__)
-    parser.add_argument("--before", default=BEFORE)
-    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--parts", default="checks",
+                        help="comma-separated: checks (each check of two scenes), suite (the "
+                             "checks' share of a plan on the task suite)")
+    parser.add_argument("--before", default=None,
+                        help=f"the earlier commit (default: {BEFORE} for checks, "
+                             f"{SUITE_BEFORE} for suite; none: only this checkout)")
+    parser.add_argument("--repeats", type=int, default=None,
+                        help="checks: times each check runs (5); suite: measured plans a "
+                             "task (1)")
     parser.add_argument("--scenes", default=",".join(n.split(",")[0] for n in scenes()),
                         help="comma-separated, from: " + ", ".join(scenes()))
     parser.add_argument("--jit", default=",".join(JIT), help="comma-separated: off, on")
+    parser.add_argument("--count", type=int, default=checks_share.COUNT,
+                        help="suite: the suite's first tasks")
+    parser.add_argument("--seed", type=int, default=checks_share.SEED, help="suite: its seed")
+    parser.add_argument("--variants", default=",".join(checks_share.VARIANTS),
+                        help="suite: comma-separated, from: " + ", ".join(checks_share.VARIANTS))
     args = parser.parse_args(argv)
-    started, note = time.perf_counter(), harness.machine_note()
+    for part in args.parts.split(","):
+        started, note = time.perf_counter(), harness.machine_note()
+        if part == "suite":
+            before = _before(args.before, SUITE_BEFORE)
+            text, rows = checks_share.run(before, args.count, args.seed, args.repeats or 1,
+                                          args.variants.split(","))
+            harness.write_csv(checks_share.CSV, rows)
+            section, csv = checks_share.SECTION, checks_share.CSV
+        else:
+            text = _per_check(args, _before(args.before, BEFORE), args.repeats or 5)
+            section, csv = SECTION, harness.RESULTS / "verification.csv"
+        text += (f"\n\nRows: `{csv.relative_to(harness.ROOT)}`. "
+                 + harness.manifest("verification", argv, started, note))
+        harness.write_section(DOC, section, text)
+    return 0
+
+
+def _before(given: str | None, default: str) -> str | None:
+    """The earlier commit to measure: the one given, else `default`; None for "none"."""
+    chosen = default if given is None else given
+    return None if chosen == "none" else chosen
+
+
+def _per_check(args: argparse.Namespace, before: str | None, repeats: int) -> str:
+    """Each check's cost (median of `repeats`) on the chosen scenes, now and at `before`
+    (None: now only): the section's text; its rows are written."""
     chosen = {name: request for name, request in scenes().items()
               if name.split(",")[0] in args.scenes.split(",")}
     rows = []
-    with harness.checkout(args.before) as old, tempfile.TemporaryDirectory() as folder:
+    earlier = harness.checkout(before) if before else contextlib.nullcontext(None)
+    with earlier as old, tempfile.TemporaryDirectory() as folder:
         checked = Path(folder) / "plan.json"
         for name, request in chosen.items():
             for jit in (JIT[j] for j in args.jit.split(",")):
                 body = {**request, "solver": {**request.get("solver", {}), "jit": jit}}
-                now = _checked(harness.ROOT, body, args.repeats, None)
-                checked.write_text(json.dumps(now["checked"]))
-                before = _checked(old, body, args.repeats, checked)
-                for version, out in (("now", now), (args.before, before)):
+                outs = {"now": _checked(harness.ROOT, body, repeats, None)}
+                checked.write_text(json.dumps(outs["now"]["checked"]))
+                if old is not None and before:
+                    outs[before] = _checked(old, body, repeats, checked)
+                for version, out in outs.items():
                     rows.append(_row(name, jit, version, out))
                     print(rows[-1], flush=True)
     harness.write_csv(harness.RESULTS / "verification.csv", rows)
-    text = "\n\n".join([
+    return "\n\n".join([
         "CPU time of each check of one plan (median of "
-        f"{args.repeats}), and the median wall time of the whole plan, with this checkout "
-        f"and with {args.before} (checks by BDF only), in fresh processes of one run; both "
+        f"{repeats}), and the median wall time of the whole plan, with this checkout "
+        f"and with {before} (checks by BDF only), in fresh processes of one run; both "
         "versions check this checkout's plan. Now "
         "CVODES integrates by Adams-Moulton with functional iteration and falls back to BDF "
         "where Adams fails, and with `solver.jit` the linearisation's Jacobians are "
         "compiled too (`planner.ocp.flow`, `planner.ocp.feedback`).",
-        harness.table(rows, COLUMNS),
-        "Rows: `bench/results/verification.csv`. "
-        + harness.manifest("verification", argv, started, note)])
-    harness.write_section(DOC, SECTION, text)
-    return 0
+        harness.table(rows, COLUMNS)])

@@ -209,15 +209,17 @@ def sweep(q, joint: int) -> Callable[[np.ndarray], np.ndarray]:
 
 
 def zeros_along(robot: Robot, path: Callable[[np.ndarray], np.ndarray], u: np.ndarray,
-                structure: Structure | None = None,
-                deadline: float | None = None) -> np.ndarray | None:
+                structure: Structure | None = None, deadline: float | None = None,
+                det: np.ndarray | None = None) -> np.ndarray | None:
     """Where det M_pa(path(u)) = 0 between the samples u (K,) of a path's parameter
     (increasing): the samples where it is exactly 0 and every sign change between
     neighbouring samples, refined (see `refine`); sorted. path: u (m,) -> configurations
-    (m, n) [rad]. None for a non-square block, which has no determinant."""
+    (m, n) [rad]; det: det M_pa at path(u) (K,) where known already. None for a
+    non-square block, which has no determinant."""
     s = structure or Structure.of(robot)
     p = parameters(robot, s)
-    det = measures(evaluate(s, path(u), p, deadline)).det
+    if det is None:
+        det = measures(evaluate(s, path(u), p, deadline)).det
     if det is None:
         return None
     k = np.flatnonzero(np.sign(det[:-1]) * np.sign(det[1:]) < 0.0)

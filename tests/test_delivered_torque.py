@@ -12,10 +12,10 @@ from service_fixtures import client
 from planner.examples import example
 from planner.ocp import plan
 from planner.ocp import problem as problem_module
-from planner.ocp.feedback import REPLAY_SAMPLES
 from planner.ocp.interpolant import PiecewisePolynomial, bernstein, hull
 from planner.ocp.key import ProblemKey
 from planner.ocp.problem import problem
+from planner.ocp.replays import REPLAY_SAMPLES
 from planner.ocp.terms import TorqueLimit
 from planner.ocp.verdict import unverified_reason
 from planner.scene import Scene

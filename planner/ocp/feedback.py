@@ -13,10 +13,11 @@ torques), x_{k+1} = A_k x_k + B_k u_k with u_k a torque offset held over interva
   limit, else the plan's largest torque, at least 1 N m), each times the interval's length
   h_k; the correction -K_k (x(t_k) - x_plan(t_k)) is held over interval k;
 - a replay simulates the plan's torque (and the feedback, when given) interval by
-  interval with CVODES from a start state; the open-loop replay from the planned initial
-  state (rtol = atol = 1e-10, as planner.simulate.run by default) is the plan's
-  resimulation_error; the closed-loop ones (rtol = atol = REPLAY_TOL) start there and at
-  a state perturbed by PERTURBATION on every angle and rate.
+  interval with CVODES from a start state, many at once (`planner.ocp.replays`); the
+  open-loop replay from the planned initial state (rtol = atol = 1e-10, as
+  planner.simulate.run by default) is the plan's resimulation_error; the closed-loop ones
+  (rtol = atol = REPLAY_TOL) start there and at a state perturbed by PERTURBATION on every
+  angle and rate.
 """
 
 from __future__ import annotations
@@ -24,7 +25,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
-from time import perf_counter
 
 import casadi as ca
 import numpy as np
@@ -32,14 +32,14 @@ import numpy as np
 from planner.compiled import library, source_digest
 from planner.dynamics import functions
 from planner.model import Robot, Structure, parameters
-from planner.ocp.flow import Flow, flow, inputs
+from planner.ocp.flow import inputs
+from planner.ocp.replays import Lane, reference, replays
 from planner.ocp.transcription import Interpolant
 from planner.ocp.verification import Feedback
 
 Q_SCALE = 0.01  # [rad] angle error worth one unit of LQR cost
 DQ_SCALE = 0.1  # [rad/s] rate error worth one unit
 PERTURBATION = 1e-3  # [rad, rad/s] added to every initial angle and rate
-REPLAY_SAMPLES = 4  # comparison points per interval
 REPLAY_TOL = 1e-8  # CVODES rtol = atol of the closed-loop replays
 SUBSTEPS = 4  # RK4 steps per interval of the variational equations
 _SOURCES = [Path(__file__).resolve().parents[1] / name
@@ -57,7 +57,7 @@ class Linearisation:
 @lru_cache(maxsize=64)
 def _jacobians(s: Structure) -> ca.Function:
     """(x, tau, p) -> (df/dx (2n x 2n), df/dtau (2n x na)) of the first-order dynamics."""
-    ode = functions(s)["ode"]
+    ode = functions(s)["ode_ldl"]
     x, tau, p = ode.sx_in()
     dx = ode(x, tau, p)
     return ca.Function("jacobians", [x, tau, p], [ca.jacobian(dx, x), ca.jacobian(dx, tau)])
@@ -115,14 +115,14 @@ def _rk4(y, a0, am, a1, b0, bm, b1, dt):
 def growth_factor(lin: Linearisation) -> float | None:
     """max_k ||Phi(t_k, 0)||_2 along the plan; None where the product of the intervals'
     transition matrices overflows (a plan far too fast for its duration)."""
-    phi, worst = np.eye(lin.A.shape[1]), 1.0
+    phi, products = np.eye(lin.A.shape[1]), []
     with np.errstate(over="ignore", invalid="ignore"):
         for A in lin.A:
             phi = A @ phi
             if not np.all(np.isfinite(phi)):
                 return None
-            worst = max(worst, float(np.linalg.norm(phi, 2)))
-    return worst
+            products.append(phi)
+    return max(1.0, float(np.linalg.norm(np.stack(products), 2, axis=(1, 2)).max()))
 
 
 def gains(lin: Linearisation, h: np.ndarray, tau_scale: float) -> Feedback | None:
@@ -147,70 +147,20 @@ def gains(lin: Linearisation, h: np.ndarray, tau_scale: float) -> Feedback | Non
                     torque_weights=r_weights.tolist())
 
 
-@dataclass(frozen=True)
-class _Reference:
-    """What a replay follows: per interval k, the plan's state at its start planned[k]
-    (2n,), its angles q_plan[k] (REPLAY_SAMPLES, n) and torques tau_plan[k]
-    (REPLAY_SAMPLES + 1, na) at the interval's start and comparison points, the
-    integrator's parameters params[:, k] and, where given, the gains K[k] (na, 2n)."""
-
-    breaks: np.ndarray
-    planned: np.ndarray
-    q_plan: np.ndarray
-    tau_plan: np.ndarray
-    params: np.ndarray
-    K: np.ndarray | None
-    na: int
-
-
 def replay(robot: Robot, interp: Interpolant, starts: np.ndarray, K: np.ndarray | None,
            tol: float = REPLAY_TOL, compiled: bool = False, ends: bool = False,
            deadline: float | None = None, limit: np.ndarray | None = None) -> list[tuple]:
     """Replays from each of `starts` (R, 2n) under the plan's torque and, with gains
     K (N, na, 2n), the feedback, the actuators saturating at `limit` (na,) [N m] where
-    given: per start, max |q_sim - q_plan| [rad] over REPLAY_SAMPLES points per interval and
-    "completed", or None and where CVODES failed (compiled: the dynamics compiled to C);
-    ends: also the final state (2n,) (None where it failed) and the largest torque the
-    plan and its feedback command [N m] (before the saturation; at each interval's start
-    and comparison points). Each start is replayed on its own: one that diverges leaves
-    the others' replays whole. Past `deadline` (time.perf_counter() seconds) a replay stops
-    at its next interval (None, and where it stopped): CVODES can take seconds per
-    interval on a diverging motion."""
-    s = Structure.of(robot)
-    N, degree = interp.tau.coeffs.shape[0], interp.tau.coeffs.shape[1] - 1
-    integrate = flow(s, degree, REPLAY_SAMPLES, 1, tol, compiled)
-    breaks = interp.q.breaks
-    fractions = np.arange(0, REPLAY_SAMPLES + 1) / REPLAY_SAMPLES
-    t = (breaks[:-1, None] + np.diff(breaks)[:, None] * fractions[None, :]).ravel()
-    q_at = interp.q(t).reshape(N, REPLAY_SAMPLES + 1, -1)[:, 1:]
-    ref = _Reference(breaks, np.hstack([interp.q(breaks), interp.dq(breaks)]), q_at,
-                     interp.tau(t).reshape(N, REPLAY_SAMPLES + 1, -1),
-                     inputs(robot, interp, limit)[1], K, len(s.active_idx))
-    done = [_replay_from(integrate, np.asarray(start, float), ref, s.n, deadline)
-            for start in starts]
-    return done if ends else [(error, status) for error, status, _, _ in done]
-
-
-def _replay_from(integrate: Flow, x: np.ndarray, ref: _Reference, n: int,
-                 deadline: float | None = None
-                 ) -> tuple[float | None, str, np.ndarray | None, float]:
-    """One replay from the state x (2n,) along `ref`, stopped past `deadline`: its error,
-    status, final state and the largest torque commanded so far [N m]."""
-    worst, peak = 0.0, 0.0
-    for k in range(len(ref.breaks) - 1):
-        if deadline is not None and perf_counter() > deadline:
-            return None, (f"stopped at t = {ref.breaks[k]:.6g} s: the plan's wall-time "
-                          "budget (solver.max_wall_time) ran out"), None, peak
-        u = np.zeros(ref.na) if ref.K is None else -ref.K[k] @ (x - ref.planned[k])
-        peak = max(peak, float(np.abs(ref.tau_plan[k] + u[None, :]).max(initial=0.0)))
-        where = f"between t = {ref.breaks[k]:.6g} s and t = {ref.breaks[k + 1]:.6g} s"
-        try:
-            states = integrate(x[:, None], ref.params[:, k:k + 1],
-                               np.repeat(u[:, None], REPLAY_SAMPLES, axis=1))
-        except RuntimeError:
-            return None, f"CVODES failed {where}", None, peak
-        if not np.all(np.isfinite(states)):
-            return None, f"the state became non-finite {where}", None, peak
-        worst = max(worst, float(np.abs(states[:n].T - ref.q_plan[k]).max()))
-        x = states[:, -1]
-    return worst, "completed", x, peak
+    given (`planner.ocp.replays`): per start, max |q_sim - q_plan| [rad] over
+    REPLAY_SAMPLES points per interval and "completed", or None and where CVODES failed
+    (compiled: the dynamics compiled to C); ends: also the final state (2n,) (None where
+    it failed) and the largest torque the plan and its feedback command [N m] (before the
+    saturation; at each interval's start and comparison points). Each start is replayed
+    on its own: one that diverges leaves the others' replays whole. Past `deadline`
+    (time.perf_counter() seconds) a replay stops (None, and where it stopped): CVODES
+    can take seconds per interval on a diverging motion."""
+    params = inputs(robot, interp, limit)[1]
+    lanes = [Lane(np.asarray(x, float), params, K) for x in starts]
+    done = replays(Structure.of(robot), reference(interp), lanes, tol, compiled, deadline)
+    return [(r.error, r.status, r.end, r.peak) if ends else (r.error, r.status) for r in done]

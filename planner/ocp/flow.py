@@ -38,7 +38,7 @@ _SOURCES = [Path(__file__).resolve().parents[1] / name
 
 def _dae(s: Structure, degree: int) -> ca.Function:
     """The right-hand side in normalised time: (t, x, z, p, u) -> (ode, alg, quad, zero)."""
-    f = functions(s)["ode"]
+    f = functions(s)["ode_ldl"]
     na = len(s.active_idx)
     x, u = ca.SX.sym("x", 2 * s.n), ca.SX.sym("u", na)
     sn, h = ca.SX.sym("s"), ca.SX.sym("h")
@@ -83,12 +83,12 @@ class Flow:
         u[:, b outputs:(b + 1) outputs]: by Adams, by BDF where Adams fails. Raises
         RuntimeError when both fail."""
         try:
-            return _quiet(self.adams, x0=x0, p=p, u=u)
+            return quiet(self.adams, x0=x0, p=p, u=u)
         except RuntimeError:
-            return _quiet(self.bdf, x0=x0, p=p, u=u)
+            return quiet(self.bdf, x0=x0, p=p, u=u)
 
 
-def _quiet(integrate: ca.Function, **args: np.ndarray) -> np.ndarray:
+def quiet(integrate: ca.Function, **args: np.ndarray) -> np.ndarray:
     """xf of one call. A CasADi Function whose call fails prints its name and every input
     ("Function flow (0x...) Input 0 (x0): [...]") to Python's stdout or stderr before it
     raises: a diverging replay would fill a worker's log or a command line's output with
@@ -115,20 +115,27 @@ def flow(s: Structure, degree: int, outputs: int, batch: int, tol: float = TOL,
     offset, na x outputs (one per output interval). compiled: the right-hand side compiled
     to C (about twice as fast) once it is on disk, interpreted while it is built in the
     background."""
-    ready = compiled and _compiled_dae(s, degree) is not None
-    return _flow(s, degree, outputs, batch, tol, ready)
+    return _flow(s, degree, outputs, batch, tol, ready(s, degree, compiled))
+
+
+def ready(s: Structure, degree: int, compiled: bool) -> bool:
+    """Whether the right-hand side runs compiled: asked for, and its library loaded (it is
+    built in the background meanwhile)."""
+    return compiled and _compiled_dae(s, degree) is not None
 
 
 @lru_cache(maxsize=64)
 def _flow(s: Structure, degree: int, outputs: int, batch: int, tol: float,
           compiled: bool) -> Flow:
-    one = [_integrator(s, degree, outputs, tol, compiled, method) for method in ("adams", "bdf")]
+    one = [integrator(s, degree, outputs, tol, compiled, method) for method in ("adams", "bdf")]
     return Flow(*(f if batch == 1 else f.map(batch) for f in one))
 
 
 @lru_cache(maxsize=64)
-def _integrator(s: Structure, degree: int, outputs: int, tol: float,
-                compiled: bool, method: Method) -> ca.Function:
+def integrator(s: Structure, degree: int, outputs: int, tol: float,
+               compiled: bool, method: Method) -> ca.Function:
+    """CVODES by `method` over one interval, unmapped (see `flow`; compiled only once
+    `ready`)."""
     dae = _compiled_dae(s, degree) if compiled else _dae(s, degree)
     if dae is None:  # `flow` asks for the compiled one only once it is loaded
         raise RuntimeError("the compiled flow is not loaded yet")

@@ -30,7 +30,7 @@ from planner.ocp.duration_probe import DurationProbe
 from planner.ocp.monitor import Handler
 from planner.ocp.report import joined, plan_of
 from planner.ocp.result import MeshPass, Plan
-from planner.ocp.retries import ended, planned, try_starts
+from planner.ocp.retries import ended, planned, settled, try_starts
 from planner.ocp.solve import Budget
 from planner.ocp.starts import continuation_start, duration_guess, own_starts, warm_starts
 from planner.scene import Scene
@@ -153,6 +153,8 @@ def _beside_companion(scene: Scene, robot: Robot, T: float, attempts: list[Attem
         try_starts(scene, starts, attempts, budget, handler)
         if not handler.cancelled and companion.verified() and companion.plan is not None:
             return joined(companion.plan, _records(attempts), budget)
+        if attempts and settled(scene, attempts):
+            companion.defer()  # its plan is then rarely taken: the checks come first
         own = plan_of(scene, attempts, budget, probe.found, probe.after)
         if handler.cancelled or own.infeasibility is not None \
                 or own.solver.success and own.verification.verified:

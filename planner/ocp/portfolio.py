@@ -23,6 +23,8 @@ from planner.ocp.monitor import Handler
 from planner.ocp.result import Plan, Progress
 
 ENVIRONMENT = "UNDERTOW_SOLVER_PROCESSES"
+LOWEST = 19
+"""The niceness of a deferred companion (`Companion.defer`)."""
 
 
 def solver_processes() -> int:
@@ -73,6 +75,14 @@ class Companion:
         """Its plan, waiting for it until `deadline` (time.perf_counter() seconds)."""
         self.ready(deadline - time.perf_counter())
         return self.plan
+
+    def defer(self) -> None:
+        """Let the companion run only on time that other work leaves over (the lowest
+        priority, nice 19): once the plan's own solve has settled, its checks need the
+        core far more than a companion whose plan is then rarely taken, which still runs
+        at full speed while the plan's own process waits for it."""
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.setpriority(os.PRIO_PROCESS, self.pid, LOWEST)
 
     def stop(self) -> None:
         """End the companion (if still running) and release its pipe."""

@@ -12,8 +12,8 @@ import numpy as np
 
 from planner.ocp import infeasibility
 from planner.ocp.attempt import Attempt
-from planner.ocp.feedback import REPLAY_SAMPLES
 from planner.ocp.outcome import NOT_FINITE, Outcome, finite_or_none
+from planner.ocp.replays import REPLAY_SAMPLES
 from planner.ocp.result import (
     DenseTrajectory,
     MeshPass,
@@ -24,7 +24,7 @@ from planner.ocp.result import (
     waves_of,
 )
 from planner.ocp.shortest import Probe
-from planner.ocp.solve import Budget
+from planner.ocp.solve import Budget, Clock
 from planner.ocp.verdict import verdict
 from planner.ocp.verification import Feedback, Verification
 from planner.ocp.verify import verify
@@ -65,8 +65,9 @@ def plan_of(scene: Scene, attempts: list[Attempt], budget: Budget,
     plan = Plan(
         t=breaks.tolist(), q=_finite(interp.q(breaks)), dq=_finite(interp.dq(breaks)),
         ddq=_finite(interp.dq(breaks, derivative=1)), tau=_finite(interp.tau(breaks)),
-        dense=DenseTrajectory(t=t_dense.tolist(), q=_finite(interp.q(t_dense)),
-                              tau=_finite(interp.tau(t_dense))),
+        dense=DenseTrajectory.model_construct(  # lists of floats by construction: a
+            # validation of its 2000 rows took as long as a replay of a two-link plan
+            t=t_dense.tolist(), q=_finite(interp.q(t_dense)), tau=_finite(interp.tau(t_dense))),
         torque=TorquePolynomial(breaks=breaks.tolist(), coefficients=_finite(interp.tau.coeffs)),
         states=StatePolynomials(breaks=breaks.tolist(), q=_finite(interp.q.coeffs),
                                 dq=_finite(interp.dq.coeffs)),
@@ -84,7 +85,19 @@ def plan_of(scene: Scene, attempts: list[Attempt], budget: Budget,
                             strategy=attempt.start.name + refined_by),
         mesh_passes=_records(outcomes, probe, probe_after),
         feedback=feedback, verification=verification, solution=_nlp_solution(best))
-    return with_verdict(infeasibility.annotate(plan, scene, attempts, best, attempt, probe))
+    return stamped(with_verdict(infeasibility.annotate(plan, scene, attempts, best, attempt,
+                                                       probe)), budget)
+
+
+def stamped(plan: Plan, budget: Budget) -> Plan:
+    """The plan with what its checks cost since the budget's latest solve ended, in wall
+    and CPU time (unchanged before any solve)."""
+    if budget.solved is None:
+        return plan
+    now = Clock.now()
+    report = plan.solver.model_copy(update={"checks_time": now.wall - budget.solved.wall,
+                                            "checks_cpu_time": now.cpu - budget.solved.cpu})
+    return plan.model_copy(update={"solver": report})
 
 
 def with_verdict(plan: Plan) -> Plan:

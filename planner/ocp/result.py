@@ -69,6 +69,14 @@ class SolverReport(Out):
     total_time: float | None = Field(
         default=None, description="[s] the whole plan: building, solves, error estimates, "
                                   "verification (None in plans stored before the field existed)")
+    checks_time: float | None = Field(
+        default=None, description=(
+            "[s] wall time from the end of the plan's last solve to the plan: that solve's "
+            "interval errors and open-loop replay, the verification with the feedback, its "
+            "closed-loop replays and the robustness, and assembling the plan, in the process "
+            "that solved it (None: no solve ran, or a plan stored before the field existed)"))
+    checks_cpu_time: float | None = Field(
+        default=None, description="[s] the CPU time of that process over the same span")
     cache_hit: bool = Field(description="the NLP of the first mesh was already built")
     compiled: bool = Field(default=False, description=(
         "the first solve's derivative kernels ran compiled to C (solver.jit, once the "

@@ -30,10 +30,17 @@ def ended(scene: Scene, attempts: list[Attempt], budget: Budget) -> bool:
     plan (accurate, or refinement off), the budget is spent, the plan was stopped, or two
     attempts agree that the task is infeasible."""
     last = attempts[-1].outcomes[-1]
-    settled = last.accurate(scene.solver.resimulation_tolerance) \
-        or not scene.transcription.refinement.enabled
-    return bool(last.solution.success and settled) or budget.spent \
+    return settled(scene, attempts) or budget.spent \
         or last.solution.status == "User_Requested_Stop" or infeasibility.agreed(attempts)
+
+
+def settled(scene: Scene, attempts: list[Attempt]) -> bool:
+    """Whether the last attempt gave a settled converged plan: accurate, or refinement
+    off (no further start is tried, and the plan is checked next)."""
+    last = attempts[-1].outcomes[-1]
+    accurate = last.accurate(scene.solver.resimulation_tolerance) \
+        or not scene.transcription.refinement.enabled
+    return bool(last.solution.success and accurate)
 
 
 def planned(scene: Scene, start: Start, budget: Budget, progress: Handler | None) -> Plan:

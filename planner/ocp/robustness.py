@@ -19,8 +19,10 @@ import itertools
 
 import numpy as np
 
-from planner.model import Robot
-from planner.ocp.feedback import replay
+from planner.model import Robot, Structure
+from planner.ocp.feedback import REPLAY_TOL
+from planner.ocp.flow import inputs
+from planner.ocp.replays import Lane, reference, replays
 from planner.ocp.transcription import Interpolant
 from planner.ocp.verification import Robustness
 from planner.scene import Uncertainty
@@ -67,28 +69,26 @@ def robustness(robot: Robot, interp: Interpolant, K: np.ndarray, uncertainty: Un
     breaks = interp.q.breaks
     start = np.concatenate([interp.q(breaks[:1])[0], interp.dq(breaks[:1])[0]])
     goal = np.concatenate([interp.q(breaks[-1:])[0], interp.dq(breaks[-1:])[0]])
-    tracking: list[float] = []
-    final: list[float] = []
-    alone: list[float] = []
-    labels, peak = [], 0.0
-    for label, model in models(robot, uncertainty):
-        (error, _, end, commanded), = replay(model, interp, start[None, :], K,
-                                             compiled=compiled, ends=True, deadline=deadline,
-                                             limit=limit)
-        (_, _, drift, _), = replay(model, interp, start[None, :], None, compiled=compiled,
-                                   ends=True, deadline=deadline, limit=limit)
-        labels.append(label)
-        peak = max(peak, commanded)
-        tracking.append(np.inf if error is None else error)
-        final.append(np.inf if end is None else float(np.abs(end - goal).max()))
-        alone.append(np.inf if drift is None else float(np.abs(drift - goal).max()))
+    corners = models(robot, uncertainty)
+    lanes = []
+    for _, model in corners:  # with the feedback, and the torque alone
+        params = inputs(model, interp, limit)[1]
+        lanes += [Lane(start, params, K), Lane(start, params, None)]
+    done = replays(Structure.of(robot), reference(interp), lanes, REPLAY_TOL, compiled,
+                   deadline)
+    closed, alone = done[0::2], done[1::2]
+    labels = [label for label, _ in corners]
+    peak = max(r.peak for r in closed)
+    tracking = [np.inf if r.error is None else r.error for r in closed]
+    final = [np.inf if r.end is None else float(np.abs(r.end - goal).max()) for r in closed]
+    drift = [np.inf if r.end is None else float(np.abs(r.end - goal).max()) for r in alone]
     worst = int(np.argmax(tracking))
     worst_tracking = tracking[worst]
     return Robustness(
         uncertainty=uncertainty, models=len(labels),
         worst_tracking_error=worst_tracking if np.isfinite(worst_tracking) else None,
         worst_final_error=max(final) if np.isfinite(max(final)) else None,
-        open_loop_final_error=max(alone) if np.isfinite(max(alone)) else None,
+        open_loop_final_error=max(drift) if np.isfinite(max(drift)) else None,
         worst_model=labels[worst], bound=bound, largest_torque=peak,
         saturated=None if limit is None else bool(np.any(peak > limit)),
         within=None if bound is None else bool(worst_tracking <= bound))

@@ -221,6 +221,7 @@ def _named(plan: Plan, what: str) -> list[MeshPass]:
 
 def _done(budget: Budget, sub: Budget, passes: list[MeshPass], plan: Plan | None,
           too_short: bool, note: str) -> Probe:
-    """The probe's result; the plan's iteration count takes the probe's on."""
-    budget.used = sub.used
+    """The probe's result; the plan's iteration count, and when its latest solve ended,
+    take the probe's on."""
+    budget.used, budget.solved = sub.used, sub.solved or budget.solved
     return Probe(plan, too_short, note, passes)

@@ -51,6 +51,18 @@ MARGIN = 5.0
 failures"): the checks' cost beyond their reserve, one Ipopt iteration, an NLP build."""
 
 
+@dataclass(frozen=True)
+class Clock:
+    """A moment of the plan: time.perf_counter() and time.process_time() [s]."""
+
+    wall: float
+    cpu: float
+
+    @classmethod
+    def now(cls) -> Clock:
+        return cls(time.perf_counter(), time.process_time())
+
+
 def checks_time(intervals: int, joints: int) -> float:
     """[s] What the checks after the last solve of a plan on `intervals` intervals of an
     arm of `joints` joints are expected to cost at most (CHECKS_TIME, CHECKS_PER_NODE)."""
@@ -73,6 +85,8 @@ class Budget:
     """[s] What the interval errors and open-loop replay of the latest solve's plan took."""
     cap: float = math.inf
     """When the solves of a `capped_time` block stop (time.perf_counter() seconds)."""
+    solved: Clock | None = None
+    """When the latest solve ended (None before the first): the plan's checks follow it."""
 
     @classmethod
     def of(cls, max_iter: int, max_wall_time: float) -> Budget:
@@ -164,6 +178,7 @@ def solve(inst: Instance, x0: np.ndarray, budget: Budget, handler: Handler | Non
     except RuntimeError as exc:  # an evaluation error: the last iterate Ipopt reached
         out, error = None, str(exc).strip().splitlines()[-1]
     elapsed = time.perf_counter() - started
+    budget.solved = Clock.now()
     kind = SOLVERS[prob.key.solver]
     monitored = kind.monitored  # else its statistics count its iterations
     stats = solver.stats() if out is not None or not monitored else {}

@@ -79,16 +79,19 @@ def defect(robot: Robot, interp: Interpolant) -> float:
     return float(np.sum(norms * (_GAUSS_W[None, :] / 2) * h[:, None]))
 
 
-def singular_crossings(robot: Robot, interp: Interpolant,
-                       t: np.ndarray) -> tuple[list[Crossing], np.ndarray]:
+def singular_crossings(robot: Robot, interp: Interpolant, t: np.ndarray,
+                       own: tuple[np.ndarray, np.ndarray | None] | None = None
+                       ) -> tuple[list[Crossing], np.ndarray]:
     """Configurations along the plan where the waveless M_pa is singular, and the waveless
-    sigma_min at the times t (see `coupling_along`)."""
+    sigma_min at the times t (see `coupling_along`); `own`: the robot's sigma_min and det
+    at t where it has no waves (its waveless block is its own)."""
     waveless = robot.without_waves()
-    sigma, det = coupling_along(waveless, interp.q(t))
+    sigma, det = own if own is not None else coupling_along(waveless, interp.q(t))
     if not np.all(np.isfinite(sigma)):
         return [], sigma
     times: list[float] = []
-    zeros = coupling_block.zeros_along(waveless, interp.q, t) if det is not None else None
+    zeros = coupling_block.zeros_along(waveless, interp.q, t, det=det) \
+        if det is not None else None
     if zeros is not None:
         times += zeros.tolist()
     else:
@@ -232,11 +235,13 @@ def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.nd
     tolerance, compiled = settings.resimulation_tolerance, settings.jit
     kept = limits(robot, interp, t_dense, task.torque_limit, task.position_bounds,
                   task.velocity_bounds)
-    sigma, _ = coupling_along(robot, interp.q(t_dense))
+    sigma, det = coupling_along(robot, interp.q(t_dense))
     if proof is None:
         proof = prove(robot, interp, task.coupling_margin, deadline)
     asked = requirements(robot, interp, t_dense, task, sigma, proof, tolerance)
-    crossings, waveless = singular_crossings(robot, interp, t_dense)
+    wavy = any(link.wave is not None for link in robot.links)
+    crossings, waveless = singular_crossings(robot, interp, t_dense,
+                                             None if wavy else (sigma, det))
     local = float(errors.max())
     fb, measured = _feedback(robot, interp, task.torque_limit, compiled, deadline)
     robust, robust_ok = _robust(robot, interp, fb, task, settings, deadline)
@@ -286,4 +291,6 @@ def _minimum(values: np.ndarray) -> float | None:
 
 def _samples(values: np.ndarray) -> list[float | None]:
     """Values as a list, None where not finite."""
-    return [float(v) if np.isfinite(v) else None for v in values]
+    out = values.astype(object)
+    out[~np.isfinite(values)] = None
+    return out.tolist()
