@@ -133,7 +133,8 @@ class Inertia:
 
 
 DEFAULT = "idle 1/2 x4 1e-8"
-"""The variant that is the planner's setting (`planner.ocp.solvers.ipopt.INERTIA_OPTIONS`)."""
+"""The variant compared task by task with Ipopt's own (the planner's setting): the idle
+variable with `planner.ocp.solvers.ipopt.INERTIA_OPTIONS`."""
 INERTIA_VARIANTS = {
     "Ipopt's own": Inertia(),
     "1/2 x4 1e-8": Inertia(dict(INERTIA_OPTIONS)),
@@ -152,7 +153,7 @@ INERTIA_VARIANTS = {
     "idle 0.6 x4": Inertia({"perturb_dec_fact": 0.6, "perturb_inc_fact": 4.0}, idle=True),
 }
 """The variants, by name: "1/2 x4 1e-8" is perturb_dec_fact 1/2, perturb_inc_fact 4,
-first_hessian_perturbation 1e-8 (the planner's `INERTIA_OPTIONS`)."""
+first_hessian_perturbation 1e-8 (`planner.ocp.solvers.ipopt.INERTIA_OPTIONS`)."""
 INERTIA_TASKS = ",".join([
     "seed-g0-cross-12", "seed-g0-cross-33", "seed-g9.81-cross-01", "seed-g9.81-cross-13",
     "seed-swing-02", "seed-swing-38", "links-5to8-15", "links-5to8-39", "torque-limit-16",
@@ -339,7 +340,7 @@ def inertia_text(rows: list[dict], argv: list[str], started: float, note: str) -
         "factorizations the trial factorizations of every search direction and the "
         "least-squares multiplier estimates; per iteration is their ratio over the tasks "
         "with a log. Every variant sets Ipopt's perturbation settings to Ipopt's own but "
-        f"where it says otherwise; `{DEFAULT}` is the planner's setting. Counts, not times: "
+        "where it says otherwise; Ipopt's own is the planner's setting. Counts, not times: "
         "a plan's time only decides where a capped plan stops (the co-design task). "
         "Load averages in the CSV.",
         harness.table(table, INERTIA_COLUMNS),

@@ -4,12 +4,13 @@ Scene "seed-4" (bench/scenes.py: the seed arm in a horizontal plane across wavel
 singularities, Legendre degree 3), one solve per plan of exactly `--iterations` iterations
 from the planner's initial guess (refinement and retries off; the NLP built and cached
 first, so no build is timed). Solvers: Ipopt with the stages' derivative kernels
-interpreted (the default), Ipopt with them compiled to C (`solver.jit`, the library built
+interpreted, Ipopt with them compiled to C (`solver.jit`, the default; the library built
 before timing), and fatrop with the stage structure declared (`solver.name: "fatrop"`;
 it differentiates the expanded NLP itself). Reported per N and solver, medians of
 `--repeats` solves: CPU time per iteration, the part in NLP function evaluations (CasADi's
 `t_proc_nlp_*` and the iteration callback) and the solver's own part (the rest: the KKT
-factorizations, solves and vector work), and function calls per iteration.
+factorizations, solves and vector work), function calls per iteration and, for Ipopt, KKT
+factorizations per iteration (counted in its log of one more, untimed solve).
 
     python -m bench iteration_cost [--N 50 100] [--iterations 60] [--repeats 3]
 """
@@ -17,9 +18,10 @@ factorizations, solves and vector work), and function calls per iteration.
 from __future__ import annotations
 
 import argparse
+import math
 import time
 
-from bench import harness
+from bench import harness, suite
 from bench.scenes import make_scene
 from planner import compiled
 from planner.ocp import plan
@@ -27,8 +29,8 @@ from planner.ocp import plan
 DOC = harness.DOCS / "benchmarks.md"
 SECTION = "Cost of an iteration on the seed arm"
 SOLVERS: tuple[tuple[str, dict[str, object]], ...] = (
-    ("Ipopt, interpreted", {}), ("Ipopt, compiled (jit)", {"jit": True}),
-    ("fatrop", {"name": "fatrop"}))
+    ("Ipopt, interpreted", {"jit": False}), ("Ipopt, compiled (jit, the default)", {"jit": True}),
+    ("fatrop", {"name": "fatrop", "jit": False}))
 
 
 def _measure(N: int, iterations: int, solver: dict) -> dict:
@@ -48,6 +50,20 @@ def _measure(N: int, iterations: int, solver: dict) -> dict:
             "calls_per_iteration": calls / done}
 
 
+def _factorizations(N: int, iterations: int, solver: dict) -> float:
+    """KKT factorizations per iteration of the same solve, counted in Ipopt's log at
+    `bench.suite.LOG_LEVEL` (a solve of its own, not timed); NaN for a solver without
+    that log (fatrop)."""
+    if solver.get("name", "ipopt") != "ipopt":
+        return math.nan
+    scene = make_scene("seed-4", N=N, one_solve=True,
+                       solver={**solver, "max_iter": iterations, "tol": 1e-14})
+    with harness.ipopt_options({"print_level": suite.LOG_LEVEL}), suite.solver_log() as log:
+        plan(scene)
+    counts = suite.log_counts(log(), iterations)
+    return counts["factorizations"] / max(counts["logged_iterations"], 1)
+
+
 def run(Ns: list[int], iterations: int, repeats: int) -> list[dict]:
     rows = []
     for N in Ns:
@@ -59,7 +75,8 @@ def run(Ns: list[int], iterations: int, repeats: int) -> list[dict]:
             row = {"N": N, "solver": name, "iterations": runs[0]["iterations"],
                    **{k: harness.median(r[k] for r in runs)
                       for k in ("cpu_per_iteration", "functions_per_iteration",
-                                "solver_per_iteration", "calls_per_iteration")}}
+                                "solver_per_iteration", "calls_per_iteration")},
+                   "factorizations_per_iteration": _factorizations(N, iterations, solver)}
             rows.append(row)
             print(row, flush=True)
     return rows
@@ -84,7 +101,9 @@ def main(argv: list[str]) -> int:
                              ("cpu_per_iteration", "CPU per iteration [ms]"),
                              ("functions_per_iteration", "functions [ms]"),
                              ("solver_per_iteration", "solver [ms]"),
-                             ("calls_per_iteration", "function calls per iteration")]),
+                             ("calls_per_iteration", "function calls per iteration"),
+                             ("factorizations_per_iteration",
+                              "KKT factorizations per iteration")]),
         f"Rows: `bench/results/iteration_cost.csv`. "
         f"{harness.manifest('iteration_cost', argv, started, note)}"])
     harness.write_section(DOC, SECTION, text)

@@ -239,9 +239,7 @@ def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.nd
     if proof is None:
         proof = prove(robot, interp, task.coupling_margin, deadline)
     asked = requirements(robot, interp, t_dense, task, sigma, proof, tolerance)
-    wavy = any(link.wave is not None for link in robot.links)
-    crossings, waveless = singular_crossings(robot, interp, t_dense,
-                                             None if wavy else (sigma, det))
+    crossings, waveless = _waveless(robot, interp, t_dense, sigma, det)
     local = float(errors.max())
     fb, measured = _feedback(robot, interp, task.torque_limit, compiled, deadline)
     robust, robust_ok = _robust(robot, interp, fb, task, settings, deadline)
@@ -267,6 +265,14 @@ def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.nd
         sigma_min=_samples(sigma), waveless_sigma_min=_samples(waveless),
         robustness=robust, **measured,
     ), fb
+
+
+def _waveless(robot: Robot, interp: Interpolant, t: np.ndarray, sigma: np.ndarray,
+              det: np.ndarray | None) -> tuple[list[Crossing], np.ndarray]:
+    """`singular_crossings` at the times t, reusing the robot's own sigma_min and det at t
+    where it has no waves (its waveless block is its own)."""
+    wavy = any(link.wave is not None for link in robot.links)
+    return singular_crossings(robot, interp, t, None if wavy else (sigma, det))
 
 
 def _robust(robot: Robot, interp: Interpolant, fb: Feedback | None, task: Task,

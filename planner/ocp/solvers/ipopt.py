@@ -8,9 +8,10 @@ from planner.ocp.solvers.solver import Nlp
 
 INERTIA_OPTIONS = {"perturb_dec_fact": 0.5, "perturb_inc_fact": 4.0,
                    "first_hessian_perturbation": 1e-8}
-"""How Ipopt perturbs the Hessian when the KKT matrix has the wrong inertia, with the idle
-variable (`Ipopt.idle_variable`; docs/benchmarks.md, "Ipopt settings: inertia
-corrections", 17 hard-suite tasks). An iteration first factors with the last perturbation
+"""How Ipopt would perturb the Hessian when the KKT matrix has the wrong inertia, with the
+idle variable (`Ipopt.idle_variable`; docs/benchmarks.md, "Ipopt settings: inertia
+corrections", 17 hard-suite tasks): measured, not the planner's setting (docs/planner.md
+says why). An iteration first factors with the last perturbation
 times perturb_dec_fact, then raises it by perturb_inc_fact until the inertia is right; a
 solve's first perturbation is first_hessian_perturbation. Ipopt's 1/3, 8 and 1e-4: 1.52
 factorizations per iteration. 1/2 and 4: fewer iterations that raise it, 1.44. A first
@@ -20,7 +21,7 @@ correction, 0.68 of its factorizations, the fewest of any way measured. A decrea
 makes 1.36 but lets the perturbation linger: 1.18 times the iterations."""
 
 IPOPT_OPTIONS = {"linear_solver": "mumps", "mumps_pivot_order": 0, "mumps_scaling": 0,
-                 "mu_strategy": "adaptive", **INERTIA_OPTIONS}
+                 "mu_strategy": "adaptive"}
 """Ipopt settings every NLP is built with (docs/benchmarks.md, "Ipopt settings"). MUMPS orders
 the KKT matrix by approximate minimum degree (0): on the banded collocation matrices Ipopt's
 own work per iteration is lower than with its automatic choice on five of the six reference
@@ -50,12 +51,13 @@ class Ipopt:
     name = "ipopt"
     monitored = True
     warm_options: dict[str, Any] | None = WARM_OPTIONS
-    idle_variable = True
-    """Ipopt finds the Hessian singular (the idle variable's row and column are empty) in
-    its first iterations, concludes that it is structurally so, and from then on perturbs
-    it in every iteration, starting from the last perturbation (INERTIA_OPTIONS), instead
-    of first factoring it unperturbed: on the hard suite that first factorization had the
-    wrong inertia in most iterations (about 2 factorizations per iteration)."""
+    idle_variable = False
+    """With the idle variable Ipopt finds the Hessian singular (its row and column are
+    empty) in its first iterations, concludes that it is structurally so, and from then
+    on perturbs it in every iteration, starting from the last perturbation
+    (INERTIA_OPTIONS), instead of first factoring it unperturbed: about 1.5 KKT
+    factorizations per iteration instead of 2 on hard tasks, but other paths on two-link
+    arms that converge slower or not at all, so it is off (docs/planner.md)."""
 
     def options(self, nlp: Nlp) -> dict[str, Any]:
         opts: dict[str, Any] = {
