@@ -1,10 +1,10 @@
 """The task suite (testbed.suites.ordinary): how often a plan verifies, and how long a
 verified plan takes, against the same planner with mesh refinement off, without retries,
 with fatrop instead of Ipopt or with Ipopt's idle variable (`planner.ocp.solvers.ipopt`:
-one more NLP variable that no row reads, and INERTIA_OPTIONS), and its peers on the same 50 intervals: a plain CasADi Opti
-script (bench/peers/opti.py, Legendre degree 3), rockit (bench/peers/rockit.py: direct
-collocation with Ipopt, multiple shooting with fatrop) and opty (bench/peers/opty.py,
-midpoint, in its own virtualenv `.venv-opty`).
+one more NLP variable that no row reads, and INERTIA_OPTIONS), and its peers on the same
+50 intervals: a plain CasADi Opti script (bench/peers/opti.py, Legendre degree 3),
+rockit (bench/peers/rockit.py: direct collocation with Ipopt, multiple shooting with
+fatrop) and opty (bench/peers/opty.py, midpoint, in its own virtualenv `.venv-opty`).
 
 Every planner configuration runs in a process of its own, its tasks one after the other as
 a service worker would (NLPs built once per structure and number of intervals stay cached);

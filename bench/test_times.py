@@ -10,8 +10,8 @@ time only, so the test suite's tests that depend on how fast something runs woul
 here; none should.
 
 Writes bench/results/test_times.csv (a row per run: how it ran, passed or not, the
-counts pytest printed, the failed tests' ids, wall time) and the section "make test, quiet and loaded" of
-docs/benchmarks.md.
+counts pytest printed, the failed tests' ids, wall time) and the section "make test, quiet
+and loaded" of docs/benchmarks.md.
 
     python -m bench test_times [--runs quiet,loaded,loaded] [--pytest-args ARGS]
 """
