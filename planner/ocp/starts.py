@@ -27,6 +27,9 @@ from planner.ocp.result import Plan
 from planner.scene import DurationRange, Scene
 
 COARSE_INTERVALS = 50  # a uniform mesh finer than this is first solved on this many intervals
+SECOND_OPINION_SHARE = 0.15
+"""The most of the plan's wall time the start after a duration probe that showed the task
+too short may take (`_second_opinion`)."""
 
 
 class DurationProbe(Protocol):
@@ -72,7 +75,8 @@ def own_starts(scene: Scene, robot: Robot, T: float, attempts: list[Attempt],
     `attempt.unlimited_solve`); after it the duration probe, where given (when it shows the
     duration too short no start follows, and a time-optimal plan it found within the task's
     durations is the next start; where the probe applies, the scene's own start may take
-    `shortest.FIRST_SHARE` of the wall time before it runs); the continuation from relaxed
+    `shortest.FIRST_SHARE` of the wall time before it runs; one that showed it too short is
+    followed by `_second_opinion` alone); the continuation from relaxed
     dynamics, where it applies; then the rescues (`_rescues`). stall: the scene's own start
     is stopped when it stalls (where no companion process solves the continuation)."""
     mesh = first_mesh(scene)
@@ -90,6 +94,7 @@ def own_starts(scene: Scene, robot: Robot, T: float, attempts: list[Attempt],
     if probe is not None:
         probe.run(attempts)
         if probe.too_short:
+            yield from _second_opinion(scene, robot, T, used)
             return
         fastest = probe.start()
         if fastest is not None:
@@ -97,6 +102,19 @@ def own_starts(scene: Scene, robot: Robot, T: float, attempts: list[Attempt],
     if continuation.applies(scene):
         yield continuation_start(scene, robot, T)
     yield from _rescues(scene, robot, T, attempts, used)
+
+
+def _second_opinion(scene: Scene, robot: Robot, T: float, used: str) -> Iterator[Start]:
+    """A start independent of the duration probe's before its evidence stands: the
+    classical inverse dynamics as the guess (where it applies and was not the scene's own),
+    within SECOND_OPINION_SHARE of the wall time. The probe's time-optimal solve ends at a
+    local minimum of the duration, which one converged plan at the task's own duration
+    refutes."""
+    if used != "inverse-dynamics" and _inverse_dynamics_applies(robot):
+        with contextlib.suppress(ValueError):
+            yield Start("inverse-dynamics start", first_mesh(scene),
+                        inverse_dynamics_guess(scene, robot, T), "inverse-dynamics", T, robot,
+                        time_share=SECOND_OPINION_SHARE)
 
 
 def _rescues(scene: Scene, robot: Robot, T: float, attempts: list[Attempt],
