@@ -36,7 +36,7 @@ SOLVERS: tuple[tuple[str, dict[str, object]], ...] = (
 def _measure(N: int, iterations: int, solver: dict) -> dict:
     """One solve of `iterations` iterations: CPU per iteration [ms], its split, calls."""
     scene = make_scene("seed-4", N=N, one_solve=True,
-                       solver={**solver, "max_iter": iterations, "tol": 1e-14})
+                       solver={**solver, "max_iter": iterations, "tol": 1e-12})
     _, timed = harness.build_instrumented(scene)
     plan(scene)
     stats = timed.stats()
@@ -57,7 +57,7 @@ def _factorizations(N: int, iterations: int, solver: dict) -> float:
     if solver.get("name", "ipopt") != "ipopt":
         return math.nan
     scene = make_scene("seed-4", N=N, one_solve=True,
-                       solver={**solver, "max_iter": iterations, "tol": 1e-14})
+                       solver={**solver, "max_iter": iterations, "tol": 1e-12})
     with harness.ipopt_options({"print_level": suite.LOG_LEVEL}), suite.solver_log() as log:
         plan(scene)
     counts = suite.log_counts(log(), iterations)
