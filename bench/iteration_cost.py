@@ -25,6 +25,7 @@ from bench import harness, suite
 from bench.scenes import make_scene
 from planner import compiled
 from planner.ocp import plan
+from planner.scene import Scene
 
 DOC = harness.DOCS / "benchmarks.md"
 SECTION = "Cost of an iteration on the seed arm"
@@ -33,10 +34,15 @@ SOLVERS: tuple[tuple[str, dict[str, object]], ...] = (
     ("fatrop", {"name": "fatrop", "jit": False}))
 
 
+def _scene(N: int, iterations: int, solver: dict) -> Scene:
+    """The seed-4 scene on N intervals, one solve of exactly `iterations` iterations."""
+    return make_scene("seed-4", N=N, one_solve=True,
+                      solver={**solver, "max_iter": iterations, "tol": 1e-12})
+
+
 def _measure(N: int, iterations: int, solver: dict) -> dict:
     """One solve of `iterations` iterations: CPU per iteration [ms], its split, calls."""
-    scene = make_scene("seed-4", N=N, one_solve=True,
-                       solver={**solver, "max_iter": iterations, "tol": 1e-12})
+    scene = _scene(N, iterations, solver)
     _, timed = harness.build_instrumented(scene)
     plan(scene)
     stats = timed.stats()
@@ -56,12 +62,9 @@ def _factorizations(N: int, iterations: int, solver: dict) -> float:
     that log (fatrop)."""
     if solver.get("name", "ipopt") != "ipopt":
         return math.nan
-    scene = make_scene("seed-4", N=N, one_solve=True,
-                       solver={**solver, "max_iter": iterations, "tol": 1e-12})
     with harness.ipopt_options({"print_level": suite.LOG_LEVEL}), suite.solver_log() as log:
-        plan(scene)
-    counts = suite.log_counts(log(), iterations)
-    return counts["factorizations"] / max(counts["logged_iterations"], 1)
+        plan(_scene(N, iterations, solver))
+    return suite.per_iteration([suite.log_counts(log(), iterations)])
 
 
 def run(Ns: list[int], iterations: int, repeats: int) -> list[dict]:

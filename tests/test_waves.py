@@ -153,12 +153,18 @@ def test_singular_points_of_non_square_and_three_row_blocks_are_lifted(joints, f
         result.certified_sigma_min - TOLERANCE)
 
 
-def test_an_unreachable_margin_is_infeasible_with_the_best_value_found(rng):
+def two_link_box(margin: float) -> tuple[WaveDesignRequest, list[float], list[float]]:
+    """A region design of the waveless two-link arm over its start ±0.1 rad [rad] under
+    `margin` [kg m^2], with the box's lower and upper corners."""
     robot = Robot.model_validate(example("two-link-waveless").request["robot"])
     q0, q1 = two_link_start()
     lower, upper = [q0 - 0.1, q1 - 0.1], [q0 + 0.1, q1 + 0.1]
-    req = region_request(robot, lower, upper, margin=1.0, certification_points=2_500,
-                         starts=2)
+    return (region_request(robot, lower, upper, margin=margin, certification_points=2_500,
+                           starts=2), lower, upper)
+
+
+def test_an_unreachable_margin_is_infeasible_with_the_best_value_found(rng):
+    req, lower, upper = two_link_box(margin=1.0)
     result = design(req)
     assert result.status == "infeasible"
     assert 0.0 < result.certified_sigma_min < 1.0
@@ -171,11 +177,7 @@ def test_a_proof_cut_short_is_undecided_never_certified(monkeypatch, rng):
     """Allowed one box, the proof over the two-link box bounds sigma_min by 0.03 kg m^2,
     below a margin of 0.035 that every sample keeps (0.039): undecided, the bound true."""
     monkeypatch.setattr(region_problem, "REGION_BOXES", 1)
-    robot = Robot.model_validate(example("two-link-waveless").request["robot"])
-    q0, q1 = two_link_start()
-    lower, upper = [q0 - 0.1, q1 - 0.1], [q0 + 0.1, q1 + 0.1]
-    req = region_request(robot, lower, upper, margin=0.035, certification_points=2_500,
-                         starts=2)
+    req, lower, upper = two_link_box(margin=0.035)
     result = design(req)
     assert result.status == "undecided" and result.certificate.status == "undecided"
     assert result.certificate.boxes == 1

@@ -28,8 +28,9 @@ from planner.scene import DurationRange, Scene
 
 COARSE_INTERVALS = 50  # a uniform mesh finer than this is first solved on this many intervals
 SECOND_OPINION_SHARE = 0.15
-"""The most of the plan's wall time the start after a duration probe that showed the task
-too short may take (`_second_opinion`)."""
+"""The most of the plan's wall time the inverse-dynamics start after a duration probe that
+showed the task too short may take: the probe's evidence stands only once that start
+fails too."""
 
 
 class DurationProbe(Protocol):
@@ -76,7 +77,8 @@ def own_starts(scene: Scene, robot: Robot, T: float, attempts: list[Attempt],
     duration too short no start follows, and a time-optimal plan it found within the task's
     durations is the next start; where the probe applies, the scene's own start may take
     `shortest.FIRST_SHARE` of the wall time before it runs; one that showed it too short is
-    followed by `_second_opinion` alone); the continuation from relaxed
+    followed by the inverse-dynamics start alone, within SECOND_OPINION_SHARE); the
+    continuation from relaxed
     dynamics, where it applies; then the rescues (`_rescues`). stall: the scene's own start
     is stopped when it stalls (where no companion process solves the continuation)."""
     mesh = first_mesh(scene)
@@ -93,8 +95,9 @@ def own_starts(scene: Scene, robot: Robot, T: float, attempts: list[Attempt],
                     limits_later=later)
     if probe is not None:
         probe.run(attempts)
-        if probe.too_short:
-            yield from _second_opinion(scene, robot, T, used)
+        if probe.too_short:  # a local minimum of the duration: one converged plan at
+            # the task's own duration, from an independent start, refutes it
+            yield from _inverse_dynamics_start(scene, robot, T, used, SECOND_OPINION_SHARE)
             return
         fastest = probe.start()
         if fastest is not None:
@@ -104,17 +107,15 @@ def own_starts(scene: Scene, robot: Robot, T: float, attempts: list[Attempt],
     yield from _rescues(scene, robot, T, attempts, used)
 
 
-def _second_opinion(scene: Scene, robot: Robot, T: float, used: str) -> Iterator[Start]:
-    """A start independent of the duration probe's before its evidence stands: the
-    classical inverse dynamics as the guess (where it applies and was not the scene's own),
-    within SECOND_OPINION_SHARE of the wall time. The probe's time-optimal solve ends at a
-    local minimum of the duration, which one converged plan at the task's own duration
-    refutes."""
+def _inverse_dynamics_start(scene: Scene, robot: Robot, T: float, used: str,
+                            time_share: float = 1.0) -> Iterator[Start]:
+    """The classical inverse dynamics as the initial guess, where it applies and was not
+    the scene's own guess already, within `time_share` of the plan's wall time."""
     if used != "inverse-dynamics" and _inverse_dynamics_applies(robot):
         with contextlib.suppress(ValueError):
             yield Start("inverse-dynamics start", first_mesh(scene),
                         inverse_dynamics_guess(scene, robot, T), "inverse-dynamics", T, robot,
-                        time_share=SECOND_OPINION_SHARE)
+                        time_share=time_share)
 
 
 def _rescues(scene: Scene, robot: Robot, T: float, attempts: list[Attempt],
@@ -127,10 +128,7 @@ def _rescues(scene: Scene, robot: Robot, T: float, attempts: list[Attempt],
         yield Start("restart from the last iterate", last.inst.mesh,
                     interpolant_guess(last.interp, last.T), "the last iterate", last.T,
                     last.robot, continues=True)
-    if used != "inverse-dynamics" and _inverse_dynamics_applies(robot):
-        with contextlib.suppress(ValueError):
-            yield Start("inverse-dynamics start", first_mesh(scene),
-                        inverse_dynamics_guess(scene, robot, T), "inverse-dynamics", T, robot)
+    yield from _inverse_dynamics_start(scene, robot, T, used)
     first = hermite_guess(scene, robot, T)
     intervals = scene.transcription.intervals
     for count in (2 * intervals, max(intervals // 2, 1)):

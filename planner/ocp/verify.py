@@ -79,14 +79,14 @@ def defect(robot: Robot, interp: Interpolant) -> float:
     return float(np.sum(norms * (_GAUSS_W[None, :] / 2) * h[:, None]))
 
 
-def singular_crossings(robot: Robot, interp: Interpolant, t: np.ndarray,
-                       own: tuple[np.ndarray, np.ndarray | None] | None = None
-                       ) -> tuple[list[Crossing], np.ndarray]:
+def singular_crossings(robot: Robot, interp: Interpolant, t: np.ndarray, own_sigma: np.ndarray,
+                       own_det: np.ndarray | None) -> tuple[list[Crossing], np.ndarray]:
     """Configurations along the plan where the waveless M_pa is singular, and the waveless
-    sigma_min at the times t (see `coupling_along`); `own`: the robot's sigma_min and det
-    at t where it has no waves (its waveless block is its own)."""
+    sigma_min at the times t (see `coupling_along`); own_sigma, own_det: the robot's own
+    sigma_min and det at t, which are the waveless ones where it has no waves."""
     waveless = robot.without_waves()
-    sigma, det = own if own is not None else coupling_along(waveless, interp.q(t))
+    wavy = any(link.wave is not None for link in robot.links)
+    sigma, det = coupling_along(waveless, interp.q(t)) if wavy else (own_sigma, own_det)
     if not np.all(np.isfinite(sigma)):
         return [], sigma
     times: list[float] = []
@@ -239,7 +239,7 @@ def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.nd
     if proof is None:
         proof = prove(robot, interp, task.coupling_margin, deadline)
     asked = requirements(robot, interp, t_dense, task, sigma, proof, tolerance)
-    crossings, waveless = _waveless(robot, interp, t_dense, sigma, det)
+    crossings, waveless = singular_crossings(robot, interp, t_dense, sigma, det)
     local = float(errors.max())
     fb, measured = _feedback(robot, interp, task.torque_limit, compiled, deadline)
     robust, robust_ok = _robust(robot, interp, fb, task, settings, deadline)
@@ -265,14 +265,6 @@ def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.nd
         sigma_min=_samples(sigma), waveless_sigma_min=_samples(waveless),
         robustness=robust, **measured,
     ), fb
-
-
-def _waveless(robot: Robot, interp: Interpolant, t: np.ndarray, sigma: np.ndarray,
-              det: np.ndarray | None) -> tuple[list[Crossing], np.ndarray]:
-    """`singular_crossings` at the times t, reusing the robot's own sigma_min and det at t
-    where it has no waves (its waveless block is its own)."""
-    wavy = any(link.wave is not None for link in robot.links)
-    return singular_crossings(robot, interp, t, None if wavy else (sigma, det))
 
 
 def _robust(robot: Robot, interp: Interpolant, fb: Feedback | None, task: Task,

@@ -11,14 +11,14 @@ INERTIA_OPTIONS = {"perturb_dec_fact": 0.5, "perturb_inc_fact": 4.0,
 """How Ipopt would perturb the Hessian when the KKT matrix has the wrong inertia, with the
 idle variable (`Ipopt.idle_variable`; docs/benchmarks.md, "Ipopt settings: inertia
 corrections", 17 hard-suite tasks): measured, not the planner's setting (docs/planner.md
-says why). An iteration first factors with the last perturbation
-times perturb_dec_fact, then raises it by perturb_inc_fact until the inertia is right; a
-solve's first perturbation is first_hessian_perturbation. Ipopt's 1/3, 8 and 1e-4: 1.52
-factorizations per iteration. 1/2 and 4: fewer iterations that raise it, 1.44. A first
-perturbation of 1e-8 (1e-4 is large beside these Hessians' curvature, and shortens the
-first steps of every solve): 1.53 in 0.89 of the iterations of Ipopt's own inertia
-correction, 0.68 of its factorizations, the fewest of any way measured. A decrease of 0.6
-makes 1.36 but lets the perturbation linger: 1.18 times the iterations."""
+says why). An iteration first factors with the last perturbation times perturb_dec_fact,
+then raises it by perturb_inc_fact until the inertia is right; a solve's first
+perturbation is first_hessian_perturbation. Ipopt's 1/3, 8 and 1e-4: 1.52 factorizations
+per iteration. 1/2 and 4: fewer iterations that raise it, 1.44. A first perturbation of
+1e-8 (1e-4 is large beside these Hessians' curvature, and shortens the first steps of
+every solve): 1.53 in 0.89 of the iterations of Ipopt's own inertia correction, 0.68 of
+its factorizations, the fewest of any way measured. A decrease of 0.6 makes 1.36 but lets
+the perturbation linger: 1.18 times the iterations."""
 
 IPOPT_OPTIONS = {"linear_solver": "mumps", "mumps_pivot_order": 0, "mumps_scaling": 0,
                  "mu_strategy": "adaptive"}
