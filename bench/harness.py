@@ -75,17 +75,21 @@ def shared_arguments(argv: Sequence[str]) -> tuple[argparse.Namespace, list[str]
 
 class CpuTimed:
     """Wraps a cached NLP's solver Function to record the CPU time [s] of its last call
-    (CPU time is what other load on a shared machine disturbs least)."""
+    (CPU time is what other load on a shared machine disturbs least), the part of it spent
+    in the kernel on the process's behalf [s] and the page faults it took."""
 
     def __init__(self, solver: ca.Function):
-        self.solver, self.cpu = solver, math.nan
+        self.solver, self.cpu, self.kernel, self.faults = solver, math.nan, math.nan, 0
 
     def __call__(self, **kwargs):
-        start = time.process_time()
+        start, usage = time.process_time(), resource.getrusage(resource.RUSAGE_SELF)
         try:
             return self.solver(**kwargs)
         finally:
             self.cpu = time.process_time() - start
+            after = resource.getrusage(resource.RUSAGE_SELF)
+            self.kernel = after.ru_stime - usage.ru_stime
+            self.faults = after.ru_minflt - usage.ru_minflt
 
     def stats(self) -> dict:
         return self.solver.stats()

@@ -5,12 +5,14 @@ singularities, Legendre degree 3), one solve per plan of exactly `--iterations` 
 from the planner's initial guess (refinement and retries off; the NLP built and cached
 first, so no build is timed). Solvers: Ipopt with the stages' derivative kernels
 interpreted, Ipopt with them compiled to C (`solver.jit`, the default; the library built
-before timing), and fatrop with the stage structure declared (`solver.name: "fatrop"`;
-it differentiates the expanded NLP itself). Reported per N and solver, medians of
-`--repeats` solves: CPU time per iteration, the part in NLP function evaluations (CasADi's
-`t_proc_nlp_*` and the iteration callback) and the solver's own part (the rest: the KKT
-factorizations, solves and vector work), function calls per iteration and, for Ipopt, KKT
-factorizations per iteration (counted in its log of one more, untimed solve).
+before timing), the same with MUMPS's workspace at Ipopt's own 1000 % of its estimate (the
+planner's setting before it was 200 %), and fatrop with the stage structure declared
+(`solver.name: "fatrop"`; it differentiates the expanded NLP itself). Reported per N and
+solver, medians of `--repeats` solves: CPU time per iteration, the part in NLP function
+evaluations (CasADi's `t_proc_nlp_*` and the iteration callback) and the solver's own part
+(the rest: the KKT factorizations, solves and vector work), the CPU time the kernel spent
+for the process and the page faults it took, function calls per iteration and, for Ipopt,
+KKT factorizations per iteration (counted in its log of one more, untimed solve).
 
     python -m bench iteration_cost [--N 50 100] [--iterations 60] [--repeats 3]
 """
@@ -29,9 +31,12 @@ from planner.scene import Scene
 
 DOC = harness.DOCS / "benchmarks.md"
 SECTION = "Cost of an iteration on the seed arm"
-SOLVERS: tuple[tuple[str, dict[str, object]], ...] = (
-    ("Ipopt, interpreted", {"jit": False}), ("Ipopt, compiled (jit, the default)", {"jit": True}),
-    ("fatrop", {"name": "fatrop", "jit": False}))
+SOLVERS: tuple[tuple[str, dict[str, object], dict[str, object]], ...] = (
+    ("Ipopt, interpreted", {"jit": False}, {}),
+    ("Ipopt, compiled (jit, the default)", {"jit": True}, {}),
+    ("Ipopt, compiled, MUMPS workspace 1000 %", {"jit": True}, {"mumps_mem_percent": 1000}),
+    ("fatrop", {"name": "fatrop", "jit": False}, {}))
+"""Name, solver settings of the scene, Ipopt options beyond the planner's."""
 
 
 def _scene(N: int, iterations: int, solver: dict) -> Scene:
@@ -53,6 +58,8 @@ def _measure(N: int, iterations: int, solver: dict) -> dict:
     return {"iterations": done, "cpu_per_iteration": 1e3 * timed.cpu / done,
             "functions_per_iteration": 1e3 * functions / done,
             "solver_per_iteration": 1e3 * (timed.cpu - functions) / done,
+            "kernel_per_iteration": 1e3 * timed.kernel / done,
+            "faults_per_iteration": timed.faults / done,
             "calls_per_iteration": calls / done}
 
 
@@ -70,16 +77,19 @@ def _factorizations(N: int, iterations: int, solver: dict) -> float:
 def run(Ns: list[int], iterations: int, repeats: int) -> list[dict]:
     rows = []
     for N in Ns:
-        for name, solver in SOLVERS:
-            _measure(N, iterations, solver)  # builds (and compiles) the NLP
-            if solver.get("jit"):
-                compiled.wait()
-            runs = [_measure(N, iterations, solver) for _ in range(repeats)]
+        for name, solver, options in SOLVERS:
+            with harness.ipopt_options(options):
+                _measure(N, iterations, solver)  # builds (and compiles) the NLP
+                if solver.get("jit"):
+                    compiled.wait()
+                runs = [_measure(N, iterations, solver) for _ in range(repeats)]
+                factorizations = _factorizations(N, iterations, solver)
             row = {"N": N, "solver": name, "iterations": runs[0]["iterations"],
                    **{k: harness.median(r[k] for r in runs)
                       for k in ("cpu_per_iteration", "functions_per_iteration",
-                                "solver_per_iteration", "calls_per_iteration")},
-                   "factorizations_per_iteration": _factorizations(N, iterations, solver)}
+                                "solver_per_iteration", "kernel_per_iteration",
+                                "faults_per_iteration", "calls_per_iteration")},
+                   "factorizations_per_iteration": factorizations}
             rows.append(row)
             print(row, flush=True)
     return rows
@@ -99,11 +109,15 @@ def main(argv: list[str]) -> int:
         f"{args.iterations} iterations from the planner's initial guess, the NLP built first; "
         f"medians of {args.repeats} solves, CPU time of this process. Functions: CasADi's "
         "NLP function evaluations and the iteration callback; solver: the rest (KKT "
-        "factorizations and solves, vector work).",
+        "factorizations and solves, vector work); of it in the kernel: the CPU time the "
+        "kernel spent for the process during the solve, most of it faulting in the pages "
+        "of memory the C heap mapped afresh.",
         harness.table(rows, [("N", "N"), ("solver", "solver"), ("iterations", "iterations"),
                              ("cpu_per_iteration", "CPU per iteration [ms]"),
                              ("functions_per_iteration", "functions [ms]"),
                              ("solver_per_iteration", "solver [ms]"),
+                             ("kernel_per_iteration", "of it in the kernel [ms]"),
+                             ("faults_per_iteration", "page faults per iteration"),
                              ("calls_per_iteration", "function calls per iteration"),
                              ("factorizations_per_iteration",
                               "KKT factorizations per iteration")]),

@@ -21,13 +21,18 @@ its factorizations, the fewest of any way measured. A decrease of 0.6 makes 1.36
 the perturbation linger: 1.18 times the iterations."""
 
 IPOPT_OPTIONS = {"linear_solver": "mumps", "mumps_pivot_order": 0, "mumps_scaling": 0,
-                 "mu_strategy": "adaptive"}
+                 "mumps_mem_percent": 200, "mu_strategy": "adaptive"}
 """Ipopt settings every NLP is built with (docs/benchmarks.md, "Ipopt settings"). MUMPS orders
 the KKT matrix by approximate minimum degree (0): on the banded collocation matrices Ipopt's
 own work per iteration is lower than with its automatic choice on five of the six reference
 scenes. MUMPS scales nothing (0): Ipopt's own work per iteration as low or lower on every
 reference scene, the same optimum on all but the horizontal seed arm at N = 50 (another
-verified one there). The adaptive barrier update stays, with its
+verified one there). MUMPS's workspace is twice its own estimate (200 %), not Ipopt's
+eleven times (1000 %): a workspace that large (32 to 64 MiB on the seed arm at N = 100) is
+above the C heap's threshold for memory mapped anew on every allocation, so that each
+factorization faulted in its pages afresh, a fifth of an iteration's CPU time in the kernel
+(docs/benchmarks.md, "Cost of an iteration on the seed arm"); Ipopt enlarges a workspace
+that MUMPS finds too small and factors again. The adaptive barrier update stays, with its
 quality-function oracle: the monotone update and the probing oracle saved iterations on
 some scenes but ended in worse optima or the iteration limit on the horizontal seed arm."""
 
