@@ -17,6 +17,9 @@ from bench import harness
 BENCHES = {
     "build": ("bench.build", "building an NLP against the number of links, now and at an "
                              "earlier commit"),
+    "closed_loop": ("bench.closed_loop", "an arm heavier than its model and pushed: "
+                                         "replanning at a fixed rate against LQR feedback "
+                                         "alone"),
     "capacity": ("bench.capacity", "the memory of one plan's NLP against app/capacity.py's "
                                    "estimate"),
     "container": ("bench.container", "the container image: its size and a running container's "

@@ -35,6 +35,7 @@ class Small:
 
 SMALL: dict[str, Small] = {
     "build": Small((("--links", "2"),)),
+    "closed_loop": Small((("--scenes", "two-link-plan", "--N", "20", "--updates", "5"),)),
     "capacity": Small((("--points", "1"),)),
     "container": Small((("--plans", "1"),), needs=("docker",)),
     "dynamics_size": Small((("--calls", "2", "--repeats", "1", "--builds", "1"),)),

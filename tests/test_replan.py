@@ -1,0 +1,140 @@
+"""Replanning from a measured state (`planner.ocp.replan`): from the plan's own state it
+gives the plan back; from a pushed state it plans to the same goal; bad states are refused
+by field."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+
+from planner.errors import InputError
+from planner.examples import example
+from planner.ocp import plan
+from planner.ocp.replan import ACCEPTED_VIOLATION, Replanner
+from planner.ocp.result import Plan
+from planner.scene import Scene, State
+
+
+@pytest.fixture(scope="module")
+def planned() -> tuple[Scene, Plan]:
+    """The two-link example on its own uniform mesh (no refinement), and its plan."""
+    request = copy.deepcopy(example("two-link-plan").request)
+    request["transcription"]["refinement"] = {"enabled": False}
+    scene = Scene.model_validate(request)
+    result = plan(scene)
+    assert result.solver.success
+    return scene, result
+
+
+def _times(T: float, start: float = 0.0) -> np.ndarray:
+    return np.linspace(start, T, 41)
+
+
+def test_a_replan_from_the_plans_own_state_at_time_zero_reproduces_it(planned):
+    scene, earlier = planned
+    replan = Replanner(scene, earlier).update(0.0, earlier.q[0], earlier.dq[0],
+                                              mode="converged")
+    assert replan.success and replan.within and not replan.fallback
+    t = _times(earlier.duration)
+    planned_tau = np.asarray(earlier.torque.evaluate(t.tolist()))
+    scale = np.abs(planned_tau).max()
+    assert np.abs(replan.torque(t) - planned_tau).max() <= 1e-5 * scale
+    q_plan = np.asarray(earlier.states.polynomials()[0](t))
+    assert np.abs(replan.interp.q(t) - q_plan).max() <= 1e-6
+
+
+def test_a_replan_from_a_pushed_state_plans_to_the_same_goal(planned):
+    scene, earlier = planned
+    T = earlier.duration
+    at = 0.25 * T
+    q_p, dq_p = earlier.states.polynomials()
+    q = np.asarray(q_p([at]))[0]
+    dq = np.asarray(dq_p([at]))[0] + np.array([0.2, 0.0])  # a push on the passive shoulder
+    replan = Replanner(scene, earlier).update(at, q.tolist(), dq.tolist(), mode="converged",
+                                              verify=True)
+    assert replan.success and replan.within, replan
+    assert replan.interval_error is not None
+    assert np.allclose(replan.interp.q([0.0])[0], q, atol=1e-9)
+    assert np.allclose(replan.interp.dq([0.0])[0], dq, atol=1e-9)
+    goal = np.asarray(scene.task.final.q, float)
+    end = replan.end - replan.start
+    assert np.allclose(replan.interp.q([end])[0], goal, atol=1e-6)
+    assert np.allclose(replan.interp.dq([end])[0], 0.0, atol=1e-6)
+
+
+def test_a_moved_goal_is_planned_to_from_then_on(planned):
+    scene, earlier = planned
+    goal = (np.asarray(scene.task.final.q, float) + 0.05).tolist()
+    replanner = Replanner(scene, earlier)
+    at = 0.2 * earlier.duration
+    q_p, dq_p = earlier.states.polynomials()
+    moved = replanner.update(at, q_p([at])[0].tolist(), dq_p([at])[0].tolist(),
+                             mode="converged", goal=State(q=goal, dq=[0.0, 0.0]))
+    assert moved.success and moved.within
+    end = moved.end - moved.start
+    assert np.allclose(moved.interp.q([end])[0], goal, atol=1e-6)
+    later = 0.4 * earlier.duration
+    kept = replanner.update(later, moved.interp.q([later - at])[0].tolist(),
+                            moved.interp.dq([later - at])[0].tolist(), mode="converged")
+    assert np.allclose(kept.interp.q([kept.end - kept.start])[0], goal, atol=1e-6)
+
+
+def test_real_time_updates_along_a_pushed_motion_stay_near_the_constraints(planned):
+    scene, earlier = planned
+    replanner = Replanner(scene, earlier)
+    T = earlier.duration
+    q_p, dq_p = earlier.states.polynomials()
+    violations = []
+    for k, at in enumerate(np.linspace(0.1, 0.5, 5) * T):
+        q = np.asarray(q_p([at]))[0]
+        dq = np.asarray(dq_p([at]))[0] + (np.array([0.05, 0.0]) if k == 0 else 0.0)
+        replan = replanner.update(float(at), q.tolist(), dq.tolist())
+        assert not replan.fallback and (replan.iterations <= 3 or replan.escalated)
+        assert "dynamics at the knots" in replan.checked[0]
+        assert replan.violation <= ACCEPTED_VIOLATION
+        violations.append(replan.violation)
+    assert max(violations[1:]) <= 1e-6, violations
+
+
+def test_a_rest_too_short_for_the_goal_keeps_the_last_plan(planned):
+    scene, earlier = planned
+    replanner = Replanner(scene, earlier)
+    end = earlier.duration
+    q = np.asarray(scene.task.final.q, float) - np.array([0.0, 0.5])  # far from the goal
+    replan = replanner.update(end - 0.01, q.tolist(), [0.0, 0.0], mode="converged",
+                              wall_time=5.0)
+    assert replan.fallback and replan.interp is None and not replan.within
+    assert replan.violation > ACCEPTED_VIOLATION
+    assert replan.checked[-1].endswith("the last plan's remainder stands")
+    with pytest.raises(ValueError, match="carries no plan"):
+        replan.torque(np.array([end]))
+
+
+@pytest.mark.parametrize(("q", "dq", "message"), [
+    ([0.0, float("nan")], [0.0, 0.0], "q: every entry must be finite"),
+    ([0.0], [0.0, 0.0], "q: needs 2 entries, one per joint"),
+    ([0.0, 0.0], [0.0, 0.0, 0.0], "dq: needs 2 entries, one per joint"),
+])
+def test_a_bad_state_is_refused_by_its_field(planned, q, dq, message):
+    scene, earlier = planned
+    with pytest.raises(InputError) as raised:
+        Replanner(scene, earlier).update(0.1, q, dq)
+    assert str(raised.value) == message
+
+
+def test_a_time_past_the_plan_is_refused(planned):
+    scene, earlier = planned
+    with pytest.raises(InputError, match=r"^t: must lie in \[0, "):
+        Replanner(scene, earlier).update(earlier.duration, earlier.q[-1], earlier.dq[-1])
+
+
+def test_a_state_beyond_the_tasks_bounds_is_refused(planned):
+    scene, earlier = planned
+    request = scene.model_dump()
+    request["task"]["position_bounds"] = {"lower": [None, -0.5], "upper": [None, 0.5]}
+    bounded = Scene.model_validate(request)
+    with pytest.raises(InputError) as raised:
+        Replanner(bounded, earlier).update(0.1, [0.0, 0.7], [0.0, 0.0])
+    assert str(raised.value) == "q.1: 0.7 lies beyond the task's bounds"
