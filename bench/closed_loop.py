@@ -89,6 +89,7 @@ def lqr_alone(scene: Scene, nominal: Plan, arm: Robot, push: float) -> dict:
     """The plan's torque with its LQR feedback on the arm, pushed at the breakpoint nearest
     T/3."""
     assert nominal.torque is not None and nominal.feedback is not None
+    assert nominal.states is not None
     breaks = np.asarray(nominal.torque.breaks)
     coeffs = nominal.torque.array()
     q_p, dq_p = nominal.states.polynomials()
@@ -178,6 +179,8 @@ def _limit(scene: Scene) -> float:
 
 
 def _tracking(run: dict, nominal: Plan) -> float:
+    """The largest |q - q_plan| [rad] along the run."""
+    assert nominal.states is not None
     q_p, _ = nominal.states.polynomials()
     return float(np.abs(run["q"] - q_p(run["t"])).max())
 
@@ -193,7 +196,8 @@ def run_scene(name: str, N: int, updates: int, mass: float, push: float,
     rep = replanning(scene, nominal, arm, push, updates, wall)
     limit = _limit(scene)
     rows = [{"scene": name, "controller": "LQR feedback alone", "N": N, "updates": "",
-             "final_error": float(_errors(lqr["final"], scene)), "tracking_error": _tracking(lqr, nominal),
+             "final_error": float(_errors(lqr["final"], scene)),
+             "tracking_error": _tracking(lqr, nominal),
              "over_limit": lqr["tau_max"] - limit if math.isfinite(limit) else "",
              "median_wall_ms": "", "p99_wall_ms": "", "median_cpu_ms": "", "p99_cpu_ms": "",
              "median_iterations": "", "escalations": "", "fallbacks": "",
