@@ -18,6 +18,7 @@ from bench.harness import ROOT
 RESULTS: dict[str, tuple[str, ...]] = {
     "build": ("bench/results/build.csv",),
     "capacity": ("bench/results/capacity.csv",),
+    "closed_loop": ("bench/results/closed_loop.csv", "docs/img/closed_loop.png"),
     "container": ("bench/results/container.csv",),
     "dynamics_size": (),
     "examples": ("bench/results/examples.csv",),
