@@ -13,8 +13,8 @@ multipliers fit), with Ipopt's warm-start settings (a small barrier parameter); 
 end beyond ACCEPTED_VIOLATION (after a push, say: from a small barrier parameter, Ipopt
 may need hundreds of iterations or fail), the update escalates to the converged solve.
 "converged" starts from the primal point alone, with Ipopt's own barrier parameter, and
-runs to the solver's tolerance: measured on a pushed two-link arm, 4 to 5 iterations
-where the warm settings took hundreds or failed.
+runs to the solver's tolerance: after a push on a passive joint it converges in a few
+iterations where the warm settings can wander or fail.
 
 Each update says what it checked. Always, at the returned point: the NLP's rows (the
 collocation defects and the dynamics at the knots, the continuity between intervals, the
