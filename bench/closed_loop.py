@@ -40,7 +40,8 @@ from planner.model import Robot
 from planner.ocp import plan
 from planner.ocp.replan import Replanner
 from planner.ocp.result import Plan
-from planner.scene import Scene
+from planner.ocp.robustness import models
+from planner.scene import Scene, Uncertainty
 from planner.simulate import ClosedLoop, simulate, torque_coefficients
 
 DOC = harness.DOCS / "benchmarks.md"
@@ -70,12 +71,6 @@ def request(name: str, N: int) -> dict:
         base = copy.deepcopy(example(name).request)
     base.setdefault("transcription", {})["intervals"] = N
     return base
-
-
-def heavier(robot: Robot, share: float) -> Robot:
-    """The robot with every link's mass (1 + share) times its own."""
-    return robot.model_copy(update={"links": [
-        link.model_copy(update={"mass": link.mass * (1 + share)}) for link in robot.links]})
 
 
 def _errors(x: np.ndarray, scene: Scene) -> float:
@@ -191,7 +186,7 @@ def run_scene(name: str, N: int, updates: int, mass: float, push: float,
     nominal = plan(scene)
     compiled.wait()
     nominal = plan(scene)
-    arm = heavier(scene.robot, mass)
+    arm = dict(models(scene.robot, Uncertainty(mass=mass)))["mass+"]
     lqr = lqr_alone(scene, nominal, arm, push)
     rep = replanning(scene, nominal, arm, push, updates, wall)
     limit = _limit(scene)

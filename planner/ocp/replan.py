@@ -150,14 +150,14 @@ class Replanner:
         if mode == "real-time":
             solution = solve(inst, x0, Budget.of(iterations, wall), None, 0,
                              self._multipliers(inst))
-            escalated = not _accepted(inst, solution)
+            violation = _violation(inst, solution)
+            escalated = violation > ACCEPTED_VIOLATION
         if solution is None or escalated:
             solution = solve(inst, x0, Budget.of(rest.solver.max_iter, wall), None, 0)
-        timing = (started, cpu)
-        if not _accepted(inst, solution):
-            return self._fallback(t, solution, inst, escalated, timing)
+            violation = _violation(inst, solution)
+        if violation > ACCEPTED_VIOLATION:
+            return self._fallback(t, solution, violation, escalated, (started, cpu))
         interp = interpolant(inst, self.robot, self.end - t, solution.x)
-        violation = _violation(inst, solution.x, solution.g)
         checked = [ROWS_CHECKED]
         within = violation <= rest.solver.tol
         error = None
@@ -236,11 +236,9 @@ class Replanner:
             return None
         return m
 
-    def _fallback(self, t: float, solution: Solution, inst: Instance, escalated: bool,
+    def _fallback(self, t: float, solution: Solution, violation: float, escalated: bool,
                   timing: tuple[float, float]) -> Replan:
         """The update that could not be made: the last plan's remainder stands."""
-        violation = _violation(inst, solution.x, solution.g) \
-            if np.all(np.isfinite(solution.x)) else math.inf
         return Replan(t, self.end, None, solution.status, False, solution.iterations,
                       violation, (ROWS_CHECKED, f"not accepted ({solution.status}, violation "
                       f"{violation:.3g} above {ACCEPTED_VIOLATION:g}): the last plan's "
@@ -260,15 +258,12 @@ def _of_interp(interp: Interpolant, start: float) -> Motion:
     return lambda t: guess(np.asarray(t, float) - start)
 
 
-def _accepted(inst: Instance, solution: Solution) -> bool:
-    """Whether a solve's point is finite and within ACCEPTED_VIOLATION of the NLP's rows
-    and bounds."""
-    return bool(np.all(np.isfinite(solution.x))) \
-        and _violation(inst, solution.x, solution.g) <= ACCEPTED_VIOLATION
-
-
-def _violation(inst: Instance, x: np.ndarray, g: np.ndarray | None) -> float:
-    """The largest violation of the NLP's rows and of its variables' bounds at x."""
+def _violation(inst: Instance, solution: Solution) -> float:
+    """The largest violation of the NLP's rows and of its variables' bounds at a solve's
+    point (inf where the point or its rows are not finite)."""
+    x, g = solution.x, solution.g
+    if not np.all(np.isfinite(x)) or g is not None and not np.all(np.isfinite(g)):
+        return math.inf
     lbg, ubg = inst.problem.lbg, inst.problem.ubg
     rows = 0.0 if g is None or g.size == 0 else float(
         np.max(np.maximum(lbg - g, 0.0) + np.maximum(g - ubg, 0.0)))
