@@ -5,8 +5,8 @@ singularities, Legendre degree 3), one solve per plan of exactly `--iterations` 
 from the planner's initial guess (refinement and retries off; the NLP built and cached
 first, so no build is timed). Solvers: Ipopt with the stages' derivative kernels
 interpreted, Ipopt with them compiled to C (`solver.jit`, the default; the library built
-before timing), the same with MUMPS's workspace at Ipopt's own 1000 % of its estimate (the
-planner's setting before it was 200 %), and fatrop with the stage structure declared
+before timing), the same with MUMPS's workspace at its estimate plus Ipopt's own 1000 %
+(`mumps_mem_percent`; the planner's setting before it was 200 %), and fatrop with the stage structure declared
 (`solver.name: "fatrop"`; it differentiates the expanded NLP itself). Reported per N and
 solver, medians of `--repeats` solves: CPU time per iteration, the part in NLP function
 evaluations (CasADi's `t_proc_nlp_*` and the iteration callback) and the solver's own part

@@ -27,10 +27,10 @@ the KKT matrix by approximate minimum degree (0): on the banded collocation matr
 own work per iteration is lower than with its automatic choice on five of the six reference
 scenes. MUMPS scales nothing (0): Ipopt's own work per iteration as low or lower on every
 reference scene, the same optimum on all but the horizontal seed arm at N = 50 (another
-verified one there). MUMPS's workspace is twice its own estimate (200 %), not Ipopt's
-eleven times (1000 %): a workspace that large (32 to 64 MiB on the seed arm at N = 100) is
-above the C heap's threshold for memory mapped anew on every allocation, so that each
-factorization faulted in its pages afresh, a fifth of an iteration's CPU time in the kernel
+verified one there). MUMPS's workspace is its own estimate plus 200 %, not Ipopt's plus
+1000 %: on the seed arm at N = 100 that larger workspace is above the size up to which the
+C heap reuses freed memory, so that each factorization mapped it anew and faulted in its
+pages afresh, a fifth of an iteration's CPU time in the kernel
 (docs/benchmarks.md, "Cost of an iteration on the seed arm"); Ipopt enlarges a workspace
 that MUMPS finds too small and factors again. The adaptive barrier update stays, with its
 quality-function oracle: the monotone update and the probing oracle saved iterations on
