@@ -6,13 +6,14 @@ from the planner's initial guess (refinement and retries off; the NLP built and 
 first, so no build is timed). Solvers: Ipopt with the stages' derivative kernels
 interpreted, Ipopt with them compiled to C (`solver.jit`, the default; the library built
 before timing), the same with MUMPS's workspace at its estimate plus Ipopt's own 1000 %
-(`mumps_mem_percent`; the planner's setting before it was 200 %), and fatrop with the stage structure declared
-(`solver.name: "fatrop"`; it differentiates the expanded NLP itself). Reported per N and
-solver, medians of `--repeats` solves: CPU time per iteration, the part in NLP function
-evaluations (CasADi's `t_proc_nlp_*` and the iteration callback) and the solver's own part
-(the rest: the KKT factorizations, solves and vector work), the CPU time the kernel spent
-for the process and the page faults it took, function calls per iteration and, for Ipopt,
-KKT factorizations per iteration (counted in its log of one more, untimed solve).
+(`mumps_mem_percent`; the planner's setting before it was 200 %), and fatrop with the
+stage structure declared (`solver.name: "fatrop"`; it differentiates the expanded NLP
+itself). Reported per N and solver, medians of `--repeats` solves: CPU time per iteration,
+the part in NLP function evaluations (CasADi's `t_proc_nlp_*` and the iteration callback)
+and the solver's own part (the rest: the KKT factorizations, solves and vector work), the
+CPU time the kernel spent for the process and the page faults it took, function calls per
+iteration and, for Ipopt, KKT factorizations per iteration (counted in its log of one
+more, untimed solve).
 
     python -m bench iteration_cost [--N 50 100] [--iterations 60] [--repeats 3]
 """
