@@ -3,22 +3,23 @@ plan's LQR feedback alone.
 
 Per scene: the plan of the scene at N intervals (the nominal model, default settings). The
 arm it runs on has every link's mass `--mass` heavier (relative) and gets a push: its
-first passive joint's rate jumps by `--push` rad/s at a third of the motion. Two
-controllers drive it from the planned initial state to the end time T:
-- "LQR feedback alone": the plan's torque with its LQR feedback (`feedback.gains`,
-  applied at the torque's breakpoints, `planner.simulate.ClosedLoop`), the push at the
-  breakpoint nearest T/3;
+first passive joint's rate jumps by `--push` rad/s at the update nearest a third of the
+motion. Two controllers drive it from the planned initial state to the end time T, each
+through the same servo loop (`drive`: `SUBSAMPLES` steps per update period, each holding
+the controller's `Replan.command` for the state at its start, the torque with its LQR
+correction):
+- "LQR feedback alone": the plan's torque and its LQR gains (`Replan.of_plan`);
 - "replanning": a `planner.ocp.replan.Replanner` on the nominal model, converged once
   from the initial state before the motion starts, then `--updates` real-time updates at
   a fixed rate (every T / updates seconds) from the arm's state measured at that instant;
-  between updates the arm gets the latest update's torque, sampled `SUBSAMPLES` times per
-  period and linearly interpolated (a servo loop's hold), the push at the update nearest
-  T/3.
+  the servo loop follows the last accepted update and its gains (after a fallback, and in
+  the final stretch where updates hold, the last plan stands).
 The arm is integrated by CVODES (`planner.simulate.simulate`, 1e-10). Reported: the final
 error (largest |q - q_goal| [rad] and |dq - dq_goal| [rad/s] at T), the tracking error
 (largest |q - q_plan| along the motion [rad]), the largest |tau| over the torque limit,
-and per update the median and 99th percentile of wall and CPU time and the iterations;
-a plot of the first passive joint under both.
+and over the updates that solved (not those held in the final stretch) the median and
+99th percentile of wall and CPU time, the iterations, escalations and fallbacks; a plot
+of the first passive joint under both.
 
     python -m bench closed_loop [--scenes seed-arm-plan,two-link-plan,five-link]
         [--N 50] [--updates 200] [--mass 0.1] [--push 0.2] [--wall 0.2]
@@ -30,6 +31,7 @@ import argparse
 import copy
 import math
 import time
+from typing import Protocol
 
 import numpy as np
 
@@ -38,11 +40,11 @@ from planner import compiled
 from planner.examples import example
 from planner.model import Robot
 from planner.ocp import plan
-from planner.ocp.replan import Replanner
+from planner.ocp.replan import FINAL_STRETCH, HELD, REALTIME_ITERATIONS, Replan, Replanner
 from planner.ocp.result import Plan
 from planner.ocp.robustness import models
 from planner.scene import Scene, Uncertainty
-from planner.simulate import ClosedLoop, simulate, torque_coefficients
+from planner.simulate import simulate
 
 DOC = harness.DOCS / "benchmarks.md"
 SECTION = "Closed loop: replanning against LQR feedback alone"
@@ -80,90 +82,70 @@ def _errors(x: np.ndarray, scene: Scene) -> float:
     return max(abs(x[j] - g) for j, g in enumerate(goal[:2 * n]) if g is not None)
 
 
-def lqr_alone(scene: Scene, nominal: Plan, arm: Robot, push: float) -> dict:
-    """The plan's torque with its LQR feedback on the arm, pushed at the breakpoint nearest
-    T/3."""
-    assert nominal.torque is not None and nominal.feedback is not None
-    assert nominal.states is not None
-    breaks = np.asarray(nominal.torque.breaks)
-    coeffs = nominal.torque.array()
-    q_p, dq_p = nominal.states.polynomials()
-    loop = ClosedLoop(gains=nominal.feedback.gains, q=q_p(breaks).tolist(),
-                      dq=dq_p(breaks).tolist())
-    k = int(np.argmin(np.abs(breaks - breaks[-1] / 3)))
-    x0 = np.concatenate([nominal.q[0], nominal.dq[0]])
-    first = simulate(arm, breaks[:k + 1], coeffs[:k], x0, feedback=_sliced(loop, 0, k))
-    x = np.concatenate([first.q[-1], first.dq[-1]])
-    x[len(arm.links) + arm.passive[0]] += push
-    second = simulate(arm, breaks[k:], coeffs[k:], x, feedback=_sliced(loop, k, len(coeffs)))
-    q = np.vstack([first.q, second.q[1:]])
-    t = np.concatenate([first.t, second.t[1:]])
-    at_breaks = np.hstack([np.vstack([first.q[:-1], second.q]),
-                           np.vstack([first.dq[:-1], second.dq])])
-    at_breaks[k, len(arm.links) + arm.passive[0]] += push  # the state the k-th gain sees
-    final = np.concatenate([second.q[-1], second.dq[-1]])
-    return {"t": t, "q": q, "final": final,
-            "tau_max": _applied_peak(coeffs, loop, at_breaks), "status": second.status}
+class Controller(Protocol):
+    """What the servo loop asks of a controller."""
+
+    def update(self, k: int, t: float, x: np.ndarray) -> Replan: ...
 
 
-def _applied_peak(coeffs: np.ndarray, loop: ClosedLoop, states: np.ndarray) -> float:
-    """The largest |tau| [N m] the arm got: every interval's polynomial (sampled) less the
-    feedback's correction held over it."""
-    s = np.linspace(0.0, 1.0, 9)
-    powers = s[:, None] ** np.arange(coeffs.shape[1])[None, :]
-    peak = 0.0
-    for k in range(coeffs.shape[0]):
-        tau = powers @ coeffs[k] - loop.correction(k, states[k])[None, :]
-        peak = max(peak, float(np.abs(tau).max()))
-    return peak
+class LqrAlone:
+    """The plan's torque and its LQR feedback, the same at every update."""
+
+    def __init__(self, nominal: Plan):
+        self.plan = Replan.of_plan(nominal)
+
+    def update(self, k: int, t: float, x: np.ndarray) -> Replan:
+        return self.plan
 
 
-def _sliced(loop: ClosedLoop, first: int, last: int) -> ClosedLoop:
-    return ClosedLoop(gains=loop.gains[first:last], q=loop.q[first:last + 1],
-                      dq=loop.dq[first:last + 1])
+class Replanning:
+    """A `Replanner` on the nominal model: a real-time update at every update instant
+    (each solve within `wall` seconds); the last accepted update is followed."""
+
+    def __init__(self, scene: Scene, nominal: Plan, wall: float):
+        self.replanner, self.wall = Replanner(scene, nominal), wall
+        x0 = np.concatenate([nominal.q[0], nominal.dq[0]])
+        n = x0.size // 2
+        self.current = self.replanner.update(0.0, list(x0[:n]), list(x0[n:]),
+                                             mode="converged")
+        self.updates: list[Replan] = []
+
+    def update(self, k: int, t: float, x: np.ndarray) -> Replan:
+        n = x.size // 2
+        update = self.replanner.update(t, list(x[:n]), list(x[n:]), wall_time=self.wall)
+        self.updates.append(update)
+        if not update.fallback:
+            self.current = update
+        return self.current
 
 
-def replanning(scene: Scene, nominal: Plan, arm: Robot, push: float, updates: int,
-               wall: float) -> dict:
-    """Real-time replanning at `updates` evenly spaced instants on the arm, each solve of an
-    update within `wall` seconds."""
-    T = nominal.duration
-    period = T / updates
-    replanner = Replanner(scene, nominal)
-    x = np.concatenate([nominal.q[0], nominal.dq[0]])
-    n = len(arm.links)
-    replanner.update(0.0, list(x[:n]), list(x[n:]), mode="converged")
-    push_at = int(round(updates / 3))
-    times, states, walls, cpus, iterations, taus = [0.0], [x], [], [], [], []
-    fallbacks = escalations = 0
-    current = None
+def drive(arm: Robot, x0: np.ndarray, T: float, updates: int, push: float,
+          controller: Controller) -> dict:
+    """The arm from x0 over [0, T] under the controller: an update every T / updates
+    seconds from the state measured then, and between updates a servo loop of SUBSAMPLES
+    steps per period, each holding `Replan.command` of the state at its start; the first
+    passive joint's rate pushed by `push` at the update nearest T/3."""
+    period, n = T / updates, len(arm.links)
+    x, push_at = np.asarray(x0, float), int(round(updates / 3))
+    times, states, peaks = [0.0], [x], []
     for k in range(updates):
         t = k * period
         if k == push_at:
             x = x.copy()
             x[n + arm.passive[0]] += push
-        update = replanner.update(t, list(x[:n]), list(x[n:]), wall_time=wall)
-        escalations += update.escalated
-        walls.append(update.wall)
-        cpus.append(update.cpu)
-        iterations.append(update.iterations)
-        if update.fallback:
-            fallbacks += 1
-        else:
-            current = update
-        assert current is not None
-        samples = np.linspace(t, t + period, SUBSAMPLES + 1)
-        tau = current.torque(samples)
-        taus.append(np.abs(tau).max())
-        coeffs = torque_coefficients(samples, tau, "linear")
-        run = simulate(arm, samples, coeffs, x)
-        x = np.concatenate([run.q[-1], run.dq[-1]])
-        times.append(t + period)
-        states.append(x)
-    q = np.array(states)[:, :n]
-    return {"t": np.array(times), "q": q, "final": x, "tau_max": float(max(taus)),
-            "walls": walls, "cpus": cpus, "iterations": iterations, "fallbacks": fallbacks,
-            "escalations": escalations}
+        current = controller.update(k, t, x)
+        for j in range(SUBSAMPLES):
+            ts = t + period * np.array([j, j + 1]) / SUBSAMPLES
+            tau = current.command(ts[0], x)
+            peaks.append(float(np.abs(tau).max()))
+            run = simulate(arm, ts, tau[None, None, :], x)
+            if run.status != "completed":
+                raise RuntimeError(f"the arm's simulation failed: {run.message}")
+            x = np.concatenate([run.q[-1], run.dq[-1]])
+            times.append(float(ts[1]))
+            states.append(x)
+    return {"t": np.array(times), "q": np.array(states)[:, :n], "final": x,
+            "tau_max": max(peaks)}
 
 
 def _limit(scene: Scene) -> float:
@@ -187,27 +169,29 @@ def run_scene(name: str, N: int, updates: int, mass: float, push: float,
     compiled.wait()
     nominal = plan(scene)
     arm = dict(models(scene.robot, Uncertainty(mass=mass)))["mass+"]
-    lqr = lqr_alone(scene, nominal, arm, push)
-    rep = replanning(scene, nominal, arm, push, updates, wall)
+    x0, T = np.concatenate([nominal.q[0], nominal.dq[0]]), nominal.duration
+    lqr = drive(arm, x0, T, updates, push, LqrAlone(nominal))
+    replanning = Replanning(scene, nominal, wall)
+    rep = drive(arm, x0, T, updates, push, replanning)
+    solved = [u for u in replanning.updates if u.status != HELD]
+    walls, cpus = [u.wall for u in solved], [u.cpu for u in solved]
     limit = _limit(scene)
-    rows = [{"scene": name, "controller": "LQR feedback alone", "N": N, "updates": "",
-             "final_error": float(_errors(lqr["final"], scene)),
-             "tracking_error": _tracking(lqr, nominal),
-             "over_limit": lqr["tau_max"] - limit if math.isfinite(limit) else "",
-             "median_wall_ms": "", "p99_wall_ms": "", "median_cpu_ms": "", "p99_cpu_ms": "",
-             "median_iterations": "", "escalations": "", "fallbacks": "",
-             "verified_plan": nominal.status}]
-    rows.append({"scene": name, "controller": "replanning (real-time)", "N": N,
-                 "updates": updates, "final_error": float(_errors(rep["final"], scene)),
-                 "tracking_error": _tracking(rep, nominal),
-                 "over_limit": rep["tau_max"] - limit if math.isfinite(limit) else "",
-                 "median_wall_ms": 1e3 * harness.median(rep["walls"]),
-                 "p99_wall_ms": 1e3 * float(np.percentile(rep["walls"], 99)),
-                 "median_cpu_ms": 1e3 * harness.median(rep["cpus"]),
-                 "p99_cpu_ms": 1e3 * float(np.percentile(rep["cpus"], 99)),
-                 "median_iterations": harness.median(rep["iterations"]),
-                 "escalations": rep["escalations"], "fallbacks": rep["fallbacks"],
-                 "verified_plan": nominal.status})
+    rows = []
+    for controller, run in (("LQR feedback alone", lqr), ("replanning (real-time)", rep)):
+        rows.append({"scene": name, "controller": controller, "N": N, "updates": updates,
+                     "final_error": float(_errors(run["final"], scene)),
+                     "tracking_error": _tracking(run, nominal),
+                     "over_limit": run["tau_max"] - limit if math.isfinite(limit) else "",
+                     "verified_plan": nominal.status})
+    rows[1].update({
+        "solved": len(solved), "held": len(replanning.updates) - len(solved),
+        "median_wall_ms": 1e3 * harness.median(walls),
+        "p99_wall_ms": 1e3 * float(np.percentile(walls, 99)),
+        "median_cpu_ms": 1e3 * harness.median(cpus),
+        "p99_cpu_ms": 1e3 * float(np.percentile(cpus, 99)),
+        "median_iterations": harness.median([u.iterations for u in solved]),
+        "escalations": sum(u.escalated for u in solved),
+        "fallbacks": sum(u.fallback for u in solved)})
     for row in rows:
         print(row, flush=True)
     return rows, {"nominal": nominal, "lqr": lqr, "replanning": rep, "arm": arm}
@@ -262,20 +246,25 @@ def main(argv: list[str]) -> int:
     text = "\n\n".join([
         f"Each scene planned at N = {args.N} on the nominal model; the arm has every mass "
         f"{100 * args.mass:g} % heavier and its first passive joint's rate pushed by "
-        f"{args.push:g} rad/s at a third of the motion. LQR feedback alone: the plan's "
-        f"torque and gains. Replanning: {args.updates} real-time updates (3 Ipopt iterations "
-        f"each, from the last update's primal and dual) at a fixed rate from the measured "
-        f"state, on the nominal model, after one converged update before the motion; an "
-        f"update whose iterations end beyond the accepted violation escalates to a converged "
-        f"solve, one that cannot be made leaves the last update's torque in force (each "
-        f"solve within {args.wall:g} s). Final "
-        f"error: the largest of |q - q_goal| [rad] and |dq - dq_goal| [rad/s] at the end; "
-        f"tracking: the largest |q - q_plan| [rad]; over the limit: the largest |tau| less "
-        f"the torque limit [N m] (negative: within). Times per update, this process.",
+        f"{args.push:g} rad/s at a third of the motion. Both controllers run through the "
+        f"same servo loop ({SUBSAMPLES} steps per update period, each holding the torque "
+        f"with its LQR correction for the state measured at its start). LQR feedback "
+        f"alone: the plan's torque and gains. Replanning: {args.updates} updates at a fixed "
+        f"rate from the measured state on the nominal model (real-time: "
+        f"{REALTIME_ITERATIONS} Ipopt iterations from the last update's primal and dual "
+        f"point; beyond the accepted violation a converged solve follows; an update that "
+        f"cannot be made leaves the last accepted one in force; each solve within "
+        f"{args.wall:g} s), after one converged update before the motion; updates in the "
+        f"last {100 * FINAL_STRETCH:g} % of the motion hold the last plan and its gains. "
+        f"Final error: the largest of |q - q_goal| [rad] and |dq - dq_goal| [rad/s] at the "
+        f"end; tracking: the largest |q - q_plan| [rad]; over the limit: the largest |tau| "
+        f"less the torque limit [N m] (negative: within). Times per update that solved, "
+        f"this process.",
         harness.table(rows, [("scene", "scene"), ("controller", "controller"),
                              ("updates", "updates"), ("final_error", "final error"),
                              ("tracking_error", "tracking error [rad]"),
                              ("over_limit", "over the limit [N m]"),
+                             ("solved", "updates solved"), ("held", "held"),
                              ("median_wall_ms", "median wall [ms]"),
                              ("p99_wall_ms", "99th pct wall [ms]"),
                              ("median_cpu_ms", "median CPU [ms]"),

@@ -12,9 +12,10 @@ import pytest
 from planner.errors import InputError
 from planner.examples import example
 from planner.ocp import plan
-from planner.ocp.replan import ACCEPTED_VIOLATION, Replanner
+from planner.ocp.replan import ACCEPTED_VIOLATION, FINAL_STRETCH, HELD, Replan, Replanner
 from planner.ocp.result import Plan
 from planner.scene import Scene, State
+from planner.simulate import simulate
 
 
 @pytest.fixture(scope="module")
@@ -106,13 +107,66 @@ def test_a_rest_too_short_for_the_goal_keeps_the_last_plan(planned):
     limited = Scene.model_validate(request)
     end = earlier.duration
     q = np.asarray(scene.task.final.q, float) - np.array([0.0, 0.5])
-    replan = Replanner(limited, earlier).update(end - 0.01, q.tolist(), [0.0, 0.0],
-                                                mode="converged")
+    replan = Replanner(limited, earlier, final_stretch=0.0).update(
+        end - 0.01, q.tolist(), [0.0, 0.0], mode="converged")
     assert replan.fallback and replan.interp is None and not replan.within
     assert replan.violation > ACCEPTED_VIOLATION
     assert replan.checked[-1].endswith("the last plan's remainder stands")
     with pytest.raises(ValueError, match="carries no plan"):
         replan.torque(np.array([end]))
+
+
+def test_an_update_in_the_final_stretch_holds_the_last_plan_without_a_solve(planned):
+    scene, earlier = planned
+    T = earlier.duration
+    at = T * (1 - FINAL_STRETCH / 2)
+    q_p, dq_p = earlier.states.polynomials()
+    held = Replanner(scene, earlier).update(at, q_p([at])[0].tolist(), dq_p([at])[0].tolist())
+    assert held.status == HELD and held.fallback and held.iterations == 0
+    assert held.violation is None and held.interp is None and held.gains is None
+    assert held.checked[0].startswith("nothing: in the final")
+
+
+def _servo(scene: Scene, controller: Replan, x: np.ndarray, start: float, steps: int,
+           step: float, feedback: bool) -> np.ndarray:
+    """The nominal arm from x at `start` [s] through `steps` servo steps of `step` [s],
+    each holding the controller's command (or its torque alone) for the state then."""
+    for k in range(steps):
+        ts = start + step * np.array([k, k + 1])
+        tau = controller.command(ts[0], x) if feedback else controller.torque(ts[:1])[0]
+        run = simulate(scene.robot, ts, tau[None, None, :], x)
+        x = np.concatenate([run.q[-1], run.dq[-1]])
+    return x
+
+
+def test_an_updates_feedback_ends_a_pushed_arm_nearer_its_motion(planned):
+    scene, earlier = planned
+    T = earlier.duration
+    at = 0.2 * T
+    q_p, dq_p = earlier.states.polynomials()
+    x = np.concatenate([q_p([at])[0], dq_p([at])[0]])
+    replan = Replanner(scene, earlier).update(at, x[:2].tolist(), x[2:].tolist(),
+                                              mode="converged")
+    N = scene.transcription.intervals
+    assert replan.gains is not None and replan.gains.shape == (N, 1, 4)
+    assert np.allclose(replan.command(at, x), replan.torque([at])[0], atol=1e-9)
+    pushed = x + np.array([0.0, 0.0, 0.05, 0.0])  # a push on the passive shoulder
+    rest = 0.79 * T  # to just before the end, in 10 ms servo steps
+    steps = int(rest / 0.01)
+    planned_end = np.concatenate([replan.interp.q([rest])[0], replan.interp.dq([rest])[0]])
+    errors = [np.abs(_servo(scene, replan, pushed, at, steps, rest / steps, fb)
+                     - planned_end).max() for fb in (True, False)]
+    assert errors[0] < 0.6 * errors[1], errors
+
+
+def test_the_plan_itself_is_the_update_at_time_zero(planned):
+    scene, earlier = planned
+    own = Replan.of_plan(earlier)
+    t = _times(earlier.duration)
+    assert np.allclose(own.torque(t), earlier.torque.evaluate(t.tolist()), atol=1e-12)
+    assert own.gains is not None and own.gains.shape == (len(earlier.torque.breaks) - 1, 1, 4)
+    x = np.concatenate([earlier.q[3], earlier.dq[3]])
+    assert np.allclose(own.command(earlier.t[3], x), own.torque([earlier.t[3]])[0], atol=1e-6)
 
 
 @pytest.mark.parametrize(("q", "dq", "message"), [

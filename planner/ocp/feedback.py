@@ -147,6 +147,14 @@ def gains(lin: Linearisation, h: np.ndarray, tau_scale: float) -> Feedback | Non
                     torque_weights=r_weights.tolist())
 
 
+def torque_scale(interp: Interpolant, torque_limit: list[float] | float | None) -> float:
+    """[N m] the torque worth one unit of LQR cost: the largest torque limit, else the
+    plan's largest torque at its breakpoints, at least 1 N m."""
+    if torque_limit is not None:
+        return max(float(np.max(torque_limit)), 1.0)
+    return max(float(np.abs(interp.tau.coeffs[:, 0]).max(initial=0.0)), 1.0)
+
+
 def replay(robot: Robot, interp: Interpolant, starts: np.ndarray, K: np.ndarray | None,
            tol: float = REPLAY_TOL, compiled: bool = False, ends: bool = False,
            deadline: float | None = None, limit: np.ndarray | None = None) -> list[tuple]:

@@ -130,7 +130,12 @@ def stretched(guess: Guess, factor: float, robot: Robot) -> Guess:
 
 
 def plan_guess(plan: Plan) -> Guess:
-    """An earlier plan: cubic Hermite angles and rates through its nodes, its delivered
+    """An earlier plan (`plan_interpolant`) over fractions of its duration."""
+    return interpolant_guess(plan_interpolant(plan), plan.duration)
+
+
+def plan_interpolant(plan: Plan) -> Interpolant:
+    """A plan's motion [s]: cubic Hermite angles and rates through its nodes, its delivered
     torque (the node torques, linearly interpolated, in plans stored without it)."""
     t = np.asarray(plan.t)
     q, dq, ddq = (np.asarray(getattr(plan, k)) for k in ("q", "dq", "ddq"))
@@ -141,6 +146,5 @@ def plan_guess(plan: Plan) -> Guess:
     else:
         nodes = np.asarray(plan.tau)
         tau = PiecewisePolynomial(t, np.stack([nodes[:-1], nodes[1:] - nodes[:-1]], axis=1))
-    interp = Interpolant(PiecewisePolynomial(t, hermite(q, dq, h)),
-                         PiecewisePolynomial(t, hermite(dq, ddq, h)), tau)
-    return interpolant_guess(interp, plan.duration)
+    return Interpolant(PiecewisePolynomial(t, hermite(q, dq, h)),
+                       PiecewisePolynomial(t, hermite(dq, ddq, h)), tau)

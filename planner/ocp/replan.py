@@ -23,7 +23,16 @@ knots) and bounds, their largest violation against `solver.tol` (cheap: the solv
 returns them). With `verify`, the plan's interval check too: every interval re-integrated
 from the plan's state with the torque it delivers, within `solver.resimulation_tolerance`.
 An update whose solve ends beyond ACCEPTED_VIOLATION (a rest too short for the goal, say)
-replaces nothing: the last plan's remainder stands, and the update says so.
+replaces nothing: the last plan's remainder stands, and the update says so; its point and
+multipliers still start the next update, so that iterations cut short by the time limit
+are not lost (real-time iterations go on converging while the arm moves).
+
+Each accepted update carries the LQR feedback along its motion (`planner.ocp.feedback`:
+the same weights as a plan's), and `Replan.command(t, x)` is its torque with the
+correction for the state x: a servo loop applies it between updates, and after a fallback
+it holds the arm to the last plan. In the final stretch of the motion (its last
+`final_stretch` seconds) no update solves: the rest is too short to re-route an arm in
+a few iterations, and the last plan with its feedback finishes the motion.
 """
 
 from __future__ import annotations
@@ -39,7 +48,8 @@ from pydantic import ValidationError
 
 from planner.errors import InputError
 from planner.ocp.accuracy import interval_errors
-from planner.ocp.guess import Guess, interpolant_guess, plan_guess
+from planner.ocp.feedback import gains, linearise, torque_scale
+from planner.ocp.guess import Guess, interpolant_guess, plan_guess, plan_interpolant
 from planner.ocp.instance import Instance, initial_point, instance
 from planner.ocp.mesh import Mesh
 from planner.ocp.outcome import interpolant
@@ -59,7 +69,11 @@ ROWS_CHECKED = ("the NLP's rows and bounds at the returned point: the dynamics a
                 "continuity, the torque limit and bounds on the delivered polynomials, the "
                 "coupling margin at the knots")
 SHORTEST_REST = 1e-3
-"""[s] the shortest rest of the motion a replan plans (later: the last plan stands)."""
+"""[s] the shortest rest of the motion an update may be asked for."""
+FINAL_STRETCH = 0.05
+"""The final stretch, as a fraction of the plan's duration, by default."""
+HELD = "Final_Stretch"
+"""The status of an update in the final stretch (no solve: the last plan stands)."""
 
 Motion = Callable[[np.ndarray], dict[str, np.ndarray]]
 """Absolute times [s] (K,) -> q, dq, ddq (K, n) and tau (K, na) of a motion."""
@@ -72,13 +86,16 @@ class Replan:
 
     interp: its states and delivered torque, in time since `start` [s]; status, success,
     iterations: the solve's (a real-time update ends "Maximum_Iterations_Exceeded" by
-    design; `violation` says how far from the constraints it stopped); violation: the
-    largest violation of the NLP's rows and bounds at the returned point [their units];
+    design; `violation` says how far from the constraints it stopped; HELD in the final
+    stretch, with no solve); violation: the largest violation of the NLP's rows and bounds
+    at the returned point [their units] (None when held);
     checked: what was checked, in words; interval_error: the largest interval error [rad]
     when verified (None otherwise); within: every check passed; escalated: the real-time
     iterations ended beyond ACCEPTED_VIOLATION and a converged solve followed; fallback: no
     solve ended within ACCEPTED_VIOLATION and the last plan's remainder stands (interp is
-    None then: keep the last update's); wall, cpu: the update's time [s]."""
+    None then: keep the last update's); gains: the LQR gains K_k (N, na, 2n) [N m/rad,
+    N m s/rad] on the intervals of interp (None without feedback); wall, cpu: the update's
+    time [s]."""
 
     start: float
     end: float
@@ -86,30 +103,62 @@ class Replan:
     status: str
     success: bool
     iterations: int
-    violation: float
+    violation: float | None
     checked: tuple[str, ...]
     interval_error: float | None
     within: bool
     escalated: bool
     fallback: bool
+    gains: np.ndarray | None
     wall: float
     cpu: float
 
+    @classmethod
+    def of_plan(cls, plan: Plan) -> Replan:
+        """The plan itself as the update at time 0 (its LQR gains when it has them): what
+        a controller follows before its first update."""
+        K = None if plan.feedback is None else np.asarray(plan.feedback.gains)
+        return cls(0.0, float(plan.duration), plan_interpolant(plan), plan.solver.status,
+                   plan.solver.success, 0, None, (), None, plan.status == "verified", False,
+                   False, K, 0.0, 0.0)
+
     def torque(self, t: np.ndarray) -> np.ndarray:
         """The delivered torque [N m] at times t [s] along the original plan, (K, na)."""
+        return self._interp().tau(self._rest(t))
+
+    def command(self, t: float, x: np.ndarray) -> np.ndarray:
+        """The torque [N m] (na,) for the measured state x = (q, dq) (2n,) at time t [s]
+        along the original plan: the delivered torque less K_k (x - x_plan(t)) on the
+        interval k of the torque holding t (the torque alone without gains)."""
+        interp, rest = self._interp(), self._rest(np.array([t]))
+        tau = interp.tau(rest)[0]
+        if self.gains is None:
+            return tau
+        breaks = interp.tau.breaks
+        k = int(np.clip(np.searchsorted(breaks, rest[0], side="right") - 1, 0,
+                        len(breaks) - 2))
+        planned = np.concatenate([interp.q(rest)[0], interp.dq(rest)[0]])
+        return tau - self.gains[k] @ (np.asarray(x, float) - planned)
+
+    def _interp(self) -> Interpolant:
         if self.interp is None:
             raise ValueError("a fallback update carries no plan: use the last update's")
-        rest = np.clip(np.asarray(t, float) - self.start, 0.0, self.end - self.start)
-        return self.interp.tau(rest)
+        return self.interp
+
+    def _rest(self, t: np.ndarray) -> np.ndarray:
+        """Times t [s] along the original plan as times since `start`, within the plan."""
+        return np.clip(np.asarray(t, float) - self.start, 0.0, self.end - self.start)
 
 
 class Replanner:
     """Shrinking-horizon replanning of a scene's plan from measured states (the module's
     docstring). scene: the plan's scene (fixed duration, no tracked passive motion, no
     co-designed waves); earlier: its plan; intervals: N of every replan (default: the
-    scene's)."""
+    scene's); final_stretch: the last seconds of the motion, in which updates hold the
+    last plan (default: FINAL_STRETCH of the plan's duration)."""
 
-    def __init__(self, scene: Scene, earlier: Plan, intervals: int | None = None):
+    def __init__(self, scene: Scene, earlier: Plan, intervals: int | None = None,
+                 final_stretch: float | None = None):
         task = scene.task
         if isinstance(task.duration, DurationRange):
             raise InputError("task.duration: replanning needs the plan's fixed end time; "
@@ -118,6 +167,11 @@ class Replanner:
             raise InputError("task: replanning keeps neither a tracked passive motion nor "
                              "co-designed waves; plan those again")
         self.scene, self.end = scene, float(earlier.duration)
+        self.final_stretch = (FINAL_STRETCH * self.end if final_stretch is None
+                              else float(final_stretch))
+        if not (math.isfinite(self.final_stretch) and 0.0 <= self.final_stretch < self.end):
+            raise InputError(f"final_stretch: must lie in [0, {self.end:g}) s, within the "
+                             f"plan's duration")
         self.intervals = intervals or scene.transcription.intervals
         self.robot = scene.robot
         self.goal: State = task.final
@@ -129,12 +183,13 @@ class Replanner:
 
     def update(self, t: float, q: list[float], dq: list[float], *,
                mode: Mode = "real-time", iterations: int = REALTIME_ITERATIONS,
-               goal: State | None = None, verify: bool = False,
+               goal: State | None = None, verify: bool = False, feedback: bool = True,
                wall_time: float | None = None) -> Replan:
         """The plan from the measured state (q [rad], dq [rad/s], one entry per joint) at
         time t [s] along the plan to its goal at its end (`goal`: a moved one, from then
         on). Raises InputError for a state of the wrong size, not finite or beyond the
-        task's bounds, a goal of the wrong size, or a time outside the plan. wall_time [s]:
+        task's bounds, a goal of the wrong size, or a time outside the plan. feedback: the
+        LQR gains along an accepted update's motion (`Replan.gains`). wall_time [s]:
         the most each of its solves may take (default: the scene's `solver.max_wall_time`);
         a controller gives its period's share, so that an update that cannot be made
         falls back in time."""
@@ -142,6 +197,8 @@ class Replanner:
         state = self._state(t, q, dq)
         if goal is not None:
             self.goal = self._goal(goal)
+        if self.end - t <= self.final_stretch:
+            return self._held(t, (started, cpu))
         rest = self._rest_scene(t, state)
         inst = instance(rest, self.robot, Mesh.uniform(self.intervals), self.end - t)
         x0 = initial_point(inst, self._guess(t), self.end - t, self.robot)
@@ -155,9 +212,12 @@ class Replanner:
         if solution is None or escalated:
             solution = solve(inst, x0, Budget.of(rest.solver.max_iter, wall), None, 0)
             violation = _violation(inst, solution)
-        if violation > ACCEPTED_VIOLATION:
+        interp = (interpolant(inst, self.robot, self.end - t, solution.x)
+                  if math.isfinite(violation) else None)
+        if interp is not None:
+            self._carry(t, interp, solution)
+        if interp is None or violation > ACCEPTED_VIOLATION:
             return self._fallback(t, solution, violation, escalated, (started, cpu))
-        interp = interpolant(inst, self.robot, self.end - t, solution.x)
         checked = [ROWS_CHECKED]
         within = violation <= rest.solver.tol
         error = None
@@ -167,13 +227,27 @@ class Replanner:
             checked.append("every interval re-integrated from the plan's state with its "
                            "delivered torque")
             within = within and error <= rest.solver.resimulation_tolerance
+        K = self._gains(interp, rest) if feedback else None
+        return Replan(t, self.end, interp, solution.status, solution.success,
+                      solution.iterations, violation, tuple(checked), error, bool(within),
+                      escalated, False, K, time.perf_counter() - started,
+                      time.process_time() - cpu)
+
+    def _gains(self, interp: Interpolant, rest: Scene) -> np.ndarray | None:
+        """The LQR gains (N, na, 2n) along an update's motion (None where its
+        linearisation or Riccati recursion is not finite)."""
+        lin = linearise(self.robot, interp, rest.solver.jit)
+        fb = None if lin is None else gains(lin, np.diff(interp.q.breaks),
+                                            torque_scale(interp, rest.task.torque_limit))
+        return None if fb is None else np.asarray(fb.gains)
+
+    def _carry(self, t: float, interp: Interpolant, solution: Solution) -> None:
+        """A solve's motion and multipliers as the next update's start, accepted or not:
+        an update that could not be made still leaves its iterations' progress to the
+        next one, as real-time iterations do."""
         self.motion = _of_interp(interp, t)
         if solution.lam_x is not None and solution.lam_g is not None:
             self.multipliers = (solution.lam_x, solution.lam_g)
-        return Replan(t, self.end, interp, solution.status, solution.success,
-                      solution.iterations, violation, tuple(checked), error, bool(within),
-                      escalated, False, time.perf_counter() - started,
-                      time.process_time() - cpu)
 
     def _state(self, t: float, q: list[float], dq: list[float]) -> JointState:
         """The measured state, refused where it is not one of this arm within the task."""
@@ -242,7 +316,14 @@ class Replanner:
         return Replan(t, self.end, None, solution.status, False, solution.iterations,
                       violation, (ROWS_CHECKED, f"not accepted ({solution.status}, violation "
                       f"{violation:.3g} above {ACCEPTED_VIOLATION:g}): the last plan's "
-                      f"remainder stands"), None, False, escalated, True,
+                      f"remainder stands"), None, False, escalated, True, None,
+                      time.perf_counter() - timing[0], time.process_time() - timing[1])
+
+    def _held(self, t: float, timing: tuple[float, float]) -> Replan:
+        """An update in the final stretch: no solve, the last plan stands."""
+        return Replan(t, self.end, None, HELD, False, 0, None,
+                      (f"nothing: in the final {self.final_stretch:.3g} s the last plan and "
+                       f"its feedback finish the motion",), None, False, False, True, None,
                       time.perf_counter() - timing[0], time.process_time() - timing[1])
 
 

@@ -28,7 +28,14 @@ from scipy.optimize import minimize_scalar
 from planner import coupling_block
 from planner.dynamics import functions
 from planner.model import Robot, Structure, parameters
-from planner.ocp.feedback import PERTURBATION, gains, growth_factor, linearise, replay
+from planner.ocp.feedback import (
+    PERTURBATION,
+    gains,
+    growth_factor,
+    linearise,
+    replay,
+    torque_scale,
+)
 from planner.ocp.interpolant import PiecewisePolynomial
 from planner.ocp.margin_proof import MarginProof, prove
 from planner.ocp.robustness import robustness
@@ -197,10 +204,8 @@ def _feedback(robot: Robot, interp: Interpolant, torque_limit: list[float] | flo
     lin = linearise(robot, interp, compiled)
     if lin is None:
         return None, {}
-    scale = max(float(np.max(torque_limit)) if torque_limit is not None
-                else float(np.abs(interp.tau.coeffs[:, 0]).max(initial=0.0)), 1.0)
     growth = growth_factor(lin)
-    fb = gains(lin, np.diff(interp.q.breaks), scale)
+    fb = gains(lin, np.diff(interp.q.breaks), torque_scale(interp, torque_limit))
     if fb is None:
         return None, {"growth_factor": growth}
     if deadline is not None and perf_counter() > deadline:
