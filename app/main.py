@@ -10,6 +10,7 @@ store and gives the name back.
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import os
 from collections.abc import AsyncIterator
@@ -31,7 +32,18 @@ from app.media_type import require_json
 from app.metrics import Metrics, MetricsMiddleware
 from app.openapi import document
 from app.refusal import QuietRefusal, refuse
-from app.routes import batches, dynamics, examples, health, plans, plots, samples, workers
+from app.routes import (
+    batches,
+    dynamics,
+    examples,
+    health,
+    plans,
+    plots,
+    samples,
+    sessions,
+    workers,
+)
+from app.sessions import Sessions
 from app.settings import PLAN_PROCESSES, Settings, get_settings
 from app.store import StoreDamaged, StoreUnavailable
 from app.store.open import open_store
@@ -60,9 +72,11 @@ def create_app(settings: Settings | None = None, solve: SolveFunction | None = N
         app.state.limiter = CapacityLimiter(settings.compute_threads)
         app.state.sync_memory = MemoryBudget(settings.sync_memory_mb)
         app.state.metrics.watch_memory(app.state.sync_memory)
+        sweeper = asyncio.create_task(_sweep_sessions(app.state.sessions))
         try:
             yield
         finally:
+            sweeper.cancel()
             runner.shutdown()
             if builder is not None and builder.poll() is None:
                 builder.terminate()
@@ -72,17 +86,28 @@ def create_app(settings: Settings | None = None, solve: SolveFunction | None = N
     app.state.settings = settings
     app.state.metrics = Metrics()
     app.state.quick_limiter = CapacityLimiter(settings.quick_threads)
+    app.state.sessions = Sessions(settings.max_sessions, settings.session_idle)
     errors.install(app)
     app.exception_handler(StoreUnavailable)(_store_unavailable)
     app.include_router(health.router)
     secured = [Depends(require_api_key), Depends(require_json)]
     for router in (dynamics.router, plans.router, batches.router, examples.router,
-                   plots.router, samples.router, workers.router):
+                   plots.router, samples.router, sessions.router, workers.router):
         app.include_router(router, dependencies=secured)
     _add_middleware(app, settings)
     app.openapi = lambda: document(app)  # type: ignore[method-assign]  # FastAPI's documented override of its schema
     app.router.routes.extend(viewer.routes())
     return app
+
+
+async def _sweep_sessions(live: Sessions) -> None:
+    """Free the sessions left idle, every quarter of the idle time (at most 5 s), so that
+    an abandoned one goes without a further request."""
+    while True:
+        await asyncio.sleep(min(live.idle / 4, 5.0))
+        freed = live.sweep()
+        if freed:
+            log.info("freed %d idle replanning session(s)", freed)
 
 
 def _start(app: FastAPI, settings: Settings, solve: SolveFunction | None) -> JobRunner:

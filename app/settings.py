@@ -105,6 +105,11 @@ class Settings(BaseSettings):
                                 "thread [s]; then 503 with Retry-After")
     sync_wall_time: float = Field(default=20.0, gt=0.0, description="wall-time budget of one "
                                   "synchronous computation, its wait for a thread included [s]")
+    max_sessions: int = Field(default=4, ge=0, le=256, description=(
+        "replanning sessions a server keeps at once (0: none); one more is a 503 until one "
+        "closes or expires"))
+    session_idle: float = Field(default=60.0, gt=0.0, le=86400.0, description=(
+        "seconds a replanning session is kept without a request; then it is freed"))
     max_wave_screening: int = Field(default=500_000, ge=1, description="configurations the "
                                     "screening of one wave design may evaluate")
     read_timeout: float = Field(default=10.0, gt=0.0, description="time a client has to send "

@@ -66,6 +66,8 @@ PLOT_MB = 25.0
 """A plan's figure (matplotlib; figures are drawn one at a time)."""
 PLAN_SAMPLE_MB = 12.0
 """A plan sampled at up to 1000 times."""
+SESSION_UPDATE_MB = 40.0
+"""One replanning session update: the solver's workspace on the session's NLP."""
 REGION_CERTIFICATION = 40_000
 """A region design's certification points when the request gives none (the library's)."""
 MOTION_CERTIFICATION = 2_001

@@ -20,6 +20,8 @@ BENCHES = {
     "closed_loop": ("bench.closed_loop", "an arm heavier than its model and pushed: "
                                          "replanning at a fixed rate against LQR feedback "
                                          "alone"),
+    "session": ("bench.session", "replanning through a service session: the round trip of "
+                                 "each update, and the closed loop driven over HTTP"),
     "capacity": ("bench.capacity", "the memory of one plan's NLP against app/capacity.py's "
                                    "estimate"),
     "container": ("bench.container", "the container image: its size and a running container's "

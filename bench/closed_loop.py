@@ -75,17 +75,23 @@ def request(name: str, N: int) -> dict:
     return base
 
 
-def _errors(x: np.ndarray, scene: Scene) -> float:
+def final_error(x: np.ndarray, scene: Scene) -> float:
     """max(|q - q_goal|, |dq - dq_goal|) at the end, over the entries the goal sets."""
     n = len(scene.robot.links)
     goal = [*scene.task.final.q, *scene.task.final.dq]
-    return max(abs(x[j] - g) for j, g in enumerate(goal[:2 * n]) if g is not None)
+    return float(max(abs(x[j] - g) for j, g in enumerate(goal[:2 * n]) if g is not None))
+
+
+class Command(Protocol):
+    """What the servo loop applies between updates."""
+
+    def command(self, t: float, x: np.ndarray) -> np.ndarray: ...
 
 
 class Controller(Protocol):
-    """What the servo loop asks of a controller."""
+    """What the servo loop asks of a controller at each update."""
 
-    def update(self, k: int, t: float, x: np.ndarray) -> Replan: ...
+    def update(self, k: int, t: float, x: np.ndarray) -> Command: ...
 
 
 class LqrAlone:
@@ -179,7 +185,7 @@ def run_scene(name: str, N: int, updates: int, mass: float, push: float,
     rows = []
     for controller, run in (("LQR feedback alone", lqr), ("replanning (real-time)", rep)):
         rows.append({"scene": name, "controller": controller, "N": N, "updates": updates,
-                     "final_error": float(_errors(run["final"], scene)),
+                     "final_error": final_error(run["final"], scene),
                      "tracking_error": _tracking(run, nominal),
                      "over_limit": run["tau_max"] - limit if math.isfinite(limit) else "",
                      "verified_plan": nominal.status})

@@ -20,6 +20,7 @@ RESULTS: dict[str, tuple[str, ...]] = {
     "capacity": ("bench/results/capacity.csv",),
     "closed_loop": ("bench/results/closed_loop.csv", "docs/img/closed_loop.png"),
     "container": ("bench/results/container.csv",),
+    "session": ("bench/results/session.csv",),
     "dynamics_size": (),
     "examples": ("bench/results/examples.csv",),
     "plan_list": ("bench/results/plan_list.csv",),

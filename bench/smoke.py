@@ -37,6 +37,7 @@ SMALL: dict[str, Small] = {
     "build": Small((("--links", "2"),)),
     "closed_loop": Small((("--scenes", "two-link-plan", "--N", "20", "--updates", "5"),)),
     "capacity": Small((("--points", "1"),)),
+    "session": Small((("--scene", "two-link-plan", "--N", "20", "--updates", "5"),)),
     "container": Small((("--plans", "1"),), needs=("docker",)),
     "dynamics_size": Small((("--calls", "2", "--repeats", "1", "--builds", "1"),)),
     "examples": Small((("--repeats", "1", "--examples", "two-link-plan"),)),

@@ -9,8 +9,9 @@ it), the result (`Plan`, its Ipopt iterate `NlpSolution` for a warm start, the `
 solve reports), the reason a finished plan is not verified (`verdict_reason`, or
 `unverified_reason` of its verification), the plan sampled at any times (`Plan.sample`,
 `PlanSample`), and what a transcription costs: its time nodes (the server's node limit) and
-its knots (the memory estimate), and the stored plan a scene should start from (`nearest`,
-memory of motion).
+its knots (the memory estimate), the stored plan a scene should start from (`nearest`,
+memory of motion), and replanning a finished plan from measured states (`Replanner`, fed a
+client's `StateUpdate`, its updates reported as `ReplanReport`).
 Everything else of the optimal-control package stays internal to the library
 and may change without the service noticing. `tests/test_service_interface.py` holds
 app/ to this module.
@@ -25,6 +26,8 @@ from planner.feasibility import Issue
 from planner.memory import NEAREST, nearest
 from planner.ocp import methods
 from planner.ocp.planner import WarmStart, plan
+from planner.ocp.replan import Replanner
+from planner.ocp.replan_report import ReplanReport, StateUpdate
 from planner.ocp.result import MAX_SAMPLE_TIMES, NlpSolution, Plan, PlanSample, Progress
 from planner.ocp.transcription import AnyTranscription
 from planner.ocp.verdict import unverified_reason
@@ -66,6 +69,6 @@ def verdict_reason(result: Plan) -> str | None:
 
 
 __all__ = ["MAX_SAMPLE_TIMES", "METHODS", "NEAREST", "DurationRange", "Issue", "NlpSolution",
-           "Plan", "PlanSample", "Progress", "Scene", "Transcription", "WarmStart", "admit",
-           "knot_count", "nearest", "node_count", "plan", "transcription", "unverified_reason",
-           "verdict_reason"]
+           "Plan", "PlanSample", "Progress", "ReplanReport", "Replanner", "Scene", "StateUpdate",
+           "Transcription", "WarmStart", "admit", "knot_count", "nearest", "node_count", "plan",
+           "transcription", "unverified_reason", "verdict_reason"]

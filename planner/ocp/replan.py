@@ -152,21 +152,22 @@ class Replan:
 
 class Replanner:
     """Shrinking-horizon replanning of a scene's plan from measured states (the module's
-    docstring). scene: the plan's scene (fixed duration, no tracked passive motion, no
-    co-designed waves); earlier: its plan; intervals: N of every replan (default: the
-    scene's); final_stretch: the last seconds of the motion, in which updates hold the
-    last plan (default: FINAL_STRETCH of the plan's duration)."""
+    docstring). scene: the plan's scene (no tracked passive motion, no co-designed waves;
+    a range of durations ends at the plan's own); earlier: its plan; intervals: N of every
+    replan (default: the scene's); final_stretch: the last seconds of the motion, in which
+    updates hold the last plan (default: FINAL_STRETCH of the plan's duration)."""
 
     def __init__(self, scene: Scene, earlier: Plan, intervals: int | None = None,
                  final_stretch: float | None = None):
         task = scene.task
-        if isinstance(task.duration, DurationRange):
-            raise InputError("task.duration: replanning needs the plan's fixed end time; "
-                             "give the plan's duration")
         if task.tracking is not None or task.co_design is not None:
             raise InputError("task: replanning keeps neither a tracked passive motion nor "
                              "co-designed waves; plan those again")
-        self.scene, self.end = scene, float(earlier.duration)
+        self.end = float(earlier.duration)
+        if isinstance(task.duration, DurationRange):  # the time the plan chose is its end
+            scene = scene.model_copy(update={"task": task.model_copy(
+                update={"duration": self.end})})
+        self.scene = scene
         self.final_stretch = (FINAL_STRETCH * self.end if final_stretch is None
                               else float(final_stretch))
         if not (math.isfinite(self.final_stretch) and 0.0 <= self.final_stretch < self.end):
