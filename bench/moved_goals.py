@@ -1,7 +1,7 @@
 """The built-in plan examples with their goals moved a little: how many plans verify, how fast.
 
 A generated set: each plan example of `planner.examples`, at every number of intervals
-among its own, 50 and 100, with every final angle moved by a uniform offset in
+among its own, 40, 50 and 100, with every final angle moved by a uniform offset in
 [-MOVE, MOVE] rad (NumPy generator seeded 1 to `--variants`). A moved goal that puts the
 goal itself inside the task's coupling margin (sigma_min(M_pa) below it, known before any
 solve) is reported as such and left out of the figures. Each variant is planned once with
@@ -10,7 +10,7 @@ Reported per plan: verified, wall and CPU time (this process and its companion p
 iterations, the strategy that produced the plan; per example: verified share, median time
 to a verified plan (unverified counted as never), maximum.
 
-    python -m bench moved_goals [--variants 3] [--examples NAME,...]
+    python -m bench moved_goals [--variants 5] [--examples NAME,...]
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ from planner.scene import Scene
 DOC = harness.DOCS / "benchmarks.md"
 SECTION = "Built-in plan examples with their goals moved"
 MOVE = 0.05  # [rad] largest offset of a final angle
-INTERVALS = (50, 100)  # besides each example's own
+INTERVALS = (40, 50, 100)  # besides each example's own
 
 
 
@@ -99,7 +99,7 @@ def _summary(rows: list[dict], name: str) -> dict:
 
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench moved_goals", description=__doc__)
-    parser.add_argument("--variants", type=int, default=3)
+    parser.add_argument("--variants", type=int, default=5)
     parser.add_argument("--examples", default=None,
                         help="comma-separated names (default: every plan example)")
     args = parser.parse_args(argv)
@@ -110,7 +110,7 @@ def main(argv: list[str]) -> int:
     summary = [_summary([r for r in rows if r["example"] == n], n) for n in names]
     summary.append(_summary(rows, "all"))
     text = "\n\n".join([
-        f"Each plan example at every number of intervals among its own, 50 and 100, with "
+        f"Each plan example at every number of intervals among its own, 40, 50 and 100, with "
         f"every final angle moved by up to {MOVE} rad ({args.variants} variants each, "
         "generator seeds 1 to {0}); default settings, one plan each in one process, so the "
         "first plan of a structure builds its NLP. A goal moved inside the task's coupling "

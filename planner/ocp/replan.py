@@ -204,15 +204,8 @@ class Replanner:
         inst = instance(rest, self.robot, Mesh.uniform(self.intervals), self.end - t)
         x0 = initial_point(inst, self._guess(t), self.end - t, self.robot)
         wall = rest.solver.max_wall_time if wall_time is None else wall_time
-        escalated, solution = False, None
-        if mode == "real-time":
-            solution = solve(inst, x0, Budget.of(iterations, wall), None, 0,
-                             self._multipliers(inst))
-            violation = _violation(inst, solution)
-            escalated = violation > ACCEPTED_VIOLATION
-        if solution is None or escalated:
-            solution = solve(inst, x0, Budget.of(rest.solver.max_iter, wall), None, 0)
-            violation = _violation(inst, solution)
+        solution, violation, escalated = self._solve(inst, x0, mode, iterations, wall,
+                                                     rest.solver.max_iter)
         interp = (interpolant(inst, self.robot, self.end - t, solution.x)
                   if math.isfinite(violation) else None)
         if interp is not None:
@@ -233,6 +226,19 @@ class Replanner:
                       solution.iterations, violation, tuple(checked), error, bool(within),
                       escalated, False, K, time.perf_counter() - started,
                       time.process_time() - cpu)
+
+    def _solve(self, inst: Instance, x0: np.ndarray, mode: Mode, iterations: int,
+               wall: float, max_iter: int) -> tuple[Solution, float, bool]:
+        """An update's solve (the module's docstring): the solution, its violation, and
+        whether real-time iterations escalated to a converged solve."""
+        if mode == "real-time":
+            solution = solve(inst, x0, Budget.of(iterations, wall), None, 0,
+                             self._multipliers(inst))
+            violation = _violation(inst, solution)
+            if violation <= ACCEPTED_VIOLATION:
+                return solution, violation, False
+        solution = solve(inst, x0, Budget.of(max_iter, wall), None, 0)
+        return solution, _violation(inst, solution), mode == "real-time"
 
     def _gains(self, interp: Interpolant, rest: Scene) -> np.ndarray | None:
         """The LQR gains (N, na, 2n) along an update's motion (None where its
