@@ -5,6 +5,7 @@ accurate (`planner.ocp.refine`)."""
 
 from __future__ import annotations
 
+import contextlib
 import math
 from dataclasses import dataclass
 
@@ -47,6 +48,9 @@ class Start:
     time_share: float = 1.0
     """The most of the plan's wall time its first solves may take (the scene's own start
     of a task whose duration the probe may show too short: `shortest.FIRST_SHARE`)."""
+    max_iter: int | None = None
+    """The most iterations each of its first solves may take (None: the plan's own limit);
+    its refinements, from its converged plan, are not capped."""
     continues: bool = False
     """It goes on from where an earlier attempt stopped (its last iterate), so its verdict
     is no independent witness of that attempt's."""
@@ -86,7 +90,8 @@ def first_solves(scene: Scene, start: Start, budget: Budget, progress: Handler |
     """An attempt's preliminary solves (on its coarse mesh, or of the relaxed NLPs), and
     its first solve on its own mesh: from the preliminary plan where that converged, else
     from the start's guess; together within the start's share of the wall time."""
-    with budget.capped_time(start.time_share):
+    capped = contextlib.nullcontext() if start.max_iter is None else budget.capped(start.max_iter)
+    with budget.capped_time(start.time_share), capped:
         return _first_solves_within(scene, start, budget, progress, first_pass)
 
 

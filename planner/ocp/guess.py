@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Protocol
 
 import numpy as np
 
@@ -10,10 +11,10 @@ from planner.dynamics import functions
 from planner.inverse import WALL_TIME, integrate
 from planner.model import Robot, Structure, parameters
 from planner.ocp.interpolant import PiecewisePolynomial, hermite
-from planner.ocp.result import Plan
 from planner.ocp.transcription import Interpolant
 from planner.scene import Scene
 from planner.schema import JointState
+from planner.torque import TorquePolynomial
 
 Guess = Callable[[np.ndarray], dict[str, np.ndarray]]
 
@@ -129,12 +130,32 @@ def stretched(guess: Guess, factor: float, robot: Robot) -> Guess:
     return out
 
 
-def plan_guess(plan: Plan) -> Guess:
+class Recorded(Protocol):
+    """A motion recorded at its nodes: a plan, or a plan example's remembered motion
+    (`planner.ocp.recall`)."""
+
+    @property
+    def duration(self) -> float: ...
+    @property
+    def t(self) -> list[float]: ...
+    @property
+    def q(self) -> list[list[float]]: ...
+    @property
+    def dq(self) -> list[list[float]]: ...
+    @property
+    def ddq(self) -> list[list[float]]: ...
+    @property
+    def tau(self) -> list[list[float]]: ...
+    @property
+    def torque(self) -> TorquePolynomial | None: ...
+
+
+def plan_guess(plan: Recorded) -> Guess:
     """An earlier plan (`plan_interpolant`) over fractions of its duration."""
     return interpolant_guess(plan_interpolant(plan), plan.duration)
 
 
-def plan_interpolant(plan: Plan) -> Interpolant:
+def plan_interpolant(plan: Recorded) -> Interpolant:
     """A plan's motion [s]: cubic Hermite angles and rates through its nodes, its delivered
     torque (the node torques, linearly interpolated, in plans stored without it)."""
     t = np.asarray(plan.t)

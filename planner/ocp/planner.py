@@ -35,12 +35,6 @@ from planner.ocp.solve import Budget
 from planner.ocp.starts import continuation_start, duration_guess, own_starts, warm_starts
 from planner.scene import Scene
 
-WARM_ITERATIONS = 100
-"""Iterations a solve started from an earlier plan may take before the scene's own starts
-take over: a warm start near its optimum converges in a few (docs/benchmarks.md, "Memory of
-motion": at most 34 where it beat the cold plan but one), while those that failed ran for
-half a minute before the cold starts began ("Warm replanning")."""
-
 COMPANION_GRACE = 3.0
 """[s] past the budget the plan waits for its companion's plan (its checks): less than
 the plan's MARGIN (`planner.ocp.solve`), which also covers what follows the wait."""
@@ -117,9 +111,8 @@ def _planned(scene: Scene, progress: Handler | None, warm_start: Plan | None, bu
     (forked once an earlier plan, if one was given, has failed to start it)."""
     robot, T = design_robot(scene), duration_guess(scene)
     attempts: list[Attempt] = []
-    with budget.capped(WARM_ITERATIONS):
-        try_starts(scene, warm_starts(scene, robot, T, warm_start, stall=alone), attempts,
-                   budget, progress)
+    try_starts(scene, warm_starts(scene, robot, T, warm_start, stall=alone,
+                                  recalled=names is None), attempts, budget, progress)
     if attempts and ended(scene, attempts, budget):
         return plan_of(scene, attempts, budget)
     if not alone:

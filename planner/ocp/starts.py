@@ -23,9 +23,16 @@ from planner.ocp.guess import (
 )
 from planner.ocp.mesh import Mesh
 from planner.ocp.problem import ProblemKey
+from planner.ocp.recall import recall
 from planner.ocp.result import Plan
 from planner.scene import DurationRange, Scene
 
+WARM_ITERATIONS = 100
+"""Iterations each first solve started from an earlier plan (or a plan example's motion)
+may take before the next start takes over: a warm start near its optimum converges in a
+few (docs/benchmarks.md, "Memory of motion": at most 34 where it beat the cold plan but
+one), while those that failed ran for half a minute before the cold starts began ("Warm
+replanning"). The refinements of one that converged are not capped."""
 COARSE_INTERVALS = 50  # a uniform mesh finer than this is first solved on this many intervals
 SECOND_OPINION_SHARE = 0.15
 """The most of the plan's wall time the inverse-dynamics start after a duration probe that
@@ -46,13 +53,23 @@ class DurationProbe(Protocol):
 
 
 def warm_starts(scene: Scene, robot: Robot, T: float, warm_start: Plan | None,
-                stall: bool = True) -> Iterator[Start]:
-    """The attempt an earlier plan gives, tried before the scene's own, which follow it
-    unchanged when it fails: its NLP solution, primal and dual, where it solved the same
-    problem on a mesh at least as fine as the scene's (its refined mesh is kept); else its
-    trajectory as the initial guess on the scene's own mesh, stopped when it stalls
-    (stall: as the scene's own start)."""
+                stall: bool = True, recalled: bool = True) -> Iterator[Start]:
+    """The attempts an earlier plan gives, tried before the scene's own, which follow them
+    unchanged when they fail: its NLP solution, primal and dual, where it solved the same
+    problem on a mesh at least as fine as the scene's (its refined mesh is kept); then its
+    trajectory as the initial guess on the scene's own mesh, from Ipopt's own barrier
+    parameter. Each is stopped when it stalls (stall: as the scene's own start). A goal
+    moved across the earlier plan's optimum can send the primal-dual start, from its small
+    barrier parameter, wandering for thousands of iterations where the trajectory alone
+    converges in tens (docs/planner.md, "Memory of motion"). Without an earlier plan: the
+    nearest plan example's motion as the initial guess, where one is near (`recalled`:
+    `planner.ocp.recall`)."""
     if warm_start is None:
+        found = recall(scene) if recalled else None
+        if found is not None:
+            yield Start(f"example {found[0].example} as the guess", first_mesh(scene),
+                        plan_guess(found[0]), "recalled example", T, robot, may_stall=stall,
+                        max_iter=WARM_ITERATIONS)
         return
     guess = earlier_guess(robot, warm_start)
     earlier, mesh = warm_start.solution, first_mesh(scene)
@@ -61,10 +78,9 @@ def warm_starts(scene: Scene, robot: Robot, T: float, warm_start: Plan | None,
         same = ProblemKey.of(scene, solved_on.intervals).fingerprint() == earlier.fingerprint
         if same and solved_on.intervals >= mesh.intervals:
             yield Start("warm start", solved_on, guess, "warm start", warm_start.duration,
-                        robot, earlier)
-            return
+                        robot, earlier, may_stall=stall, max_iter=WARM_ITERATIONS)
     yield Start("earlier plan as the guess", mesh, guess, "warm start", T, robot,
-                may_stall=stall)
+                may_stall=stall, max_iter=WARM_ITERATIONS)
 
 
 def own_starts(scene: Scene, robot: Robot, T: float, attempts: list[Attempt],
