@@ -51,6 +51,10 @@ class Start:
     max_iter: int | None = None
     """The most iterations each of its first solves may take (None: the plan's own limit);
     its refinements, from its converged plan, are not capped."""
+    max_refinements: int | None = None
+    """The most mesh refinements of its plan (None: the scene's `refinement.max_passes`):
+    a start that is there to be quick (an earlier plan's, an example's) gives way to the
+    next when its plan is not accurate soon."""
     continues: bool = False
     """It goes on from where an earlier attempt stopped (its last iterate), so its verdict
     is no independent witness of that attempt's."""
@@ -167,8 +171,10 @@ def refine(scene: Scene, made: Attempt, budget: Budget, progress: Handler | None
     accurate, and stop at an artefact of the mesh (`artefact`): the next start follows.
     `first_pass`: the plan's solves before the attempt's."""
     refinement, tolerance = scene.transcription.refinement, scene.solver.resimulation_tolerance
+    passes = refinement.max_passes if made.start.max_refinements is None \
+        else min(refinement.max_passes, made.start.max_refinements)
     outcomes = made.outcomes
-    while refinement.enabled and len(outcomes) <= refinement.max_passes and not budget.spent:
+    while refinement.enabled and len(outcomes) <= passes and not budget.spent:
         last = outcomes[-1]
         if len(outcomes) > 1 and artefact(outcomes[-2], last) \
                 or not last.solution.success or last.accurate(tolerance):

@@ -32,7 +32,13 @@ WARM_ITERATIONS = 100
 may take before the next start takes over: a warm start near its optimum converges in a
 few (docs/benchmarks.md, "Memory of motion": at most 34 where it beat the cold plan but
 one), while those that failed ran for half a minute before the cold starts began ("Warm
-replanning"). The refinements of one that converged are not capped."""
+replanning"). The refinements of one that converged are not capped in iterations, but
+there are at most WARM_REFINEMENTS of them: such a start is there to be quick."""
+WARM_REFINEMENTS = 1
+"""Mesh refinements of a plan started from an earlier plan or an example's motion: a
+recalled motion of the seed arm with its goal moved converged on 40 intervals to a plan
+that six refinements up to 150 intervals never made accurate (5.5 s), where the scene's
+own start then gave an accurate plan on 40 intervals in 0.14 s."""
 COARSE_INTERVALS = 50  # a uniform mesh finer than this is first solved on this many intervals
 SECOND_OPINION_SHARE = 0.15
 """The most of the plan's wall time the inverse-dynamics start after a duration probe that
@@ -69,7 +75,7 @@ def warm_starts(scene: Scene, robot: Robot, T: float, warm_start: Plan | None,
         if found is not None:
             yield Start(f"example {found[0].example} as the guess", first_mesh(scene),
                         plan_guess(found[0]), "recalled example", T, robot, may_stall=stall,
-                        max_iter=WARM_ITERATIONS)
+                        max_iter=WARM_ITERATIONS, max_refinements=WARM_REFINEMENTS)
         return
     guess = earlier_guess(robot, warm_start)
     earlier, mesh = warm_start.solution, first_mesh(scene)
@@ -78,9 +84,10 @@ def warm_starts(scene: Scene, robot: Robot, T: float, warm_start: Plan | None,
         same = ProblemKey.of(scene, solved_on.intervals).fingerprint() == earlier.fingerprint
         if same and solved_on.intervals >= mesh.intervals:
             yield Start("warm start", solved_on, guess, "warm start", warm_start.duration,
-                        robot, earlier, may_stall=stall, max_iter=WARM_ITERATIONS)
+                        robot, earlier, may_stall=stall, max_iter=WARM_ITERATIONS,
+                        max_refinements=WARM_REFINEMENTS)
     yield Start("earlier plan as the guess", mesh, guess, "warm start", T, robot,
-                may_stall=stall, max_iter=WARM_ITERATIONS)
+                may_stall=stall, max_iter=WARM_ITERATIONS, max_refinements=WARM_REFINEMENTS)
 
 
 def own_starts(scene: Scene, robot: Robot, T: float, attempts: list[Attempt],
