@@ -6,10 +6,11 @@ verdict. Each job gets its own progress reporter and its own scene; nothing of o
 kept for the next. A job's wall-time budget, `solver.max_wall_time`, counts from the
 claim, NLP build included: once it is spent, the next iteration stops the solve.
 
-The store may fail for a while during a solve (a database restart): progress that cannot
-be written is written later, and the verdict (and the reads before it) are retried with
-backoff until the store answers (`app.store_retry`), so a row is never left running by a
-worker that moved on.
+The store may fail for a while during a solve (a database restart): progress is written by
+a thread of its own, so the solve never waits for the store, and progress that cannot be
+written is tried again later (`_Reporter`); the verdict (and the reads before it) are
+retried with backoff until the store answers (`app.store_retry`), so a row is never left
+running by a worker that moved on.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+import threading
 import time
 from collections.abc import Callable
 from typing import Any
@@ -59,35 +61,80 @@ def _finite(value: Any) -> Any:
 
 
 class _Reporter:
-    """The progress callback of one job: throttled writes, cancel checks, the budget."""
+    """The progress callback of one job: throttled writes, cancel checks, the budget.
+
+    The solver's iteration never waits on the store: the callback leaves the latest
+    progress in a one-place mailbox and a writer thread writes it (at most every
+    PROGRESS_INTERVAL), reading the cancel flag back; a write the store refuses (an
+    outage) is counted in `unwritten` and the latest progress is tried again later. So a
+    store that is away costs the solve nothing: its wall-time budget counts solving only,
+    and an outage never ends a plan Maximum_WallTime_Exceeded."""
 
     def __init__(self, store: JobStore, job_id: str, deadline: float, worker: str | None):
         self.store, self.job_id, self.deadline, self.worker = store, job_id, deadline, worker
-        self.last, self.go_on, self.expired = -math.inf, True, False
-        self.latest: dict[str, Any] | None = None
-        self.written = True
+        self.go_on, self.expired = True, False
+        self.unwritten = 0
+        self._latest: dict[str, Any] | None = None
+        self._lock, self._wake, self._closing = threading.Lock(), threading.Event(), False
+        self._writer = threading.Thread(target=self._write_loop, daemon=True,
+                                        name=f"progress-{job_id}")
+        self._writer.start()
 
     def __call__(self, progress: Progress) -> bool:
-        self.latest = {"phase": "solving",
-                       **{k: _finite(v) for k, v in dataclasses.asdict(progress).items()}}
-        self.written = False
-        if time.monotonic() - self.last >= PROGRESS_INTERVAL:
-            self.flush()
+        latest = {"phase": "solving",
+                  **{k: _finite(v) for k, v in dataclasses.asdict(progress).items()}}
+        with self._lock:
+            self._latest = latest
+        self._wake.set()
         if time.monotonic() > self.deadline:
             self.expired = True
         return self.go_on and not self.expired
 
-    def flush(self) -> None:
-        """Write the latest progress and read the cancel flag; a store that cannot be
-        written now is written at a later iteration (the solve goes on meanwhile)."""
-        if not self.written and self.latest is not None:
-            self.last = time.monotonic()
-            try:
-                self.go_on = self.store.report_progress(self.job_id, self.latest, self.worker)
-            except StoreUnavailable as exc:
-                log.warning("job %s: progress not written (will retry): %s", self.job_id, exc)
+    def close(self, wait: float = 2 * PROGRESS_INTERVAL) -> None:
+        """Write the last progress if the store takes it within `wait` seconds [s], and
+        stop the writer (a write still blocked on the store is left to finish by itself:
+        the verdict does not wait for it)."""
+        self._closing = True
+        self._wake.set()
+        self._writer.join(wait)
+        if self.unwritten:
+            log.warning("job %s: %d progress writes not made while the store was away",
+                        self.job_id, self.unwritten)
+
+    def _write_loop(self) -> None:
+        last = -math.inf
+        while True:
+            self._wake.wait()
+            pause = PROGRESS_INTERVAL - (time.monotonic() - last)
+            if pause > 0 and not self._closing:
+                time.sleep(pause)
+            self._wake.clear()
+            with self._lock:
+                latest, self._latest = self._latest, None
+            if latest is not None:
+                last = time.monotonic()
+                self._write(latest)
+            if self._closing:
                 return
-            self.written = True
+
+    def _write(self, latest: dict[str, Any]) -> None:
+        """Write one progress and read the cancel flag; refused, keep it for the next
+        write unless newer progress came meanwhile."""
+        try:
+            self.go_on = self.store.report_progress(self.job_id, latest, self.worker)
+        except StoreUnavailable as exc:
+            self.unwritten += 1
+            log.warning("job %s: progress not written (the next is tried later): %s",
+                        self.job_id, exc)
+        except Exception:  # noqa: BLE001 - a bug here must not stop the progress of the job
+            self.unwritten += 1
+            log.exception("job %s: progress not written", self.job_id)
+        else:
+            return
+        with self._lock:
+            if self._latest is None:
+                self._latest = latest
+        self._wake.set()
 
 
 def _verdict(plan: Plan, cancel_requested: bool, expired: bool,
@@ -138,7 +185,7 @@ def run_job(store: JobStore, job_id: str, scene: Scene, solve: SolveFunction,
                     worker)
     finally:
         _current = None
-    reporter.flush()
+    reporter.close()
     current = persist(lambda: store.get(job_id), f"job {job_id}: reading its cancel flag")
     status, error = _verdict(plan, bool(current and current.cancel_requested),
                              reporter.expired, budget)
