@@ -4,7 +4,8 @@ The worker writes everything about its job to the store itself: Ipopt's iteratio
 (throttled; a cancel flag or a lost claim stops the solve at the next iteration) and the
 verdict. Each job gets its own progress reporter and its own scene; nothing of one job is
 kept for the next. A job's wall-time budget, `solver.max_wall_time`, counts from the
-claim, NLP build included: once it is spent, the next iteration stops the solve.
+claim (less a wait for a store that is away before the solve), NLP build included: once it
+is spent, the next iteration stops the solve.
 
 The store may fail for a while during a solve (a database restart): progress is written by
 a thread of its own, so the solve never waits for the store, and progress that cannot be
@@ -126,7 +127,7 @@ class _Reporter:
             self.unwritten += 1
             log.warning("job %s: progress not written (the next is tried later): %s",
                         self.job_id, exc)
-        except Exception:  # noqa: BLE001 - a bug here must not stop the progress of the job
+        except Exception:  # a bug here must not stop the progress of the job
             self.unwritten += 1
             log.exception("job %s: progress not written", self.job_id)
         else:
@@ -171,9 +172,11 @@ def run_job(store: JobStore, job_id: str, scene: Scene, solve: SolveFunction,
     global _current
     start, budget = time.monotonic(), scene.solver.max_wall_time
     _current = (store, job_id, worker)
-    reporter = _Reporter(store, job_id, start + budget, worker)
+    reporter = None
     try:
         arguments = persist(lambda: given(store, scene, admission), f"job {job_id}: warm start")
+        # the budget counts from here: a wait above for a store that is away is not solving
+        reporter = _Reporter(store, job_id, time.monotonic() + budget, worker)
         plan = solve(scene, progress=reporter, **arguments)
     except MemoryError:
         return fail(store, job_id, out_of_memory(memory_mb), start, worker, exhausted=True)
@@ -185,7 +188,8 @@ def run_job(store: JobStore, job_id: str, scene: Scene, solve: SolveFunction,
                     worker)
     finally:
         _current = None
-    reporter.close()
+        if reporter is not None:
+            reporter.close()
     current = persist(lambda: store.get(job_id), f"job {job_id}: reading its cancel flag")
     status, error = _verdict(plan, bool(current and current.cancel_requested),
                              reporter.expired, budget)
