@@ -43,17 +43,24 @@ class JsonFormatter(logging.Formatter):
         return json.dumps(entry, default=str)
 
 
+LIBRARIES = ("psycopg", "procrastinate")
+"""Libraries whose own warnings (the connection pool's during a database outage, say) go
+to the same JSON lines, from WARNING up."""
+
+
 def configure(level: str = "INFO") -> None:
-    """Send the service's and uvicorn's logs as JSON lines to stderr. uvicorn's own
-    access log is silenced: `undertow.access` logs every request, with its id."""
+    """Send the service's, uvicorn's and LIBRARIES' logs as JSON lines to stderr, so that
+    every line of a process's log is one JSON object. uvicorn's own access log is
+    silenced: `undertow.access` logs every request, with its id."""
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(JsonFormatter())
-    for name in ("undertow", "uvicorn", "uvicorn.error", "uvicorn.access"):
+    for name in ("undertow", "uvicorn", "uvicorn.error", "uvicorn.access", *LIBRARIES):
         logger = logging.getLogger(name)
         logger.handlers[:] = [handler]
         logger.propagate = False
     logging.getLogger("undertow").setLevel(level.upper())
-    logging.getLogger("uvicorn.access").setLevel(logging.WARNING)
+    for name in ("uvicorn.access", *LIBRARIES):
+        logging.getLogger(name).setLevel(logging.WARNING)
 
 
 class RequestIdMiddleware(HttpMiddleware):

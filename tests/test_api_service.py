@@ -219,3 +219,16 @@ def test_the_default_store_lives_in_an_ignored_data_directory():
     for name in (path, path + "-wal", path + "-shm"):
         ignored = subprocess.run(["git", "-C", str(ROOT), "check-ignore", "-q", name])
         assert ignored.returncode == 0, f"{name} is not ignored by git"
+
+
+def test_the_connection_pools_warnings_are_json_lines_too(capsys):
+    from app.logging import configure
+
+    configure("INFO")
+    logging.getLogger("psycopg.pool").warning("error connecting in 'undertow-jobs': refused")
+    logging.getLogger("psycopg.pool").info("not logged: below WARNING")
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1
+    line = json.loads(lines[0])
+    assert (line["logger"], line["level"]) == ("psycopg.pool", "WARNING")
+    assert line["message"] == "error connecting in 'undertow-jobs': refused"
