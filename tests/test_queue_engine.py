@@ -204,3 +204,16 @@ def test_purge_deletes_the_engine_jobs_of_deleted_jobs(store):
     assert store.purge(later, 0) == 1
     assert store._rows("SELECT COUNT(*) FROM procrastinate_jobs")[0][0] == 1
     assert engine(store, "b")["status"] == "todo"
+
+
+def test_a_released_job_is_notified_at_once(store):
+    store.create("a", SCENE, "host")
+    assert claim(store) == "a"
+    listener = store.listen()
+    try:
+        listener.drain()
+        assert store.release("a", "w1")
+        ready, _, _ = select.select([listener], [], [], 5.0)
+        assert ready and listener.drain() >= 1
+    finally:
+        listener.close()

@@ -9,7 +9,8 @@ table `undertow_queue`, and every transition changes both rows in one transactio
 - claim: procrastinate's `fetch_job` (oldest by id, `FOR UPDATE SKIP LOCKED`, its retry
   time come) for a procrastinate worker registered for that claim alone, so that the
   registration's heartbeat is the claim's lease;
-- pickup: procrastinate's trigger NOTIFYs its channel when a job is deferred; idle solver
+- pickup: procrastinate's trigger NOTIFYs its channel when a job is deferred, and this
+  store when it queues a job again at once (released by its worker); idle solver
   processes LISTEN there;
 - renewal: procrastinate's `update_heartbeat` of the claim's registration;
 - stalled jobs: procrastinate's `select_stalled_jobs_by_heartbeat`, with the lease as the
@@ -153,8 +154,10 @@ class PostgresJobStore(PostgresSql):
             "SELECT j.id, j.owner, j.status, j.infra_failures, q.id, q.status, q.worker_id "
             "FROM jobs j LEFT JOIN undertow_queue m ON m.job_id = j.id "
             "LEFT JOIN procrastinate_jobs q ON q.id = m.queue_id WHERE j.id = ANY(%s)", (ids,))
+        at_once = False
         for job_id, owner, status, failures, queue_id, engine_status, engine_worker in rows:
             delay = self.policy.delay(failures) if pause else 0.0
+            at_once = at_once or status == "queued" and delay == 0.0
             if queue_id is None and status == "queued":
                 self._defer([(job_id, owner)], delay)
             elif status == "queued" and engine_status == "doing":
@@ -167,6 +170,8 @@ class PostgresJobStore(PostgresSql):
                           delete_job=False)
             if engine_worker is not None:
                 self._run("unregister_worker", worker_id=engine_worker)
+        if at_once:  # procrastinate notifies a deferred job only: wake the idle workers
+            self._rows("SELECT pg_notify(%s, '')", (CHANNEL,))
 
     def create(self, job_id: str, scene: dict[str, Any], owner: str,
                limit: int | None = None, key: str | None = None,
