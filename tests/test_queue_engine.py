@@ -54,7 +54,7 @@ def registrations(store: PostgresJobStore) -> int:
 
 def claim(store: PostgresJobStore, owner: str | None = "host",
           worker: str = "w1") -> str | None:
-    record = store.claim(owner, worker, time.time() + 60)
+    record = store.claim(owner, worker, time.time() + LEASE)
     return None if record is None else record.id
 
 
@@ -217,3 +217,17 @@ def test_a_released_job_is_notified_at_once(store):
         assert ready and listener.drain() >= 1
     finally:
         listener.close()
+
+
+def test_each_claim_is_judged_by_the_lease_it_stored(store, postgres_url):
+    longer = 3.0  # [s] the lease of the other node
+    up = float(store._rows("SELECT EXTRACT(EPOCH FROM now() - pg_postmaster_start_time())")[0][0])
+    time.sleep(max(0.0, longer - up))  # no claim runs out within its lease of a restart
+    for job_id in ("short", "long"):
+        store.create(job_id, SCENE, "host")
+    assert store.claim("host", "w1", time.time() + LEASE).id == "short"
+    assert store.claim("host", "w2", time.time() + longer).id == "long"
+    time.sleep(LEASE * 1.2)  # both silent: "short" past its lease, "long" well within
+    with contextlib.closing(PostgresJobStore(postgres_url, lease=0.1)) as quick:
+        assert quick.expire(time.time()) == {"short": "queued"}  # not by its own 0.1 s
+    assert store.get("long").status == "running"

@@ -68,7 +68,11 @@ def test_sqlite_announces_no_queued_job_so_idle_workers_poll(sqlite):
 
 def claim(store: JobStore, owner: str | None = "host", worker: str = "w1",
           lease: float = 60.0) -> str | None:
-    """Claim the oldest queued job of `owner`; its id."""
+    """Claim the oldest queued job of `owner`; its id. A lease below 0 (one already over,
+    for SQLite's claims, which name their end) is the store's own for PostgreSQL's, which
+    run out by silence: `lapse`."""
+    if lease < 0 and isinstance(store, PostgresJobStore):
+        lease = store.lease
     record = store.claim(owner, worker, time.time() + lease)
     return None if record is None else record.id
 

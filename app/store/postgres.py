@@ -13,9 +13,9 @@ table `undertow_queue`, and every transition changes both rows in one transactio
   store when it queues a job again at once (released by its worker); idle solver
   processes LISTEN there;
 - renewal: procrastinate's `update_heartbeat` of the claim's registration;
-- stalled jobs: procrastinate's `select_stalled_jobs_by_heartbeat`, with the lease as the
-  heartbeat timeout, finds the claims whose supervisor went silent (their registrations
-  are removed as the jobs are requeued);
+- stalled jobs: procrastinate's `select_stalled_jobs_by_heartbeat`, with each claim's own
+  lease (the one it stored) as its heartbeat timeout, finds the claims whose supervisor
+  went silent (their registrations are removed as the jobs are requeued);
 - retries: procrastinate's `retry_job` queues the job again at its retry time (the pause of
   undertow's `RetryPolicy`), its `finish_job` ends it (failed, a dead letter, or aborted
   when it was cancelled), its `cancel_job` cancels a queued one and flags a running one.
@@ -28,9 +28,10 @@ pinned version) and the link table are created when the store opens a database t
 lacks them. Jobs written by versions before procrastinate queued them are taken over: the
 queued ones get an engine job then, and any left without one (queued by a server of such
 a version during a rolling upgrade) at each look for stalled jobs; one they had claimed
-runs out by the lease its claim wrote. A lease is this store's `lease` [s]
-(UNDERTOW_LEASE), counted by the database's clock from the last renewal, so every
-process sharing the database needs the same UNDERTOW_LEASE.
+runs out by the lease its claim wrote. A claim's lease is its process's `lease` [s]
+(UNDERTOW_LEASE), stored with the claim and counted by the database's clock from the last
+renewal; every process judges a claim by that stored lease, so processes with different
+leases share a database without requeueing each other's healthy claims.
 """
 
 from __future__ import annotations
@@ -64,6 +65,15 @@ _LINK = ("CREATE TABLE IF NOT EXISTS undertow_queue ("
 _ENGINE_LOCK = 0x756E6475  # advisory lock key held while the engine's schema is installed
 _LINKED = ("FROM jobs j JOIN undertow_queue m ON m.job_id = j.id "
            "JOIN procrastinate_jobs q ON q.id = m.queue_id")
+_STALLED = (  # procrastinate's select_stalled_jobs_by_heartbeat, each claim by its own lease
+    "SELECT q.id " + _LINKED + " LEFT JOIN procrastinate_workers w ON w.id = q.worker_id "
+    "WHERE q.status = 'doing' AND q.task_name = '" + TASK + "' AND "
+    "EXTRACT(EPOCH FROM now() - pg_postmaster_start_time()) >= COALESCE(j.lease, :lease) "
+    "AND (q.worker_id IS NULL OR w.last_heartbeat < now() - make_interval(secs => "
+    "GREATEST(0, COALESCE(j.lease, :lease) - :ahead)))")
+"""The engine jobs whose claim's registration is gone or was silent for longer than the
+lease the claim stored (`:lease`, the looking process's, for a claim that stored none),
+`:ahead` [s] later than now."""
 
 
 @contextmanager
@@ -225,21 +235,19 @@ class PostgresJobStore(PostgresSql):
         return {job_id: bool(cancel) for job_id, cancel, _ in rows}
 
     def expire(self, now: float) -> dict[str, JobStatus]:
-        """Requeue the jobs whose claim's registration was silent for a lease before
-        `now` (none within a lease of a database restart, when nobody could renew); defer
-        the queued jobs that have no engine job yet."""
+        """Requeue the jobs whose claim's registration was silent before `now` for longer
+        than the lease the claim stored (none within that lease of a database restart,
+        when nobody could renew), whatever lease the looking process has; defer the queued
+        jobs that have no engine job yet."""
         restarted = self._rows("SELECT EXTRACT(EPOCH FROM now() - pg_postmaster_start_time())")
-        if float(restarted[0][0]) < self.lease:
-            return {}
-        silent = max(0.0, self.lease - (now - time.time()))
         with self._transaction():
             self._adopt()
-            before = self._requeue(  # claimed by a version before: the lease it wrote
+            before = {} if float(restarted[0][0]) < self.lease else self._requeue(
+                # claimed by a version before: the lease it wrote
                 "lease_until < :expired AND NOT EXISTS (SELECT 1 FROM undertow_queue "
                 "WHERE job_id = jobs.id)", {"expired": now}, LEASE_RAN_OUT)
-            stalled = [row["id"] for row in self._run(
-                "select_stalled_jobs_by_heartbeat", seconds_since_heartbeat=silent,
-                queue=None, task_name=TASK)]
+            stalled = [row[0] for row in self._rows(_STALLED, {
+                "ahead": now - time.time(), "lease": self.lease})]
             if not stalled:
                 return before
             return {**before, **self._requeue(
