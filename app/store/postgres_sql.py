@@ -104,6 +104,11 @@ def _lock_key(owner: str) -> int:
 _NAME_LOCKS = 0x756E6476  # first key of the advisory locks of server names ("undv")
 
 
+CHECK_WAIT = 2.0
+"""[s] the longest a health check waits for a connection (a container's health check
+gives its command 5 s)."""
+
+
 class NameLock:
     """Server name `name` held in the database at `url` by a session advisory lock on a
     connection of its own, kept open until `release` (NameTaken when another session
@@ -183,15 +188,16 @@ class PostgresSql(SqlJobStore):
             return self._pool
 
     @contextmanager
-    def _connection(self) -> Iterator[psycopg.Connection]:
-        """The connection of this thread's open transaction, else a pooled one; any
-        database or pool error becomes StoreUnavailable."""
+    def _connection(self, wait: float | None = None) -> Iterator[psycopg.Connection]:
+        """The connection of this thread's open transaction, else a pooled one within
+        `wait` seconds (default: the store's timeout); any database or pool error becomes
+        StoreUnavailable."""
         held = getattr(self._local, "conn", None)
         if held is not None:
             yield held
             return
         try:
-            with self._get_pool().connection() as conn:
+            with self._get_pool().connection(timeout=wait) as conn:
                 yield conn
         except (psycopg.OperationalError, psycopg.InterfaceError, psycopg.errors.DataError,
                 psycopg.errors.InternalError, PoolTimeout) as exc:
@@ -348,8 +354,11 @@ class PostgresSql(SqlJobStore):
             raise self._unavailable(exc) from exc
 
     def check(self) -> None:
-        """Read the newest job through the pool (a new connection if the old ones broke)."""
-        self._rows("SELECT id FROM jobs ORDER BY created DESC LIMIT 1")
+        """Read the newest job through the pool (a new connection if the old ones broke),
+        waiting at most CHECK_WAIT for a connection: a health check answers within a
+        container's health-check timeout while the database is away."""
+        with self._connection(CHECK_WAIT) as conn:
+            conn.execute("SELECT id FROM jobs ORDER BY created DESC LIMIT 1").fetchall()
 
     def verify(self) -> None:
         """Nothing to do: PostgreSQL checks its own pages as it reads them (checksums,
