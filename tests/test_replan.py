@@ -195,3 +195,16 @@ def test_a_state_beyond_the_tasks_bounds_is_refused(planned):
     with pytest.raises(InputError) as raised:
         Replanner(bounded, earlier).update(0.1, [0.0, 0.7], [0.0, 0.0])
     assert str(raised.value) == "q.1: 0.7 lies beyond the task's bounds"
+
+
+def test_a_fallback_whose_point_was_not_finite_reports_no_number_that_json_refuses():
+    import json
+    import math
+
+    from planner.ocp.replan_report import ReplanReport
+
+    lost = Replan(0.5, 2.0, None, "Invalid_Number_Detected", False, 3, math.inf, ("rows",),
+                  None, False, True, True, None, 0.01, 0.01)
+    body = ReplanReport.of(lost).model_dump(mode="json")
+    assert body["violation"] is None and body["torque"] is None
+    json.dumps(body, allow_nan=False)

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 from pydantic import BaseModel, Field
 
+from planner.ocp.outcome import finite_or_none
 from planner.ocp.output import Out
 from planner.ocp.replan import HELD, REALTIME_ITERATIONS, Mode, Replan
 from planner.ocp.result import StatePolynomials
@@ -55,7 +56,7 @@ class ReplanReport(Out):
     iterations: int
     violation: float | None = Field(description=(
         "the largest violation of the NLP's rows and bounds at the returned point [their "
-        "units: rad, rad/s, N m]; null when no solve ran"))
+        "units: rad, rad/s, N m]; null when no solve ran, or its point was not finite"))
     checked: list[str] = Field(description="what was checked, in words")
     interval_error: float | None = Field(description=(
         "[rad] the largest interval error when verified, else null"))
@@ -89,7 +90,8 @@ class ReplanReport(Out):
                                       dq=np.asarray(interp.dq.coeffs).tolist())
         return cls(start=replan.start, end=replan.end, status=replan.status,
                    success=replan.success, iterations=replan.iterations,
-                   violation=replan.violation, checked=list(replan.checked),
+                   violation=None if replan.violation is None else finite_or_none(replan.violation),
+                   checked=list(replan.checked),
                    interval_error=replan.interval_error, within=replan.within,
                    escalated=replan.escalated, fallback=replan.fallback, torque=torque,
                    states=states,
