@@ -68,7 +68,7 @@ def test_batched_replays_agree_with_each_replay_interval_by_interval(unstable, c
             assert status == "completed"
             assert error == pytest.approx(worst, rel=1e-9, abs=1e-12)
             assert np.allclose(end, final, rtol=1e-9, atol=1e-12)
-            assert peak == pytest.approx(most, rel=1e-12)
+            assert peak == pytest.approx(most, rel=1e-9)  # from the states, held to 1e-9
 
 
 def test_the_robustness_replays_agree_with_each_model_interval_by_interval(unstable):
