@@ -13,7 +13,8 @@ from service_fixtures import client
 from app.sessions import Sessions
 from planner.examples import example
 
-IDLE = 1.0  # [s] UNDERTOW_SESSION_IDLE of these tests
+IDLE = 5.0  # [s] UNDERTOW_SESSION_IDLE of these tests: longer than any gap between two
+# requests of one test on a busy machine, so that only the abandoned session expires
 
 
 @pytest.fixture(scope="module")

@@ -84,16 +84,15 @@ def _plan_of(record: JobRecord | None, job_id: str) -> tuple[Scene, Plan]:
 def _replanner(scene: Scene, plan: Plan, body: SessionRequest,
                settings: Settings) -> Replanner:
     """The replanner of a session, or a 422 at the field that refuses it."""
-    if body.intervals is not None and node_count(scene.transcription,
-                                                 body.intervals) > settings.max_nodes:
+    nodes = None if body.intervals is None else node_count(scene.transcription, body.intervals)
+    if nodes is not None and nodes > settings.max_nodes:
         raise invalid([field_error(["body", "intervals"], (
-            f"{body.intervals} intervals hold {node_count(scene.transcription, body.intervals)} "
-            f"time nodes; this server takes at most {settings.max_nodes} (UNDERTOW_MAX_NODES)"))])
+            f"{body.intervals} intervals hold {nodes} time nodes; this server takes at most "
+            f"{settings.max_nodes} (UNDERTOW_MAX_NODES)"))])
     try:
         return Replanner(scene, plan, body.intervals, body.final_stretch)
-    except InputError as exc:
-        where = "final_stretch" if str(exc).startswith("final_stretch") else "plan"
-        loc = ["body"] if where == "final_stretch" else ["body", "plan"]
+    except InputError as exc:  # "final_stretch: ..." is the body's field, the rest the plan's
+        loc = ["body"] if str(exc).startswith("final_stretch") else ["body", "plan"]
         raise invalid([field_error(loc, str(exc))]) from exc
 
 

@@ -13,9 +13,10 @@ table `undertow_queue`, and every transition changes both rows in one transactio
   store when it queues a job again at once (released by its worker); idle solver
   processes LISTEN there;
 - renewal: procrastinate's `update_heartbeat` of the claim's registration;
-- stalled jobs: procrastinate's `select_stalled_jobs_by_heartbeat`, with each claim's own
-  lease (the one it stored) as its heartbeat timeout, finds the claims whose supervisor
-  went silent (their registrations are removed as the jobs are requeued);
+- stalled jobs: procrastinate's `select_stalled_jobs_by_heartbeat` rewritten (`_STALLED`)
+  to time each claim out by its own lease (the one it stored) rather than one for all:
+  the claims whose supervisor went silent (their registrations are removed as the jobs
+  are requeued);
 - retries: procrastinate's `retry_job` queues the job again at its retry time (the pause of
   undertow's `RetryPolicy`), its `finish_job` ends it (failed, a dead letter, or aborted
   when it was cancelled), its `cancel_job` cancels a queued one and flags a running one.
@@ -65,7 +66,8 @@ _LINK = ("CREATE TABLE IF NOT EXISTS undertow_queue ("
 _ENGINE_LOCK = 0x756E6475  # advisory lock key held while the engine's schema is installed
 _LINKED = ("FROM jobs j JOIN undertow_queue m ON m.job_id = j.id "
            "JOIN procrastinate_jobs q ON q.id = m.queue_id")
-_STALLED = (  # procrastinate's select_stalled_jobs_by_heartbeat, each claim by its own lease
+_STALLED = (  # procrastinate's select_stalled_jobs_by_heartbeat, each claim by its own lease,
+    # on procrastinate's tables (procrastinate_workers.last_heartbeat, jobs' worker_id)
     "SELECT q.id " + _LINKED + " LEFT JOIN procrastinate_workers w ON w.id = q.worker_id "
     "WHERE q.status = 'doing' AND q.task_name = '" + TASK + "' AND "
     "EXTRACT(EPOCH FROM now() - pg_postmaster_start_time()) >= COALESCE(j.lease, :lease) "

@@ -133,10 +133,9 @@ def _first_solves_within(scene: Scene, start: Start, budget: Budget,
 UNLIMITED_COARSENING = 2
 """The unlimited solve, a guess for the task's own, is made on this many times fewer
 uniform intervals than the start's first mesh (at least UNLIMITED_INTERVALS, or the first
-mesh's own number where that is fewer): on the
-default suite's torque-limited four-link tasks it took a third less time to the same
-verified plans, the limited solve after it needing 4 or 5 iterations instead of 7 or 8
-(docs/planner.md, "Limits later")."""
+mesh's own number where that is fewer): on the default suite's median plans, torque-limited
+four-link tasks, it took a fifth less time to the same verified plans (docs/planner.md,
+"Limits later")."""
 UNLIMITED_INTERVALS = 10
 
 

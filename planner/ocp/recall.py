@@ -4,11 +4,11 @@ code, as the first guess of a scene near one of them.
 A scene of the same shape as a plan example (`planner.memory.shape`) and within
 `planner.memory.REACH` of it (its goal moved by up to 0.05 rad, say), but not the example
 itself, starts from the example's motion: its angles, rates and delivered torque
-interpolated onto the scene's own mesh (`recalled_start`). From a linearly interpolated
-guess, the two-link example with its goal moved can wander for thousands of iterations
-into a wrong family of motions (one of five such goals ended unverified after 37 s); from
-the example's motion it converges in tens (docs/benchmarks.md, "Built-in plan examples
-with their goals moved").
+interpolated onto the scene's own mesh (`planner.ocp.starts.warm_starts`). From a
+linearly interpolated guess, the two-link example with its goal moved can wander for
+thousands of iterations into a wrong family of motions (one of five such goals ended
+unverified after 37 s); from the example's motion it converges in tens
+(docs/benchmarks.md, "Built-in plan examples with their goals moved").
 
 The motions live in `recalled/<example>.json`, each with the digest of the request it was
 planned from; one whose example has changed since is not used (`tests/test_recall.py`

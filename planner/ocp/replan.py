@@ -49,7 +49,7 @@ from pydantic import ValidationError
 from planner.errors import InputError
 from planner.ocp.accuracy import interval_errors
 from planner.ocp.feedback import gains, linearise, torque_scale
-from planner.ocp.guess import Guess, interpolant_guess, plan_guess, plan_interpolant
+from planner.ocp.guess import Guess, interpolant_guess, plan_interpolant
 from planner.ocp.instance import Instance, initial_point, instance
 from planner.ocp.mesh import Mesh
 from planner.ocp.outcome import interpolant
@@ -176,7 +176,7 @@ class Replanner:
         self.intervals = intervals or scene.transcription.intervals
         self.robot = scene.robot
         self.goal: State = task.final
-        self.motion: Motion = _of_plan(earlier)
+        self.motion: Motion = _of_interp(plan_interpolant(earlier), 0.0)
         solution = earlier.solution
         self.multipliers: tuple[np.ndarray, np.ndarray] | None = None
         if solution is not None and len(solution.breaks) == self.intervals + 1:
@@ -334,14 +334,9 @@ class Replanner:
                       time.perf_counter() - timing[0], time.process_time() - timing[1])
 
 
-def _of_plan(plan: Plan) -> Motion:
-    """A plan's motion at absolute times."""
-    guess, T = plan_guess(plan), float(plan.duration)
-    return lambda t: guess(np.asarray(t, float) / T)
-
-
 def _of_interp(interp: Interpolant, start: float) -> Motion:
-    """A replan's motion (its interpolant in time since `start`) at absolute times."""
+    """A motion given by its interpolant in time since `start` [s] (a plan's: 0), at
+    absolute times."""
     guess = interpolant_guess(interp, 1.0)
     return lambda t: guess(np.asarray(t, float) - start)
 

@@ -36,9 +36,10 @@ replanning"). The refinements of one that converged are not capped in iterations
 there are at most WARM_REFINEMENTS of them: such a start is there to be quick."""
 WARM_REFINEMENTS = 1
 """Mesh refinements of a plan started from an earlier plan or an example's motion: a
-recalled motion of the seed arm with its goal moved converged on 40 intervals to a plan
-that six refinements up to 150 intervals never made accurate (5.5 s), where the scene's
-own start then gave an accurate plan on 40 intervals in 0.14 s."""
+recalled motion of the seed arm with its goal moved (N = 40) was refined pass after pass
+without becoming accurate before the scene's own start gave the verified plan, 6.4 s in
+all (docs/benchmarks.md, "Built-in plan examples with their goals moved", at the commit
+that set this cap); with one refinement no moved example goal took over 1.15 s."""
 COARSE_INTERVALS = 50  # a uniform mesh finer than this is first solved on this many intervals
 SECOND_OPINION_SHARE = 0.15
 """The most of the plan's wall time the inverse-dynamics start after a duration probe that
