@@ -2,10 +2,11 @@
 
 `create_app(settings, solve)` builds an app; its lifespan opens the job store (SQLite, or
 PostgreSQL when UNDERTOW_DB_URL is set; refusing to start on one that fails its integrity
-check or cannot be reached), takes the server's name on it (refusing to start while a live
-server of that name runs on it), recovers jobs a previous run left behind, and starts the
-solver workers (none on an API-only server); on shutdown it stops them, checkpoints the
-store and gives the name back.
+check, cannot be reached, or has a schema newer than this version knows), takes the
+server's name on it (refusing to start while a live server of that name runs on it),
+recovers jobs a previous run left behind, and starts the solver workers (none on an
+API-only server); on shutdown it stops them, checkpoints the store and gives the name
+back.
 """
 
 from __future__ import annotations
@@ -47,6 +48,7 @@ from app.sessions import Sessions
 from app.settings import PLAN_PROCESSES, Settings, get_settings
 from app.store import StoreDamaged, StoreUnavailable
 from app.store.open import open_store
+from app.store_wait import StoreWaitMiddleware
 from app.sync_memory import MemoryBudget
 from app.worker import load_function
 from planner import prebuild
@@ -137,8 +139,9 @@ def _start(app: FastAPI, settings: Settings, solve: SolveFunction | None) -> Job
 
 def _add_middleware(app: FastAPI, settings: Settings) -> None:
     """The app's middleware, innermost first: a request passes the request id, the metrics,
-    the API key, the body limit and the catch-all for unexpected errors, in that order;
-    the lifespan passes `QuietRefusal`."""
+    the API key, the body limit, the catch-all for unexpected errors and the bound on its
+    store waits, in that order; the lifespan passes `QuietRefusal`."""
+    app.add_middleware(StoreWaitMiddleware)
     app.add_middleware(errors.UnexpectedErrorMiddleware)
     app.add_middleware(BodyLimitMiddleware, limit=settings.max_body_bytes,
                        timeout=settings.read_timeout)

@@ -1,7 +1,7 @@
 """A start the service refuses for a reason it states (a damaged or unreachable job store,
-a server name that a live server holds) ends with that reason as one log line and
-uvicorn's non-zero exit status (3), not with the traceback Starlette attaches to a failed
-lifespan.
+one of a newer schema, a server name that a live server holds) ends with that reason as
+one log line and uvicorn's non-zero exit status (3), not with the traceback Starlette
+attaches to a failed lifespan.
 
 The lifespan logs the reason and calls `refuse`; `QuietRefusal`, the app's outermost
 layer, then sends uvicorn the failure without the traceback, which uvicorn would log as

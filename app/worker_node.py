@@ -10,7 +10,9 @@ jobs are released at once (queued again, for another node). A node whose main pr
 killed (SIGKILL, the OOM killer) has its solver processes requeue their jobs themselves
 within a quarter of a second; a node killed whole (or its machine lost) leaves its jobs'
 leases to run out, and whoever sees that first requeues them (infrastructure failures,
-retried up to UNDERTOW_MAX_RETRIES times).
+retried up to UNDERTOW_MAX_RETRIES times). A node refuses to start on a store it cannot
+open (damaged, unreachable, or of a schema newer than it knows): one log line saying why,
+and exit status REFUSED.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from prometheus_client import CollectorRegistry, Gauge, Histogram, start_http_se
 from app.logging import configure
 from app.metrics import _SOLVE_BUCKETS
 from app.settings import PLAN_PROCESSES, Settings
+from app.store import StoreUnavailable
 from app.store.open import open_store
 from app.supervisor import Supervisor
 from app.worker import load_function
@@ -33,6 +36,9 @@ from app.worker_pipe import JobEnd
 log = logging.getLogger("undertow.worker_node")
 
 HEALTH_INTERVAL = 5.0  # [s] between two looks at the node's own health
+REFUSED = 3
+"""The exit status of a start refused for a reason the log's one line states (a store
+that is damaged, unreachable or of a newer schema): an API server's (uvicorn's)."""
 
 
 class NodeMetrics:
@@ -63,9 +69,14 @@ def _done(end: JobEnd) -> None:
 def run(settings: Settings, processes: int, stop: threading.Event | None = None,
         metrics: tuple[str, int] | None = None) -> int:
     """Run the node until SIGTERM, SIGINT or `stop`, serving Prometheus metrics at
-    `metrics` (host, port) when given; the exit code."""
+    `metrics` (host, port) when given; the exit code (REFUSED, without a traceback, when
+    the store cannot be opened)."""
     configure(settings.log_level)
-    store = open_store(settings)
+    try:
+        store = open_store(settings)
+    except StoreUnavailable as exc:  # its message says what to do
+        log.critical("%s", exc)
+        return REFUSED
     name = f"{settings.instance}:worker:{os.getpid()}"
     os.environ[PLAN_PROCESSES] = str(settings.plan_processes())
     node_metrics: NodeMetrics | None = None

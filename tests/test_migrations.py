@@ -1,7 +1,9 @@
 """The job store's one list of migrations (`app.store.migrations`): a fresh SQLite file and a
 fresh PostgreSQL database end at the same version with the same tables, columns and
-indexes, and a database left at any older version upgrades to the latest keeping its
-rows."""
+indexes, a database left at any older version upgrades to the latest keeping its rows,
+and one whose ledger records a version newer than the code knows is refused, left as it
+is, by the store and by the API server and the worker node that would open it (one log
+line, no traceback, a non-zero exit)."""
 
 from __future__ import annotations
 
@@ -13,10 +15,21 @@ from pathlib import Path
 import psycopg
 import pytest
 
-from app.store import JobStore, SqliteJobStore
-from app.store.migrations import DIALECTS, SCHEMA_VERSION, STEPS, Dialect, migrate, version
+from app.store import JobStore, NewerSchema, SqliteJobStore
+from app.store.migrations import (
+    DIALECTS,
+    LEDGERS,
+    SCHEMA_VERSION,
+    STEPS,
+    Dialect,
+    migrate,
+    version,
+)
 from app.store.postgres import PostgresJobStore
 from app.store.postgres_sql import _execute as pg_execute
+from app.worker_node import REFUSED
+from testbed.cluster import WorkerNode
+from testbed.service import LiveServer
 
 Execute = Callable[[str], list]
 Columns = dict[str, list[tuple[str, bool]]]
@@ -146,3 +159,83 @@ def test_a_postgres_database_at_an_older_version_upgrades_keeping_its_rows(older
                                                                            postgres_url):
     with postgres_database(postgres_url) as (execute, open_store):
         upgrades_keeping_its_rows("postgres", older, execute, open_store)
+
+
+def refusal(where: str) -> str:
+    """The exact refusal of a store named `where` whose ledger records SCHEMA_VERSION + 1."""
+    return (f"{where} has schema version {SCHEMA_VERSION + 1}, newer than version "
+            f"{SCHEMA_VERSION}, the newest this version of undertow knows: a newer version "
+            "of undertow migrated it. Upgrade this node to that version before starting it "
+            "(docs/deploy.md, Upgrading a cluster); it does not start on a schema it does "
+            "not know")
+
+
+def newer_is_refused(dialect: Dialect, where: str, execute: Execute,
+                     open_store: Callable[[], JobStore]) -> None:
+    """A database at the latest version with a job, its ledger then set one version ahead
+    (as a newer version that added a step would leave it): the store refuses it with
+    `refusal(where)` and changes nothing; at the current version again, it opens."""
+    def record(number: int) -> None:
+        for statement in LEDGERS[dialect].write:
+            execute(statement.format(version=number))
+
+    migrate(execute, dialect)
+    execute("INSERT INTO jobs (id, status, scene, owner, created) "
+            "VALUES ('kept', 'queued', '{}', 'host', 1.0)")
+    record(SCHEMA_VERSION + 1)
+    with pytest.raises(NewerSchema) as refused:
+        open_store()
+    assert str(refused.value) == refusal(where)
+    assert version(execute, dialect) == SCHEMA_VERSION + 1  # left as it was
+    record(SCHEMA_VERSION)
+    store = open_store()
+    try:
+        assert store.schema_version == SCHEMA_VERSION  # type: ignore[attr-defined]
+        assert store.get("kept").status == "queued"  # type: ignore[union-attr]
+    finally:
+        store.close()
+
+
+def test_a_sqlite_file_of_a_newer_schema_is_refused(tmp_path):
+    with sqlite_file(tmp_path) as (execute, open_store):
+        newer_is_refused("sqlite", f"the job store {tmp_path / 'db.sqlite3'}", execute,
+                         open_store)
+
+
+def postgres_where(url: str) -> str:
+    """How the store at `url` is named in messages."""
+    info = psycopg.conninfo.conninfo_to_dict(url)
+    return f"the job store (PostgreSQL {info['host']}:{info['port']}/{info['dbname']})"
+
+
+def test_a_postgres_database_of_a_newer_schema_is_refused(postgres_url):
+    with postgres_database(postgres_url) as (execute, open_store):
+        newer_is_refused("postgres", postgres_where(postgres_url), execute, open_store)
+
+
+def neither_role_starts(folder: Path, where: str, **store: str) -> None:
+    """An API server and a worker node on the store that `store` (UNDERTOW_* variables)
+    names, whose ledger records SCHEMA_VERSION + 1: both exit non-zero, logging
+    `refusal(where)` and no traceback."""
+    server = LiveServer(folder / "api.sqlite3", **store)  # the store of `store`
+    assert server.refused() != 0
+    node = WorkerNode(folder, "node", **store).start()
+    assert node.proc is not None and node.proc.wait(60) == REFUSED
+    for log in (server.log, node.log):
+        said = log.read_text()
+        assert refusal(where) in said and "Traceback" not in said, said
+
+
+def test_neither_role_starts_on_a_sqlite_file_of_a_newer_schema(tmp_path):
+    db = tmp_path / "jobs.sqlite3"
+    SqliteJobStore(db).close()
+    with closing(sqlite3.connect(db)) as conn:
+        conn.execute(f"PRAGMA user_version = {SCHEMA_VERSION + 1}")
+    neither_role_starts(tmp_path, f"the job store {db}", UNDERTOW_DB_PATH=str(db))
+
+
+def test_neither_role_starts_on_a_postgres_database_of_a_newer_schema(tmp_path, postgres_url):
+    PostgresJobStore(postgres_url).close()
+    with psycopg.connect(postgres_url, autocommit=True) as conn:
+        conn.execute("UPDATE undertow_schema SET version = %s", (SCHEMA_VERSION + 1,))
+    neither_role_starts(tmp_path, postgres_where(postgres_url), UNDERTOW_DB_URL=postgres_url)

@@ -3,7 +3,9 @@ on loopback (the fake solver, 20 ms per iteration), each with plans running and 
 kill -9 of one node's main process alone, of one solver process, SIGTERM of a node, a
 `pg_ctl restart -m fast`, the database stopped. Every accepted plan must end succeeded,
 none failed for an infrastructure reason, none left running; the lease is long (60 s), so
-a recovery that waited for it would fail the tests' time bounds."""
+a recovery that waited for it would fail the tests' time bounds. While the database is
+stopped, every request that needs it answers 503 within a container's health-check
+timeout."""
 
 from __future__ import annotations
 
@@ -17,6 +19,7 @@ import pytest
 from service_fixtures import two_link_scene
 
 from app.store.postgres import PostgresJobStore
+from app.store.waits import CHECK_WAIT, REQUEST_WAIT
 from testbed import postgres as pg
 from testbed.cluster import FAKE_SOLVER, WorkerNode, api_server, solving_on
 from testbed.probes import worker_pids
@@ -26,6 +29,7 @@ LEASE = 60.0
 SETTINGS = {"UNDERTOW_SOLVE_FUNCTION": FAKE_SOLVER, "UNDERTOW_LEASE": str(LEASE),
             "UNDERTOW_MAX_QUEUED": "64", "UNDERTOW_RETRY_BACKOFF": "0.2"}
 RUNNING_ITERATIONS = 100  # 2 s
+HEALTH_CHECK_TIMEOUT = 5.0  # [s] what a container's health check gives its command
 
 
 @pytest.fixture
@@ -149,6 +153,34 @@ def test_a_stopped_database_is_loud_and_nothing_accepted_is_lost(cluster, server
         server.resume()
     wait_for(lambda: http.get("/healthz").status_code == 200, 30, "health back at 200")
     all_succeed(http, submit(http, 2, iterations=3))
+
+
+def test_every_request_needing_a_stopped_database_answers_503_within_the_health_check(
+        tmp_path, server):
+    # the bound is what makes the answer come in time: 3 s at most, leaving 2 s of the
+    # health check's 5 s for the rest of the request even on a busy machine
+    assert CHECK_WAIT <= REQUEST_WAIT <= 3.0
+    url = server.create_database("outage")
+    with api_server(tmp_path, url, "api", **SETTINGS) as api, httpx.Client(
+            base_url=api.url, timeout=30) as http:
+        [queued] = submit(http, 1)  # no worker node: it stays queued
+        server.halt()
+        try:
+            for method, path, body in (("POST", "/v1/plans", two_link_scene()),
+                                       ("GET", f"/v1/plans/{queued}", None),
+                                       ("DELETE", f"/v1/plans/{queued}", None),
+                                       ("GET", "/healthz", None)):
+                asked = time.monotonic()
+                r = http.request(method, path, json=body)
+                took = time.monotonic() - asked
+                assert r.status_code == 503, (method, path, r.text)
+                assert r.headers["content-type"] == "application/problem+json"
+                assert r.json()["type"] == "urn:undertow:problem:unavailable"
+                assert took < HEALTH_CHECK_TIMEOUT - 0.1, (method, path, took)
+        finally:
+            server.resume()
+        wait_for(lambda: http.get("/healthz").status_code == 200, 30, "health back at 200")
+        assert http.get(f"/v1/plans/{queued}").json()["status"] == "queued"
 
 
 def test_an_idle_node_claims_a_queued_plan_within_milliseconds(cluster):

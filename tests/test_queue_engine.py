@@ -1,20 +1,24 @@
 """The PostgreSQL store's queue, procrastinate's (`app.store.postgres`): every transition
 of a job moves its engine job the same way in the same transaction (the interface's own
 behaviour is tests/test_store.py's, run on this store too); claims are procrastinate
-registrations whose heartbeat is the lease; the engine's NOTIFY wakes a listener; jobs
-queued or claimed by a version before procrastinate are taken over."""
+registrations whose heartbeat is the lease; the engine's NOTIFY wakes a listener, and
+the store's own wakes an idle worker for a job queued again (released, retried by id,
+requeued after its pause); jobs queued or claimed by a version before procrastinate are
+taken over."""
 
 from __future__ import annotations
 
 import contextlib
 import datetime
+import multiprocessing
 import select
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 import psycopg
 import pytest
 
+from app.idle_wait import IdleWait
 from app.store import DuplicateKey, RetryPolicy
 from app.store.migrations import migrate
 from app.store.postgres import PostgresJobStore
@@ -160,7 +164,7 @@ def test_a_deferred_job_is_notified_on_the_engines_channel(store):
     try:
         store.create("a", SCENE, "host")
         ready, _, _ = select.select([listener], [], [], 5.0)
-        assert ready and listener.drain() >= 1
+        assert ready and listener.drain() == [0.0]  # procrastinate's, claimable now
     finally:
         listener.close()
 
@@ -214,7 +218,7 @@ def test_a_released_job_is_notified_at_once(store):
         listener.drain()
         assert store.release("a", "w1")
         ready, _, _ = select.select([listener], [], [], 5.0)
-        assert ready and listener.drain() >= 1
+        assert ready and listener.drain() == [0.0]
     finally:
         listener.close()
 
@@ -231,3 +235,81 @@ def test_each_claim_is_judged_by_the_lease_it_stored(store, postgres_url):
     with contextlib.closing(PostgresJobStore(postgres_url, lease=0.1)) as quick:
         assert quick.expire(time.time()) == {"short": "queued"}  # not by its own 0.1 s
     assert store.get("long").status == "running"
+
+
+POLL = 30.0
+"""[s] the idle worker's poll in the pickup tests below, far longer than any of them takes:
+a job it claimed sooner was announced to it."""
+PAUSE = 1.0  # [s] the pause before a job requeued after an infrastructure failure
+
+
+@pytest.fixture
+def paused(postgres_url: str) -> Iterator[PostgresJobStore]:
+    """A store whose first requeue of a job pauses it PAUSE seconds."""
+    s = PostgresJobStore(postgres_url, lease=LEASE, policy=RetryPolicy(backoff=PAUSE))
+    yield s
+    s.close()
+
+
+def idle_pickup(store: PostgresJobStore, queue_again: Callable[[], object]) -> float:
+    """An idle worker as `app.worker.serve` runs one (it waits on its supervisor's pipe and
+    the store's announcements, `IdleWait`, and claims anyone's job whenever the wait
+    ends), listening before `queue_again()` queues a job again: the seconds from then
+    until it claimed the job (AssertionError when it did not within POLL)."""
+    ours, supervisor = multiprocessing.Pipe()
+    idle = IdleWait(store, ours)
+    try:
+        assert not idle.stop_requested(0.0) and idle.listener is not None  # listening
+        started = time.monotonic()
+        queue_again()
+        while time.monotonic() < started + POLL and not idle.stop_requested(POLL):
+            if store.claim(None, "idle", time.time() + LEASE) is not None:
+                return time.monotonic() - started
+        raise AssertionError(f"no claim within {POLL:g} s")
+    finally:
+        idle.close()
+        ours.close()
+        supervisor.close()
+
+
+def released(store: PostgresJobStore) -> Callable[[], object]:
+    return lambda: store.release("a", "w1")
+
+
+def retried(store: PostgresJobStore) -> Callable[[], object]:
+    store.finish("a", "failed", None, "boom", worker="w1")
+    return lambda: store.retry("a", "host")
+
+
+def died(store: PostgresJobStore) -> Callable[[], object]:
+    return lambda: store.requeue("a", "w1", "the worker process died")
+
+
+def stalled(store: PostgresJobStore) -> Callable[[], object]:
+    """The look for stalled claims, once the claim's registration has been silent for
+    longer than its lease (and the database up for longer than that)."""
+    up = float(store._rows("SELECT EXTRACT(EPOCH FROM now() - pg_postmaster_start_time())")[0][0])
+    time.sleep(max(LEASE * 1.5, LEASE - up))
+    return lambda: store.expire(time.time())
+
+
+QUEUED_AGAIN: dict[str, tuple[Callable[[PostgresJobStore], Callable[[], object]], float]] = {
+    "released by its stopping worker": (released, 0.0),
+    "retried by id after it failed": (retried, 0.0),
+    "requeued after its worker died": (died, PAUSE),
+    "requeued as a stalled claim": (stalled, PAUSE),
+}
+"""How a running job "a" (claimed by w1) is queued again: the setup, which returns the
+action, and the pause before the job may be claimed again [s]."""
+
+
+@pytest.mark.parametrize("how", sorted(QUEUED_AGAIN))
+def test_an_idle_worker_claims_a_job_queued_again_as_soon_as_it_may_not_at_its_poll(paused,
+                                                                                   how):
+    setup, pause = QUEUED_AGAIN[how]
+    paused.create("a", SCENE, "host")
+    assert claim(paused) == "a"
+    took = idle_pickup(paused, setup(paused))
+    assert pause * 0.9 <= took < POLL / 3, took  # its pause honoured, its poll not awaited
+    record = paused.get("a")
+    assert (record.worker, record.infra_failures) == ("idle", 1 if pause else 0)

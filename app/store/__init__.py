@@ -17,6 +17,7 @@ from app.store.base import (
     Listener,
     MemberRecord,
     NameTaken,
+    NewerSchema,
     Retention,
     RetryPolicy,
     StoreDamaged,
@@ -27,5 +28,5 @@ from app.store.sqlite import SqliteJobStore
 
 __all__ = ["BUILDING", "CANCELLED_ON_REQUEST", "DEAD_LETTER", "FINAL", "INTERRUPTED",
            "STATUSES", "BatchRecord", "DuplicateKey", "Held", "JobRecord", "JobStatus",
-           "JobStore", "Listener", "MemberRecord", "NameTaken", "Retention", "RetryPolicy",
-           "SqliteJobStore", "StoreDamaged", "StoreUnavailable", "WorkerRecord"]
+           "JobStore", "Listener", "MemberRecord", "NameTaken", "NewerSchema", "Retention",
+           "RetryPolicy", "SqliteJobStore", "StoreDamaged", "StoreUnavailable", "WorkerRecord"]

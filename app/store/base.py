@@ -82,6 +82,11 @@ class StoreDamaged(StoreUnavailable):
     job is accepted into it, and the service does not start on it."""
 
 
+class NewerSchema(StoreUnavailable):
+    """The store's schema is of a newer version than the newest migration this code knows
+    (a newer version of the service migrated it): the process does not start on it."""
+
+
 class NameTaken(StoreUnavailable):
     """A live server of the same name already runs on the store (`JobStore.hold_name`)."""
 
@@ -170,8 +175,10 @@ class Listener(Protocol):
     def fileno(self) -> int:
         """The descriptor to wait on."""
 
-    def drain(self) -> int:
-        """How many announcements arrived (0 or more); raises when the connection broke."""
+    def drain(self) -> list[float]:
+        """The pause [s] of each job announced since the last drain: 0.0 for one that may
+        be claimed now, else how long after its announcement it may be (a job queued
+        again after an infrastructure failure); raises when the connection broke."""
 
     def close(self) -> None:
         """End the connection."""

@@ -11,7 +11,9 @@ version.
 `migrate` applies the steps a database has not had, through the store's own connection and
 inside the transaction the store opened, and records the version where that database keeps
 it (`LEDGERS`: SQLite's `PRAGMA user_version`, PostgreSQL's table `undertow_schema`). A
-database of a newer version than this list is left as it is.
+database of a newer version than this list's newest step (migrated by a newer version of
+the service) is refused, changing nothing (`NewerSchema`, saying to upgrade the process):
+a process does not start on a schema it does not know.
 """
 
 from __future__ import annotations
@@ -19,6 +21,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Literal
+
+from app.store.base import NewerSchema
 
 Dialect = Literal["sqlite", "postgres"]
 DIALECTS: tuple[Dialect, ...] = ("sqlite", "postgres")
@@ -170,13 +174,28 @@ def version(execute: Execute, dialect: Dialect) -> int:
     return rows[0][0] if rows else 0
 
 
-def migrate(execute: Execute, dialect: Dialect, upto: int = SCHEMA_VERSION) -> int:
+def newer(where: str, found: int) -> NewerSchema:
+    """The refusal of `where` (the store, as messages name it), whose recorded schema
+    version `found` is newer than SCHEMA_VERSION."""
+    return NewerSchema(
+        f"{where} has schema version {found}, newer than version {SCHEMA_VERSION}, the "
+        f"newest this version of undertow knows: a newer version of undertow migrated it. "
+        f"Upgrade this node to that version before starting it (docs/deploy.md, "
+        f"Upgrading a cluster); it does not start on a schema it does not know")
+
+
+def migrate(execute: Execute, dialect: Dialect, upto: int = SCHEMA_VERSION,
+            where: str = "the database") -> int:
     """Apply the steps after the database's version up to `upto` (in the caller's
-    transaction) and record the new version; the version the database ends at."""
+    transaction) and record the new version; the version the database ends at.
+    NewerSchema (`newer`, naming the store as `where`), before any change, when the
+    database's version is newer than SCHEMA_VERSION."""
     ledger = LEDGERS[dialect]
     for statement in ledger.setup:
         execute(statement)
     start = version(execute, dialect)
+    if start > SCHEMA_VERSION:
+        raise newer(where, start)
     steps = [step for step in STEPS if start < step.version <= upto]
     for step in steps:
         for statement in step.sql(dialect):

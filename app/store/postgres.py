@@ -9,9 +9,12 @@ table `undertow_queue`, and every transition changes both rows in one transactio
 - claim: procrastinate's `fetch_job` (oldest by id, `FOR UPDATE SKIP LOCKED`, its retry
   time come) for a procrastinate worker registered for that claim alone, so that the
   registration's heartbeat is the claim's lease;
-- pickup: procrastinate's trigger NOTIFYs its channel when a job is deferred, and this
-  store when it queues a job again at once (released by its worker); idle solver
-  processes LISTEN there;
+- pickup: procrastinate's trigger NOTIFYs its channel when a job is deferred (inserted);
+  this store NOTIFYs it when it queues a job again, which the trigger does not see: at
+  once (released by its worker, retried by id) with an empty payload, after a pause (an
+  infrastructure failure: a dead worker, a stalled claim) with the pause
+  (`app.store.postgres_listener.due_in`), so that idle solver processes, which LISTEN
+  there, look for it when the pause has passed rather than at their next poll;
 - renewal: procrastinate's `update_heartbeat` of the claim's registration;
 - stalled jobs: procrastinate's `select_stalled_jobs_by_heartbeat` rewritten (`_STALLED`)
   to time each claim out by its own lease (the one it stored) rather than one for all:
@@ -50,7 +53,7 @@ from procrastinate import jobs as engine_jobs
 from procrastinate.sql import queries
 
 from app.store.base import FINAL, JobRecord, JobStatus, RetryPolicy
-from app.store.postgres_listener import PostgresListener
+from app.store.postgres_listener import PostgresListener, due_in
 from app.store.postgres_sql import PostgresSql
 from app.store.sql import COLUMNS, LEASE_RAN_OUT
 
@@ -166,10 +169,11 @@ class PostgresJobStore(PostgresSql):
             "SELECT j.id, j.owner, j.status, j.infra_failures, q.id, q.status, q.worker_id "
             "FROM jobs j LEFT JOIN undertow_queue m ON m.job_id = j.id "
             "LEFT JOIN procrastinate_jobs q ON q.id = m.queue_id WHERE j.id = ANY(%s)", (ids,))
-        at_once = False
+        queued: set[float] = set()
         for job_id, owner, status, failures, queue_id, engine_status, engine_worker in rows:
             delay = self.policy.delay(failures) if pause else 0.0
-            at_once = at_once or status == "queued" and delay == 0.0
+            if status == "queued":
+                queued.add(delay)
             if queue_id is None and status == "queued":
                 self._defer([(job_id, owner)], delay)
             elif status == "queued" and engine_status == "doing":
@@ -182,8 +186,14 @@ class PostgresJobStore(PostgresSql):
                           delete_job=False)
             if engine_worker is not None:
                 self._run("unregister_worker", worker_id=engine_worker)
-        if at_once:  # procrastinate notifies a deferred job only: wake the idle workers
-            self._rows("SELECT pg_notify(%s, '')", (CHANNEL,))
+        self._announce(queued)
+
+    def _announce(self, pauses: set[float]) -> None:
+        """NOTIFY idle workers (at commit) of jobs queued again, which procrastinate's
+        trigger does not see: once for those claimable now, once for each pause [s]."""
+        for delay in sorted(pauses):
+            self._rows("SELECT pg_notify(%s, %s)",
+                       (CHANNEL, due_in(delay) if delay > 0.0 else ""))
 
     def create(self, job_id: str, scene: dict[str, Any], owner: str,
                limit: int | None = None, key: str | None = None,
@@ -315,6 +325,7 @@ class PostgresJobStore(PostgresSql):
             if row and row[0][1] == "failed":
                 self._run("retry_job", job_id=row[0][0], retry_at=_utc(time.time()),
                           new_priority=None, new_queue_name=owner, new_lock=None)
+                self._announce({0.0})
             else:
                 self._defer([(job_id, owner)])
             return True

@@ -11,7 +11,8 @@ run in one transaction holding the owner's advisory lock.
 
 The schema is versioned in the table `undertow_schema`; opening the store applies the
 migrations it has not had (`app.store.migrations`, the SQLite store's too) under an
-advisory lock so that servers starting together migrate once. JSON objects are `jsonb`;
+advisory lock so that servers starting together migrate once, and refuses a schema newer
+than the code knows (`NewerSchema`). JSON objects are `jsonb`;
 times are Unix seconds (`double precision`) taken from the clock of the process that
 writes them, so the machines of one deployment keep their clocks synchronised (NTP).
 """
@@ -46,6 +47,7 @@ from app.store.base import (
 )
 from app.store.migrations import migrate, version
 from app.store.sql import COLUMNS, SqlJobStore
+from app.store.waits import CHECK_WAIT, connection_wait
 
 _MIGRATION_LOCK = 0x756E6474  # advisory lock key held while migrating ("undt")
 
@@ -104,11 +106,6 @@ def _lock_key(owner: str) -> int:
 _NAME_LOCKS = 0x756E6476  # first key of the advisory locks of server names ("undv")
 
 
-CHECK_WAIT = 2.0
-"""[s] the longest a health check waits for a connection (a container's health check
-gives its command 5 s)."""
-
-
 class NameLock:
     """Server name `name` held in the database at `url` by a session advisory lock on a
     connection of its own, kept open until `release` (NameTaken when another session
@@ -137,7 +134,8 @@ class PostgresSql(SqlJobStore):
     announces them.
 
     `pool_size` connections at most per process; a statement that cannot get one within
-    `timeout` seconds, or fails on the server, raises StoreUnavailable."""
+    `timeout` seconds (REQUEST_WAIT at most for an HTTP request: `app.store.waits`), or
+    fails on the server, raises StoreUnavailable."""
 
     def __init__(self, url: str, pool_size: int = 4, timeout: float = 10.0,
                  policy: RetryPolicy | None = None):
@@ -190,12 +188,14 @@ class PostgresSql(SqlJobStore):
     @contextmanager
     def _connection(self, wait: float | None = None) -> Iterator[psycopg.Connection]:
         """The connection of this thread's open transaction, else a pooled one within
-        `wait` seconds (default: the store's timeout); any database or pool error becomes
-        StoreUnavailable."""
+        `wait` seconds (default: the store's timeout, bounded within an HTTP request:
+        `app.store.waits`); any database or pool error becomes StoreUnavailable."""
         held = getattr(self._local, "conn", None)
         if held is not None:
             yield held
             return
+        if wait is None:
+            wait = connection_wait(self.timeout)
         try:
             with self._get_pool().connection(timeout=wait) as conn:
                 yield conn
@@ -245,11 +245,12 @@ class PostgresSql(SqlJobStore):
 
     def _migrate(self) -> None:
         """Apply the migrations (`app.store.migrations`) this database has not had yet, in
-        one transaction."""
+        one transaction; NewerSchema, changing nothing, when a newer version migrated it."""
         try:
             with self._connection() as conn, conn.transaction():
                 conn.execute("SELECT pg_advisory_xact_lock(%s)", (_MIGRATION_LOCK,))
-                migrate(partial(_execute, conn), "postgres")
+                migrate(partial(_execute, conn), "postgres",
+                        where=f"the job store ({self._where()})")
         except psycopg.Error as exc:
             raise StoreUnavailable(f"the job store ({self._where()}) could not be migrated: "
                                    f"{exc}") from exc

@@ -15,7 +15,8 @@ whose lease ended. Nothing announces a queued job to another process (`listen`).
 
 Opening the store checks its integrity (`app.store.sqlite_integrity`: `PRAGMA
 integrity_check`) and brings its schema up to date (`app.store.migrations`; `PRAGMA
-user_version` counts the migrations applied); a job is accepted (`create`, `create_batch`,
+user_version` counts the migrations applied; a newer schema than the code knows is
+refused, `NewerSchema`); a job is accepted (`create`, `create_batch`,
 `retry`) and the store's health checked (`check`) only after `verify`, the same module's
 check of the file as it is now. The
 write-ahead log is moved into the database file at least every `checkpoint_interval`
@@ -43,6 +44,7 @@ from app.store.base import (
     JobRecord,
     JobStatus,
     MemberRecord,
+    NewerSchema,
     RetryPolicy,
     StoreUnavailable,
 )
@@ -129,15 +131,18 @@ class SqliteJobStore(SqlJobStore):
 
     def _migrate(self) -> None:
         """Apply the migrations (`app.store.migrations`) this file has not had yet, in one
-        transaction."""
+        transaction; NewerSchema, changing nothing, when a newer version migrated it."""
         conn = self.file.connection()
         try:
             conn.execute("BEGIN IMMEDIATE")
-            migrate(lambda sql: conn.execute(sql).fetchall(), "sqlite")
+            migrate(lambda sql: conn.execute(sql).fetchall(), "sqlite",
+                    where=f"the job store {self.path}")
             conn.execute("COMMIT")
-        except sqlite3.Error as exc:
+        except (sqlite3.Error, NewerSchema) as exc:
             if conn.in_transaction:
                 conn.execute("ROLLBACK")
+            if isinstance(exc, NewerSchema):
+                raise
             raise StoreUnavailable(f"the job store {self.path} could not be migrated: "
                                    f"{exc}") from exc
 
