@@ -21,7 +21,7 @@ its factorizations, the fewest of any way measured. A decrease of 0.6 makes 1.36
 the perturbation linger: 1.18 times the iterations."""
 
 IPOPT_OPTIONS = {"linear_solver": "mumps", "mumps_pivot_order": 0, "mumps_scaling": 0,
-                 "mumps_mem_percent": 200, "mu_strategy": "adaptive"}
+                 "mumps_mem_percent": 200, "mumps_pivtol": 1e-8, "mu_strategy": "adaptive"}
 """Ipopt settings every NLP is built with (docs/benchmarks.md, "Ipopt settings"). MUMPS orders
 the KKT matrix by approximate minimum degree (0): on the banded collocation matrices Ipopt's
 own work per iteration is lower than with its automatic choice on five of the six reference
@@ -34,7 +34,14 @@ pages afresh, a fifth of an iteration's CPU time in the kernel
 (docs/benchmarks.md, "Cost of an iteration on the seed arm"); Ipopt enlarges a workspace
 that MUMPS finds too small and factors again. The adaptive barrier update stays, with its
 quality-function oracle: the monotone update and the probing oracle saved iterations on
-some scenes but ended in worse optima or the iteration limit on the horizontal seed arm."""
+some scenes but ended in worse optima or the iteration limit on the horizontal seed arm.
+MUMPS accepts a pivot down to 1e-8 of its column's largest entry (Ipopt's 1e-6): where the
+multipliers of a co-design's coupling margin grow huge, the unscaled KKT matrix has
+columns of very different sizes, MUMPS delayed pivot after pivot, its factors outgrew the
+workspace again and again, and each enlargement (up to 32 times the first) made every
+later factorization of the solve map and fault in its pages anew: single iterations of
+tens of seconds, past the plan's wall time. Ipopt still raises the tolerance where a
+solution is inaccurate (mumps_pivtolmax)."""
 
 WARM_OPTIONS = {"warm_start_init_point": "yes", "mu_init": 1e-6,
                 "warm_start_bound_push": 1e-9, "warm_start_bound_frac": 1e-9,
