@@ -38,9 +38,9 @@ some scenes but ended in worse optima or the iteration limit on the horizontal s
 MUMPS accepts a pivot down to 1e-8 of its column's largest entry (Ipopt's 1e-6): where the
 multipliers of a co-design's coupling margin grow huge, the unscaled KKT matrix has
 columns of very different sizes, MUMPS delayed pivot after pivot, its factors outgrew the
-workspace again and again, and each enlargement (up to 32 times the first) made every
-later factorization of the solve map and fault in its pages anew: single iterations of
-tens of seconds, past the plan's wall time. Ipopt still raises the tolerance where a
+workspace again and again, and each enlargement made every later factorization of the
+solve map and fault in its pages anew: single iterations of tens of seconds, past the
+plan's wall time. Ipopt still raises the tolerance where a
 solution is inaccurate (mumps_pivtolmax)."""
 
 WARM_OPTIONS = {"warm_start_init_point": "yes", "mu_init": 1e-6,
