@@ -213,12 +213,14 @@ class PostgresSql(SqlJobStore):
             finally:
                 self._local.conn = outer
 
-    def _rows(self, sql: str, params: tuple | dict = ()) -> builtins.list[tuple]:
-        """Every row of one statement (autocommit: a write is complete on return); the
+    def _rows(self, sql: str, params: tuple | dict = (),
+              wait: float | None = None) -> builtins.list[tuple]:
+        """Every row of one statement (autocommit: a write is complete on return), waiting
+        `wait` seconds at most for a connection (`_connection`'s default without); the
         shared statements' `?` and `:name` parameters become psycopg's `%s`, `%(name)s`."""
         named = not isinstance(params, tuple)
         sql = _NAMED.sub(r"%(\1)s", sql) if named else sql.replace("?", "%s")
-        with self._connection() as conn:
+        with self._connection(wait) as conn:
             cursor = conn.execute(sql, params)
             return cursor.fetchall() if cursor.description is not None else []
 
@@ -358,8 +360,7 @@ class PostgresSql(SqlJobStore):
         """Read the newest job through the pool (a new connection if the old ones broke),
         waiting at most CHECK_WAIT for a connection: a health check answers within a
         container's health-check timeout while the database is away."""
-        with self._connection(CHECK_WAIT) as conn:
-            conn.execute("SELECT id FROM jobs ORDER BY created DESC LIMIT 1").fetchall()
+        self._rows("SELECT id FROM jobs ORDER BY created DESC LIMIT 1", wait=CHECK_WAIT)
 
     def verify(self) -> None:
         """Nothing to do: PostgreSQL checks its own pages as it reads them (checksums,

@@ -44,7 +44,6 @@ from app.store.base import (
     JobRecord,
     JobStatus,
     MemberRecord,
-    NewerSchema,
     RetryPolicy,
     StoreUnavailable,
 )
@@ -138,13 +137,12 @@ class SqliteJobStore(SqlJobStore):
             migrate(lambda sql: conn.execute(sql).fetchall(), "sqlite",
                     where=f"the job store {self.path}")
             conn.execute("COMMIT")
-        except (sqlite3.Error, NewerSchema) as exc:
-            if conn.in_transaction:
-                conn.execute("ROLLBACK")
-            if isinstance(exc, NewerSchema):
-                raise
+        except sqlite3.Error as exc:
             raise StoreUnavailable(f"the job store {self.path} could not be migrated: "
                                    f"{exc}") from exc
+        finally:  # a refusal (NewerSchema) or a failure leaves the file as it was
+            if conn.in_transaction:
+                conn.execute("ROLLBACK")
 
     @property
     def schema_version(self) -> int:
