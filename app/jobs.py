@@ -45,7 +45,8 @@ class JobRunner:
     runs when a job ends, e.g. to update metrics. At most `workers + max_queued` jobs of
     the instance are unfinished at once. `memory_mb` caps each worker's memory growth and
     `grace` is how long a job may run past its wall-time budget before its worker is
-    stopped; `lease` how long a claim holds without renewal. With no workers the server
+    stopped; `lease` how long a claim holds without renewal; `drain` how long a stop lets
+    running jobs end before it releases them. With no workers the server
     only accepts jobs, for workers elsewhere (`undertow worker`) to run.
     """
 
@@ -53,7 +54,7 @@ class JobRunner:
                  max_queued: int, retry_after: int = 5, memory_mb: float | None = None,
                  grace: float = 30.0, log_level: str = "INFO",
                  on_done: Callable[[JobEnd], None] | None = None, lease: float = 60.0,
-                 retention: Retention | None = None):
+                 retention: Retention | None = None, drain: float = 0.0):
         self.store, self.owner = store, owner
         self.capacity, self.retry_after = workers + max_queued, retry_after
         self._on_done = on_done
@@ -61,7 +62,8 @@ class JobRunner:
         self._waiters: dict[str, list[tuple[asyncio.AbstractEventLoop, asyncio.Event]]] = {}
         self._waiters_lock = threading.Lock()
         self.supervisor = Supervisor(store, solve, owner, workers, memory_mb, grace,
-                                     log_level, self._ended, lease=lease, retention=retention)
+                                     log_level, self._ended, lease=lease, retention=retention,
+                                     drain=drain)
 
     def start(self) -> list[str]:
         """Take the server's name on the store (NameTaken, touching nothing, when a live
@@ -158,7 +160,8 @@ class JobRunner:
         return self.supervisor.problem
 
     def shutdown(self) -> None:
-        """Stop: running jobs are released (queued again), queued ones stay queued in the
+        """Stop: running jobs that do not end within the drain are released (queued
+        again), queued ones stay queued in the
         store for the next start or another server's workers; the store is then
         checkpointed, the server's name given back and the store closed."""
         self.supervisor.stop()

@@ -128,7 +128,7 @@ def _start(app: FastAPI, settings: Settings, solve: SolveFunction | None) -> Job
                        memory_mb=settings.worker_memory_mb,
                        grace=settings.wall_time_grace, log_level=settings.log_level,
                        on_done=app.state.metrics.job_done, lease=settings.lease,
-                       retention=settings.retention())
+                       retention=settings.retention(), drain=settings.drain)
     try:
         runner.start()
     except StoreUnavailable as exc:

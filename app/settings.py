@@ -47,6 +47,10 @@ class Settings(BaseSettings):
         "seconds a worker's claim on a job holds without renewal (renewed every 0.25 s); a "
         "job whose worker stays silent that long has had an infrastructure failure and is "
         "requeued (UNDERTOW_MAX_RETRIES)"))
+    drain: float = Field(default=0.0, ge=0.0, le=3600.0, description=(
+        "seconds a stopping server or worker node (SIGTERM, Ctrl-C) lets its running solves "
+        "end, claiming nothing new, before it releases those still running to other nodes "
+        "(0: at once); keep it below the stop's grace period (`docker stop -t`)"))
     max_retries: int = Field(default=3, ge=0, le=100, description=(
         "requeues a job gets after infrastructure failures (its worker process or node "
         "died, its lease ran out, its server stopped under it); one more failure ends it "

@@ -21,9 +21,11 @@ their cancel flags in the same statement) and settles jobs whose lease ran out, 
 server or worker sharing the store (`JobStore.expire`, an infrastructure failure too). A
 supervisor with no workers (an API-only server) still does that. A server's supervisor
 runs workers that claim the server's own jobs; `undertow worker` runs one whose workers
-claim anyone's. On stop (SIGTERM, Ctrl-C), idle workers leave at once, busy ones are
-killed and their jobs released (queued again at once, not counted as a failure) for
-another worker or node, or the next start; queued jobs stay queued.
+claim anyone's. On stop (SIGTERM, Ctrl-C), every worker is told to claim nothing more and
+the busy ones get `drain` seconds to end their jobs (renewed and held to their bounds
+meanwhile); then idle workers leave at once, busy ones are killed and their jobs released
+(queued again at once, not counted as a failure) for another worker or node, or the next
+start; queued jobs stay queued.
 """
 
 from __future__ import annotations
@@ -109,16 +111,18 @@ class Supervisor:
 
     `on_done(end)` runs in the supervising thread whenever a job ends, by its worker's
     report or by the supervisor's verdict. `lease` [s] is how long a claim holds without
-    renewal."""
+    renewal; `drain` [s] how long `stop` lets running jobs end before it releases them."""
 
     def __init__(self, store: JobStore, solve: SolveFunction, owner: str, workers: int,
                  memory_mb: float | None, grace: float, log_level: str = "INFO",
                  on_done: Callable[[JobEnd], None] | None = None, lease: float = LEASE,
-                 any_owner: bool = False, retention: Retention | None = None):
+                 any_owner: bool = False, retention: Retention | None = None,
+                 drain: float = 0.0):
         self.store, self.solve, self.owner = store, solve, owner
         self.count, self.memory_mb, self.grace = workers, memory_mb, grace
         self.log_level, self.on_done = log_level, on_done
         self.lease, self.any_owner, self.retention = lease, any_owner, retention
+        self.drain = drain
         self._next_purge = self._next_heartbeat = 0.0
         self._started = time.time()
         self._expire_interval = min(EXPIRE_INTERVAL, lease / 4)
@@ -129,6 +133,7 @@ class Supervisor:
         self._last_exit: int | None = None
         self._send_lock = threading.Lock()
         self._stopping = threading.Event()
+        self._draining = False
         self._thread = threading.Thread(target=self._run, name="supervisor", daemon=True)
         self._next_expiry = 0.0
         self._store_error: str | None = None
@@ -160,14 +165,19 @@ class Supervisor:
                 self._send(worker, WAKE)
 
     def stop(self) -> None:
-        """Stop every worker: queued jobs stay queued, running ones are released (queued
-        again at once for another worker, or the next start) once their worker is gone."""
+        """Stop every worker: queued jobs stay queued, running ones that do not end within
+        `drain` seconds are released (queued again at once for another worker, or the next
+        start) once their worker is gone."""
+        self._draining = True  # no worker is started again
+        for worker in self._slots:
+            if worker is not None:
+                self._send(worker, STOP)  # read by the worker before it claims again
+        self._let_jobs_end()
         self._stopping.set()
         if self._thread.is_alive():
             self._thread.join()
         workers = [w for w in self._slots if w is not None]
         for worker in workers:
-            self._send(worker, STOP)
             self._drain(worker)
         deadline = time.monotonic() + STOP_WAIT
         for worker in workers:
@@ -191,6 +201,15 @@ class Supervisor:
         if self.count:
             with contextlib.suppress(StoreUnavailable):
                 self.store.forget_worker(self.owner)
+
+    def _let_jobs_end(self) -> None:
+        """Wait up to `drain` seconds for the running jobs to end, while the supervising
+        thread goes on renewing their leases and holding them to their bounds."""
+        deadline = time.monotonic() + self.drain
+        if self.drain > 0.0 and self.busy():
+            log.info("stopping: %d running jobs have %g s to end", self.busy(), self.drain)
+        while self.busy() and time.monotonic() < deadline and self._thread.is_alive():
+            time.sleep(TICK)
 
     def _spawn(self, slot: int) -> None:
         name = f"{self.owner}/{slot}/{uuid.uuid4().hex[:8]}"
@@ -242,7 +261,8 @@ class Supervisor:
                 self._drain(worker)
         now = time.monotonic()
         for slot, worker in enumerate(self._slots):
-            if worker is None and self._wanted and now >= self._restart_at[slot]:
+            if (worker is None and self._wanted and not self._draining
+                    and now >= self._restart_at[slot]):
                 self._spawn(slot)
             elif (worker is not None and worker.job is not None and worker.fate is None
                   and now > worker.deadline):

@@ -89,7 +89,8 @@ def run(settings: Settings, processes: int, stop: threading.Event | None = None,
     supervisor = Supervisor(store, load_function(settings.solve_function), name, processes,
                             settings.worker_memory_mb, settings.wall_time_grace,
                             settings.log_level, on_done=done, lease=settings.lease,
-                            any_owner=True, retention=settings.retention())
+                            any_owner=True, retention=settings.retention(),
+                            drain=settings.drain)
     stop = stop or threading.Event()
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGTERM, signal.SIGINT):

@@ -13,6 +13,7 @@ import contextlib
 import os
 import signal
 import time
+from datetime import datetime
 
 import httpx
 import pytest
@@ -115,6 +116,26 @@ def test_sigterm_of_a_node_releases_its_running_job_to_the_other_node(cluster):
     jobs = {j["id"]: j for j in all_succeed(http, ids)}
     assert (jobs[lost]["infra_failures"], jobs[lost]["attempts"]) == (0, 1)
     assert "released" in [e["event"] for e in jobs[lost]["history"]]
+
+
+def test_a_draining_node_ends_its_running_job_claims_nothing_more_and_exits(cluster, tmp_path):
+    http, node_1, node_2, store, url = cluster
+    with WorkerNode(tmp_path, "node-3", UNDERTOW_DB_URL=url, UNDERTOW_DRAIN="30",
+                    **SETTINGS) as node_3:
+        ids = submit(http, 6)
+        kept = wait_for(lambda: solving_on(store, node_3), 60, "node 3 solving a plan")
+        node_3.proc.send_signal(signal.SIGTERM)  # docker stop -t 40
+        stopped = time.time()
+        assert node_3.proc.wait(30) == 0
+        record = store.get(kept)
+        assert (record.status, node_3.owns(record.worker)) == ("succeeded", True)
+    jobs = {j["id"]: j for j in all_succeed(http, ids)}
+    assert [e["event"] for e in jobs[kept]["history"]] == ["claimed", "finished"]
+    assert (jobs[kept]["attempts"], jobs[kept]["infra_failures"]) == (1, 0)
+    claims_after = [e for j in jobs.values() for e in j["history"]
+                    if e["event"] == "claimed" and node_3.owns(e["worker"])
+                    and datetime.fromisoformat(e["at"]).timestamp() > stopped]
+    assert claims_after == []
 
 
 def test_a_postgres_restart_mid_solve_loses_nothing_and_costs_no_attempt(cluster, server):
