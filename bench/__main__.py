@@ -17,6 +17,8 @@ from bench import harness
 BENCHES = {
     "build": ("bench.build", "building an NLP against the number of links, now and at an "
                              "earlier commit"),
+    "cluster_ops": ("bench.cluster_ops", "a PostgreSQL cluster through a 60 s database outage, "
+                                         "mixed leases, requeues and a rolling upgrade"),
     "closed_loop": ("bench.closed_loop", "an arm heavier than its model and pushed: "
                                          "replanning at a fixed rate against LQR feedback "
                                          "alone"),

@@ -47,6 +47,7 @@ SMALL: dict[str, Small] = {
     "iteration_cost": Small((("--N", "10", "--iterations", "3", "--repeats", "1"),)),
     "memory": Small((("--bases", "1", "--variants", "1", "--moves", "0.05"),)),
     "moved_goals": Small((("--variants", "1", "--examples", "two-link-plan"),)),
+    "cluster_ops": Small((("--tries", "1", "--probes", "leases"),), needs=("postgres",)),
     "faults": Small((("--tries", "1", "--probes", "1"),
                      ("--postgres", "--tries", "1", "--probes", "1")), needs=("postgres",)),
     "fuzz": Small((("--max-examples", "1", "--phases", "fuzzing,stateful"),)),

@@ -31,13 +31,15 @@ def api_server(folder: Path, db_url: str, instance: str, **extra: str) -> LiveSe
 class WorkerNode:
     """`undertow worker --processes N`, in its own process group."""
 
-    def __init__(self, folder: Path, instance: str, processes: int = 1, **settings: str):
-        """`settings`: UNDERTOW_* variables, the store's among them. `args`, set before
-        `start`, adds options of `undertow worker`."""
-        self.instance, self.processes = instance, processes
+    def __init__(self, folder: Path, instance: str, processes: int = 1, *, root: Path = ROOT,
+                 **settings: str):
+        """`settings`: UNDERTOW_* variables, the store's among them; `root`: the checkout
+        whose code the node runs (another version's, for a rolling upgrade). `args`, set
+        before `start`, adds options of `undertow worker`."""
+        self.instance, self.processes, self.root = instance, processes, root
         self.args: tuple[str, ...] = ()
         self.env = {**os.environ, "UNDERTOW_INSTANCE": instance, "UNDERTOW_LOG_LEVEL": "WARNING",
-                    **settings, "PYTHONPATH": str(ROOT)}  # testbed's fake solver
+                    **settings, "PYTHONPATH": str(root)}  # its code, testbed's fake solver
         self.log = folder / f"{instance}.log"
         self.proc: subprocess.Popen | None = None
 
@@ -45,7 +47,7 @@ class WorkerNode:
         with open(self.log, "ab") as log:
             self.proc = subprocess.Popen(
                 [str(UNDERTOW), "worker", "--processes", str(self.processes), *self.args],
-                cwd=ROOT,
+                cwd=self.root,
                 env=self.env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
         return self
 

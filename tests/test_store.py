@@ -200,6 +200,21 @@ def test_leases_are_renewed_by_job_and_worker_with_cancel_flags_and_expire(store
     assert store.get("a").status == "running"
 
 
+def test_a_short_lease_being_renewed_is_not_taken_by_a_look_ahead(store):
+    # a process with a long lease looks ahead by its look interval (up to 15 s): a claim of
+    # a node with a 1 s lease renewed a moment ago is healthy all the same; once silent
+    # for its whole lease, it is lost
+    store.create("a", SCENE, "host")
+    assert claim(store, worker="w1", lease=1.0) == "a"
+    assert store.expire(time.time() + 5.0) == {}
+    time.sleep(0.6)
+    assert store.renew([("a", "w1")], time.time() + 1.0) == {"a": False}
+    time.sleep(0.6)  # 1.2 s after the claim, 0.6 s after the renewal
+    assert store.expire(time.time() + 5.0) == {}
+    time.sleep(0.5)
+    assert store.expire(time.time() + 5.0) == {"a": "queued"}
+
+
 def test_infrastructure_failures_are_retried_after_a_pause_then_dead_lettered(store):
     store.policy = RetryPolicy(max_retries=2, backoff=0.2, max_backoff=0.3)
     store.create("a", SCENE, "host")

@@ -38,6 +38,10 @@ INTERRUPTED = "interrupted"
 DEAD_LETTER = "dead letter"
 """The start of the error of a job that failed for infrastructure reasons too often."""
 CANCELLED_ON_REQUEST = "cancelled on request"
+SILENCE = 2.0
+"""[s] A claim is taken as lost only once it has been silent this long (its whole lease,
+if that is shorter): a look that takes the claims whose lease runs out before the next
+look must not take a shorter lease's claim that is being renewed (four times a second)."""
 BUILDING: dict[str, Any] = {"phase": "building", "iteration": 0, "objective": None,
                             "inf_pr": None, "inf_du": None, "elapsed": 0.0, "mesh_pass": 0}
 """The progress of a job from its claim until the solver's first iteration."""
@@ -283,8 +287,9 @@ class JobStore(ABC):
 
     @abstractmethod
     def expire(self, now: float) -> dict[str, JobStatus]:
-        """`requeue` the running jobs whose lease ended before `now` (their worker or
-        node was lost); {job id: new status}."""
+        """`requeue` the running jobs whose lease ends before `now` and whose claim has
+        been silent for `SILENCE` at least (their worker or node was lost); {job id: new
+        status}."""
 
     @abstractmethod
     def hold_name(self, name: str) -> Held:

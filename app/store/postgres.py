@@ -52,7 +52,7 @@ from procrastinate import SyncPsycopgConnector, exceptions, manager, schema
 from procrastinate import jobs as engine_jobs
 from procrastinate.sql import queries
 
-from app.store.base import FINAL, JobRecord, JobStatus, RetryPolicy
+from app.store.base import FINAL, SILENCE, JobRecord, JobStatus, RetryPolicy
 from app.store.postgres_listener import PostgresListener, due_in
 from app.store.postgres_sql import PostgresSql
 from app.store.sql import COLUMNS, LEASE_RAN_OUT
@@ -75,10 +75,12 @@ _STALLED = (  # procrastinate's select_stalled_jobs_by_heartbeat, each claim by 
     "WHERE q.status = 'doing' AND q.task_name = '" + TASK + "' AND "
     "EXTRACT(EPOCH FROM now() - pg_postmaster_start_time()) >= COALESCE(j.lease, :lease) "
     "AND (q.worker_id IS NULL OR w.last_heartbeat < now() - make_interval(secs => "
-    "GREATEST(0, COALESCE(j.lease, :lease) - :ahead)))")
+    "GREATEST(LEAST(COALESCE(j.lease, :lease), :silence), COALESCE(j.lease, :lease) - :ahead)"
+    "))")
 """The engine jobs whose claim's registration is gone or was silent for longer than the
 lease the claim stored (`:lease`, the looking process's, for a claim that stored none),
-`:ahead` [s] later than now."""
+`:ahead` [s] later than now, and silent now for `:silence` s at least (its whole lease if
+shorter: `SILENCE`)."""
 
 
 @contextmanager
@@ -259,7 +261,7 @@ class PostgresJobStore(PostgresSql):
                 "lease_until < :expired AND NOT EXISTS (SELECT 1 FROM undertow_queue "
                 "WHERE job_id = jobs.id)", {"expired": now}, LEASE_RAN_OUT)
             stalled = [row[0] for row in self._rows(_STALLED, {
-                "ahead": now - time.time(), "lease": self.lease})]
+                "ahead": now - time.time(), "lease": self.lease, "silence": SILENCE})]
             if not stalled:
                 return before
             return {**before, **self._requeue(

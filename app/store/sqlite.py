@@ -39,6 +39,7 @@ from typing import Any
 
 from app.store.base import (
     CANCELLED_ON_REQUEST,
+    SILENCE,
     BatchRecord,
     DuplicateKey,
     JobRecord,
@@ -243,7 +244,10 @@ class SqliteJobStore(SqlJobStore):
         return {job_id: bool(cancel) for job_id, cancel in rows}
 
     def expire(self, now: float) -> dict[str, JobStatus]:
-        return self._requeue("lease_until < :expired", {"expired": now}, LEASE_RAN_OUT)
+        return self._requeue(  # renewed last at lease_until - lease
+            "lease_until < :expired AND lease_until - COALESCE(lease, 0) < "
+            ":now - MIN(COALESCE(lease, :silence), :silence)",
+            {"expired": now, "now": time.time(), "silence": SILENCE}, LEASE_RAN_OUT)
 
     def create_batch(self, batch_id: str, spec: dict[str, Any],
                      members: builtins.list[tuple[str, dict[str, Any]]], owner: str,
