@@ -2,7 +2,7 @@
 announcements of queued jobs (`JobStore.listen`). On PostgreSQL the worker hears of a
 queued job and claims it within milliseconds; of a job queued again after a pause (an
 infrastructure failure's), it hears at once and looks again when the pause has passed
-(`DUE_SLACK` later). On a store that announces nothing, or while its listening connection
+(`DUE_LOOKS` after it). On a store that announces nothing, or while its listening connection
 is broken, it looks when its supervisor says WAKE or when the wait's timeout ends
 (`app.worker.IDLE_POLL`)."""
 
@@ -19,9 +19,10 @@ from app.worker_pipe import stop_requested
 log = logging.getLogger("undertow.worker")
 
 LISTEN_RETRY = 5.0  # [s] between two tries to LISTEN again after the connection broke
-DUE_SLACK = 0.05
-"""[s] how long after an announced pause has passed the worker looks: the job's retry time
-is written by the clock of the process that queued it again, this wait runs on this one's."""
+DUE_LOOKS = (0.005, 0.05)
+"""[s] when, after an announced pause has passed, the worker looks for the job: the job's
+retry time is written by the clock of the process that queued it again, this wait runs on
+this one's, so a second look allows for clocks that differ by up to 50 ms."""
 
 
 class IdleWait:
@@ -71,8 +72,8 @@ class IdleWait:
                 announced = self.listener.fileno()
                 if announced in wait([self.channel, announced], timeout):
                     now = time.monotonic()
-                    self.due += [now + pause + DUE_SLACK
-                                 for pause in self.listener.drain() if pause > 0.0]
+                    self.due += [now + pause + after for pause in self.listener.drain()
+                                 if pause > 0.0 for after in DUE_LOOKS]
             except Exception as exc:  # noqa: BLE001 - the listening connection broke
                 log.warning("LISTEN connection lost (polling meanwhile): %s", exc)
                 self._drop()

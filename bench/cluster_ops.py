@@ -18,17 +18,17 @@ progress write each), `UNDERTOW_LEASE` 20 s unless a probe says otherwise:
   process killed (requeued after the retry pause, `UNDERTOW_RETRY_BACKOFF` 0.5 s). The
   time from the requeue (plus the pause) to the other node's claim, from the plan's
   history.
-- *upgrade*: two nodes of the earlier version (`--previous`, a git revision, run from a
-  checkout of it), two processes each, `UNDERTOW_DRAIN` 70 s, and 20 plans of 30 to 60 s;
-  after 40 s a node of this version starts and the first old node is stopped (SIGTERM,
-  draining), after 100 s the same for the second. No plan may be claimed twice, lost or
-  a dead letter.
+- *upgrade*: two nodes of an earlier version (each of `--previous`, git revisions, run
+  from a checkout), two processes each, `UNDERTOW_DRAIN` 70 s, and 20 plans of 30 to
+  60 s; after 40 s a node of this version starts and the first old node is stopped
+  (SIGTERM: draining, where that version drains), after 100 s the same for the second.
+  No plan may be claimed twice, lost or a dead letter.
 
 Writes the section "Cluster operations on PostgreSQL" of docs/stability.md and
 bench/results/cluster_ops.csv.
 
     python -m bench cluster_ops [--tries 3] [--probes outage leases requeue upgrade]
-                                [--previous REV]
+                                [--previous REV ...] [--upgrade-tries 1]
 """
 
 from __future__ import annotations
@@ -62,8 +62,10 @@ OUTAGE = 60.0  # [s]
 ITERATION = 0.02  # [s] of the fake solver
 SETTINGS = {"UNDERTOW_SOLVE_FUNCTION": FAKE_SOLVER, "UNDERTOW_LEASE": str(LEASE),
             "UNDERTOW_MAX_QUEUED": "64", "UNDERTOW_RETRY_BACKOFF": "0.5"}
-PREVIOUS = "HEAD~1"
-"""The earlier version of the upgrade probe, by default."""
+PREVIOUS = ("8e8d5fd", "7427ca1")
+"""The earlier versions of the upgrade probe, by default: the commit before the bench's,
+whose nodes drain (`UNDERTOW_DRAIN`), and the release before it, whose nodes release
+their running plans at once when stopped."""
 
 
 @dataclass
@@ -290,8 +292,9 @@ def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench cluster_ops", description=__doc__)
     parser.add_argument("--tries", type=int, default=3)
     parser.add_argument("--probes", nargs="+", choices=list(PROBES), default=list(PROBES))
-    parser.add_argument("--previous", default=PREVIOUS,
-                        help="the earlier version of the upgrade probe (a git revision)")
+    parser.add_argument("--previous", nargs="+", default=list(PREVIOUS),
+                        help="the earlier versions of the upgrade probe (git revisions)")
+    parser.add_argument("--upgrade-tries", type=int, default=1)
     args = parser.parse_args(argv)
     reason = postgres.missing()
     if reason is not None:
@@ -299,10 +302,15 @@ def main(argv: list[str]) -> int:
         return 1
     started, note, rows = time.perf_counter(), harness.machine_note(), []
     for name in args.probes:
-        extra = {"previous": args.previous} if name == "upgrade" else {}
-        rows.append(_row(name, [PROBES[name](**extra) for _ in range(args.tries)]))
-        print(rows[-1], flush=True)
-    previous = _revision(args.previous)
+        if name != "upgrade":
+            rows.append(_row(name, [PROBES[name]() for _ in range(args.tries)]))
+            print(rows[-1], flush=True)
+            continue
+        for rev in args.previous:
+            rows.append(_row(f"upgrade from {rev}", [
+                upgrade(rev) for _ in range(args.upgrade_tries)]))
+            print(rows[-1], flush=True)
+    previous = "; ".join(_revision(rev) for rev in args.previous)
     text = "\n\n".join([
         "A throwaway PostgreSQL server, one API-only server and worker nodes (`undertow "
         "worker`) on 127.0.0.1, the fake solve function (20 ms an iteration, a progress "
@@ -313,10 +321,10 @@ def main(argv: list[str]) -> int:
         "*requeue*: two idle nodes of one process, a plan of 10 s released by its node's "
         "SIGTERM, or requeued after its solver process was killed (pause "
         f"{SETTINGS['UNDERTOW_RETRY_BACKOFF']} s), 5 of each per try; times from the "
-        "plan's history. *upgrade*: two nodes of two processes of the earlier version "
-        f"({previous}), `UNDERTOW_DRAIN` 70 s, 20 plans of 30 to 60 s; after 40 s and "
-        "100 s a node of this version starts and an old one is stopped (SIGTERM, "
-        f"draining). Load average at the end: {harness.load()}.",
+        "plan's history. *upgrade from REV*: two nodes of two processes of the earlier "
+        f"version REV ({previous}), `UNDERTOW_DRAIN` 70 s (where it knows it), 20 plans "
+        "of 30 to 60 s; after 40 s and 100 s a node of this version starts and an old one "
+        f"is stopped (SIGTERM). Load average at the end: {harness.load()}.",
         harness.table(rows, [(k, h) for k, h in COLUMNS
                              if any(r.get(k) is not None for r in rows)]),
         "Rows: `bench/results/cluster_ops.csv`. "

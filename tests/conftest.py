@@ -160,7 +160,7 @@ SERVICE = frozenset({
     "test_job_faults.py", "test_jobs.py", "test_limits.py", "test_node_faults.py",
     "test_migrations.py", "test_openapi.py", "test_stored_plan.py", "test_sync_memory.py",
     "test_openapi_client.py", "test_plan_budget.py", "test_plots.py", "test_queue_engine.py",
-    "test_readme.py",
+    "test_readme.py", "test_rolling_upgrade.py",
     "test_sampling.py", "test_scene_validation.py", "test_schemathesis.py", "test_server.py",
     "test_service_interface.py", "test_store.py", "test_store_drills.py",
     "test_store_integrity.py", "test_store_waits.py", "test_stop_status.py", "test_stress.py",
@@ -168,7 +168,8 @@ SERVICE = frozenset({
 """Files that exercise the service (app/): its app in-process, live servers and worker
 processes, the command line, the job store, the API documents, the benchmarks. Any other
 file is `unit`: the library alone, in the test's own process."""
-DATABASE = frozenset({"test_distributed.py", "test_node_faults.py", "test_queue_engine.py"})
+DATABASE = frozenset({"test_distributed.py", "test_node_faults.py", "test_queue_engine.py",
+                      "test_rolling_upgrade.py"})
 """Files every test of which needs PostgreSQL; elsewhere a test that takes the `postgres`
 or `postgres_url` fixture, or the `store` fixture's PostgreSQL case, is marked too, and so
 is a test of tests/test_benches.py that runs a benchmark needing it (`bench.smoke`)."""
