@@ -12,6 +12,10 @@ job (`JobRecord.admission`), so that the job's worker does not decide it again:
 The worker gives the job's solve what was decided (`given`). A job stored without an
 admission (by an earlier version) is checked and resolved when it runs, as it was then.
 Retrying a job by id keeps its admission.
+
+The admission also carries the version of the job's messages (`MESSAGE_VERSION`: how its
+scene and admission are written), so that during a rolling upgrade a node of an earlier
+version does not run a job it would read wrongly (`app.worker`).
 """
 
 from __future__ import annotations
@@ -27,6 +31,11 @@ from app.warm_start import StartFrom
 from planner import service
 from planner.service import NEAREST, Issue, Scene
 
+MESSAGE_VERSION = 1
+"""The version of what a server writes for a job's worker (its scene and admission), raised
+whenever a change would make a node of an earlier version read them wrongly. A node that
+claims a job of a newer version gives it back and claims nothing more (`app.worker`)."""
+
 
 class Admission(BaseModel):
     """What was decided about a job's scene when it was submitted (both first fields
@@ -38,6 +47,14 @@ class Admission(BaseModel):
         "the earlier plan job it starts from; None: a cold start (or one decided at claim)"))
     nearest_at_claim: bool = Field(default=False, description=(
         "solver.warm_start \"nearest\" is resolved when the job is claimed (batch members)"))
+    message: int = Field(default=MESSAGE_VERSION, description=(
+        "the version of the job's messages (MESSAGE_VERSION of the server that stored it)"))
+
+
+def message_version(record: JobRecord) -> int:
+    """The version of a job's messages: its admission's, 1 for a job stored without one."""
+    found = (record.admission or {}).get("message", 1)
+    return found if isinstance(found, int) else 1
 
 
 def infeasible_errors(issues: list[Issue], loc: tuple[str, ...] = ("body",)) -> list[FieldError]:

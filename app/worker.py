@@ -11,7 +11,10 @@ when the supervising process is gone. SIGINT and SIGTERM are for the supervisor 
 handle: it gives the running jobs back before it stops its workers.
 
 A claim whose answer was lost (the connection broke after the database committed it) is
-given back as soon as the store answers again. An idle worker waits for its supervisor
+given back as soon as the store answers again. A job whose messages are of a newer version
+than this one knows (`app.admission.MESSAGE_VERSION`: stored by a server of a newer version
+during a rolling upgrade) is given back at once, and the worker claims nothing more: its
+node is outdated, and waits to be replaced. An idle worker waits for its supervisor
 and for the store's announcements of queued jobs (`app.idle_wait`), and looks every
 `IDLE_POLL` seconds regardless.
 """
@@ -28,7 +31,7 @@ import time
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
 
-from app.admission import stored
+from app.admission import MESSAGE_VERSION, message_version, stored
 from app.idle_wait import IdleWait
 from app.job_run import SolveFunction, fail, run_job, running
 from app.logging import configure
@@ -85,6 +88,21 @@ def _watch(parent: int) -> None:
     os._exit(0)
 
 
+def outdated(spec: WorkerSpec, record: JobRecord) -> bool:
+    """Whether the job's messages are of a newer version than this worker knows; if so,
+    it is given back (released: queued again at once, counted as nothing)."""
+    found = message_version(record)
+    if found <= MESSAGE_VERSION:
+        return False
+    reason = (f"its messages are of version {found}, newer than version {MESSAGE_VERSION} "
+              "that this node knows: left to a node of a newer version")
+    persist(lambda: spec.store.release(record.id, spec.name, reason),
+            f"job {record.id}: giving it back", give_up=spec.lease)
+    log.warning("worker %s: job %s %s; this worker claims nothing more (upgrade its node)",
+                spec.name, record.id, reason)
+    return True
+
+
 def _take(spec: WorkerSpec, channel: Connection, record: JobRecord) -> JobEnd | None:
     """Run a claimed job; None when it was given back (STOP arrived meanwhile)."""
     if stop_requested(channel, 0.0):
@@ -113,9 +131,12 @@ def serve(spec: WorkerSpec, channel: Connection) -> None:
         limit_growth(spec.memory_mb)
     idle = IdleWait(spec.store, channel)
     channel.send(READY)
-    wait_for, unsure = 0.0, False
+    wait_for, unsure, retired = 0.0, False, False
     try:
         while not idle.stop_requested(wait_for):
+            if retired:
+                wait_for = IDLE_POLL
+                continue
             try:
                 if unsure:  # a claim whose answer was lost may have been made
                     spec.store.release_claimed(spec.name, "the answer to its claim was lost")
@@ -123,6 +144,9 @@ def serve(spec: WorkerSpec, channel: Connection) -> None:
                 unsure = True
                 record = spec.store.claim(spec.owner, spec.name, time.time() + spec.lease)
                 unsure = False
+                if record is not None and outdated(spec, record):
+                    retired = True
+                    continue
                 end = None if record is None else _take(spec, channel, record)
             except StoreUnavailable as exc:
                 log.error("worker %s: %s", spec.name, exc)
