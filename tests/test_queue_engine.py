@@ -75,10 +75,20 @@ def test_a_job_and_its_engine_job_move_together(store):
     assert registrations(store) == 0
 
 
+def queue_columns(store: PostgresJobStore, job_id: str) -> tuple:
+    """The columns in which the SQLite store keeps its queue: (lease_until, not_before),
+    and the lease the claim stored."""
+    return store._rows("SELECT lease_until, not_before, lease FROM jobs WHERE id = %s",
+                       (job_id,))[0]
+
+
 def test_an_infrastructure_failure_is_a_retry_of_the_engine_job_at_its_pause(store):
     store.create("a", SCENE, "host")
     claim(store)
+    lease_until, not_before, lease = queue_columns(store, "a")
+    assert (lease_until, not_before, lease) == (None, None, pytest.approx(LEASE, abs=0.05))
     assert store.requeue("a", "w1", "the worker process died") == "queued"
+    assert queue_columns(store, "a")[:2] == (None, None)  # one set of books: the engine's
     first = engine(store, "a")
     assert (first["status"], first["held"]) == ("todo", False)
     assert 29.0 < first["wait"] <= 30.0  # the policy's first pause, kept by the engine

@@ -24,18 +24,21 @@ table `undertow_queue`, and every transition changes both rows in one transactio
   undertow's `RetryPolicy`), its `finish_job` ends it (failed, a dead letter, or aborted
   when it was cancelled), its `cancel_job` cancels a queued one and flags a running one.
 
-What undertow keeps is its record of each transition (history, counts, dead-letter
-errors: `app.store.sql`), its connections and the statements PostgreSQL runs in
-transactions of their own (`app.store.postgres_sql`), and the supervisor that runs each
-solve in a process of its own. The engine's schema (procrastinate's `schema.sql` of the
-pinned version) and the link table are created when the store opens a database that
-lacks them. Jobs written by versions before procrastinate queued them are taken over: the
-queued ones get an engine job then, and any left without one (queued by a server of such
-a version during a rolling upgrade) at each look for stalled jobs; one they had claimed
-runs out by the lease its claim wrote. A claim's lease is its process's `lease` [s]
-(UNDERTOW_LEASE), stored with the claim and counted by the database's clock from the last
-renewal; every process judges a claim by that stored lease, so processes with different
-leases share a database without requeueing each other's healthy claims.
+What undertow keeps is its record of each transition (history, counts, dead-letter errors:
+`app.store.sql`) and the lease each claim stored, by which it is judged; the columns in
+which the SQLite store keeps its queue (a claim's end, `lease_until`, and a requeued job's
+retry time, `not_before`) stay NULL, as the engine keeps both. Its connections and the
+statements PostgreSQL runs in transactions of their own are `app.store.postgres_sql`'s;
+the supervisor runs each solve in a process of its own. The engine's schema
+(procrastinate's `schema.sql` of the pinned version) and the link table are created when
+the store opens a database that lacks them. Jobs written by versions before procrastinate
+queued them are taken over: the queued ones get an engine job then, and any left without
+one (queued by a server of such a version during a rolling upgrade) at each look for
+stalled jobs; one they had claimed runs out by the lease its claim wrote. A claim's lease
+is its process's `lease` [s] (UNDERTOW_LEASE), stored with the claim and counted by the
+database's clock from the last renewal; every process judges a claim by that stored lease,
+so processes with different leases share a database without requeueing each other's
+healthy claims.
 """
 
 from __future__ import annotations
@@ -102,6 +105,8 @@ class PostgresJobStore(PostgresSql):
     """Jobs in a PostgreSQL database at `url` ("postgresql://user:password@host:port/db")
     queued by procrastinate; `lease` [s]: how long a claim holds after its last renewal
     (the heartbeat timeout). `pool_size`, `timeout`: `PostgresSql`'s."""
+
+    QUEUE_COLUMNS = False  # procrastinate keeps the claims' heartbeats and retry times
 
     def __init__(self, url: str, pool_size: int = 4, timeout: float = 10.0,
                  policy: RetryPolicy | None = None, lease: float = 60.0):

@@ -55,6 +55,11 @@ def event(kind: str, worker: str = "worker", reason: str | None = None) -> str:
 class SqlJobStore(JobStore):
     """A job store on an SQL database: the statements its dialects share."""
 
+    QUEUE_COLUMNS = True
+    """Whether the jobs rows are the queue too: a claim's end (`lease_until`, renewed) and
+    a requeued job's retry time (`not_before`) are kept in them (SQLite); False where a
+    queue engine keeps both (PostgreSQL's procrastinate), and the columns stay NULL."""
+
     @abstractmethod
     def _rows(self, sql: str, params: tuple | dict = ()) -> builtins.list[tuple]:
         """Every row of one reading statement."""
@@ -161,8 +166,10 @@ class SqlJobStore(JobStore):
     def _claiming(self) -> str:
         """The SET list that turns a queued job into a claimed one (parameters :now,
         :worker, :until, :lease, :progress: `_claim_params`)."""
+        until = ":until" if self.QUEUE_COLUMNS else "NULL"
         return ("status = 'running', started = :now, worker = :worker, "
-                "lease_until = :until, lease = :lease, not_before = NULL, progress = :progress, "
+                f"lease_until = {until}, lease = :lease, not_before = NULL, "
+                "progress = :progress, "
                 "attempts = attempts + 1, "
                 f"history = {self._push(event('claimed', 'CAST(:worker AS TEXT)'))}")
 
@@ -198,6 +205,8 @@ class SqlJobStore(JobStore):
         delays = " ".join(f"WHEN {n} THEN {policy.delay(n + 1)!r}"
                           for n in range(policy.max_retries))
         delay = f"CASE infra_failures {delays} ELSE 0.0 END" if delays else "0.0"
+        retry_at = (f"CASE WHEN {_REQUEUE} THEN {_NOW} + {delay} END"
+                    if self.QUEUE_COLUMNS else "NULL")
         dead = (f"{DEAD_LETTER}: {reason}; it failed for infrastructure reasons "
                 f"{policy.max_retries + 1} times (UNDERTOW_MAX_RETRIES={policy.max_retries})")
         rows = self._write(
@@ -210,7 +219,7 @@ class SqlJobStore(JobStore):
             f"started = CASE WHEN {_REQUEUE} THEN NULL ELSE started END, "
             f"progress = CASE WHEN {_REQUEUE} THEN NULL ELSE progress END, "
             f"worker = CASE WHEN {_REQUEUE} THEN NULL ELSE worker END, "
-            f"not_before = CASE WHEN {_REQUEUE} THEN {_NOW} + {delay} END, "
+            f"not_before = {retry_at}, "
             "lease_until = NULL, infra_failures = infra_failures + 1, "
             "history = "
             f"{self._push(event('infrastructure-failure', reason='CAST(:reason AS TEXT)'))} "
