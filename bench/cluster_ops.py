@@ -257,7 +257,7 @@ COLUMNS = [("probe", "probe"), ("tries", "tries"), ("plans", "plans"),
            ("solve", "longest solve [s]"),
            ("released", "released to claimed, median (longest) [ms]"),
            ("paused", "requeued to claimed less the pause, median (longest) [ms]"),
-           ("span", "first upgrade step to the last plan's end [s]")]
+           ("span", "plans submitted to the last one's end [s]")]
 SUMMED = ("plans", "succeeded", "failed", "lost", "dead", "infra", "twice")
 
 
