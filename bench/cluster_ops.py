@@ -82,8 +82,8 @@ class Cluster:
 
     def node(self, name: str, processes: int, root: Path = ROOT, **extra: str) -> WorkerNode:
         """Start worker node `name` running the code at `root`."""
-        node = WorkerNode(self.folder, name, processes, root=root, UNDERTOW_DB_URL=self.url,
-                          **{**SETTINGS, **extra})
+        node = WorkerNode(self.folder, name, processes, UNDERTOW_DB_URL=self.url,
+                          **{**SETTINGS, **extra}).of_version(root)
         self.nodes[name] = self.stack.enter_context(node)
         return node
 

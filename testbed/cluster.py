@@ -31,17 +31,21 @@ def api_server(folder: Path, db_url: str, instance: str, **extra: str) -> LiveSe
 class WorkerNode:
     """`undertow worker --processes N`, in its own process group."""
 
-    def __init__(self, folder: Path, instance: str, processes: int = 1, *, root: Path = ROOT,
-                 **settings: str):
-        """`settings`: UNDERTOW_* variables, the store's among them; `root`: the checkout
-        whose code the node runs (another version's, for a rolling upgrade). `args`, set
-        before `start`, adds options of `undertow worker`."""
-        self.instance, self.processes, self.root = instance, processes, root
+    def __init__(self, folder: Path, instance: str, processes: int = 1, **settings: str):
+        """`settings`: UNDERTOW_* variables, the store's among them. `args`, set before
+        `start`, adds options of `undertow worker`; `of_version` sets the code it runs."""
+        self.instance, self.processes, self.root = instance, processes, ROOT
         self.args: tuple[str, ...] = ()
         self.env = {**os.environ, "UNDERTOW_INSTANCE": instance, "UNDERTOW_LOG_LEVEL": "WARNING",
-                    **settings, "PYTHONPATH": str(root)}  # its code, testbed's fake solver
+                    **settings, "PYTHONPATH": str(ROOT)}  # testbed's fake solver
         self.log = folder / f"{instance}.log"
         self.proc: subprocess.Popen | None = None
+
+    def of_version(self, root: Path) -> Self:
+        """Run the code of the checkout at `root` (another version's, for a rolling
+        upgrade) from the next `start` on."""
+        self.root, self.env["PYTHONPATH"] = root, str(root)
+        return self
 
     def start(self) -> Self:
         with open(self.log, "ab") as log:

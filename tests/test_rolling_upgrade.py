@@ -63,8 +63,8 @@ def test_a_node_of_the_previous_version_is_replaced_with_no_plan_run_twice(
         stack.callback(store.close)
         api = stack.enter_context(api_server(tmp_path, url, "api", **SETTINGS))
         http = stack.enter_context(httpx.Client(base_url=api.url, timeout=30))
-        old = stack.enter_context(WorkerNode(tmp_path, "old", 2, root=previous,
-                                             UNDERTOW_DB_URL=url, **SETTINGS))
+        old = stack.enter_context(WorkerNode(tmp_path, "old", 2, UNDERTOW_DB_URL=url,
+                                             **SETTINGS).of_version(previous))
         ids = [http.post("/v1/plans", json=two_link_scene(iterations=150)).json()["id"]
                for _ in range(6)]  # 3 s each
         solving = wait_for(lambda: _solving_two(store, old), 60, "the old node solving two")
