@@ -52,9 +52,11 @@ class Admission(BaseModel):
 
 
 def message_version(record: JobRecord) -> int:
-    """The version of a job's messages: its admission's, 1 for a job stored without one."""
+    """The version of a job's messages: its admission's, 1 for a job stored without one;
+    one this version cannot read counts as newer than MESSAGE_VERSION."""
     found = (record.admission or {}).get("message", 1)
-    return found if isinstance(found, int) else 1
+    return found if isinstance(found, int) and not isinstance(found, bool) \
+        else MESSAGE_VERSION + 1
 
 
 def infeasible_errors(issues: list[Issue], loc: tuple[str, ...] = ("body",)) -> list[FieldError]:

@@ -21,8 +21,9 @@ log = logging.getLogger("undertow.worker")
 LISTEN_RETRY = 5.0  # [s] between two tries to LISTEN again after the connection broke
 DUE_LOOKS = (0.005, 0.05)
 """[s] when, after an announced pause has passed, the worker looks for the job: the job's
-retry time is written by the clock of the process that queued it again, this wait runs on
-this one's, so a second look allows for clocks that differ by up to 50 ms."""
+retry time is written from the clock of the process that queued it again and compared with
+the database's when the worker claims, so a second look allows for those clocks differing
+by up to 50 ms (the machines' clocks are kept synchronised: docs/deploy.md)."""
 
 
 class IdleWait:

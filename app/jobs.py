@@ -160,10 +160,10 @@ class JobRunner:
         return self.supervisor.problem
 
     def shutdown(self) -> None:
-        """Stop: running jobs that do not end within the drain are released (queued
-        again), queued ones stay queued in the
-        store for the next start or another server's workers; the store is then
-        checkpointed, the server's name given back and the store closed."""
+        """Stop: running jobs that do not end within the drain are released (queued again),
+        queued ones stay queued in the store for the next start or another server's
+        workers; the store is then checkpointed, the server's name given back and the store
+        closed."""
         self.supervisor.stop()
         try:
             self.store.checkpoint(final=True)

@@ -178,6 +178,7 @@ class Supervisor:
             self._thread.join()
         workers = [w for w in self._slots if w is not None]
         for worker in workers:
+            self._send(worker, STOP)  # again, for one started as the stop began
             self._drain(worker)
         deadline = time.monotonic() + STOP_WAIT
         for worker in workers:
@@ -203,12 +204,16 @@ class Supervisor:
                 self.store.forget_worker(self.owner)
 
     def _let_jobs_end(self) -> None:
-        """Wait up to `drain` seconds for the running jobs to end, while the supervising
-        thread goes on renewing their leases and holding them to their bounds."""
+        """Wait up to `drain` seconds for the workers to leave (idle ones at once, busy ones
+        when their job ends; a job claimed but not yet reported is waited for too), while
+        the supervising thread goes on renewing the jobs' leases and holding them to their
+        bounds."""
+        if self.drain <= 0.0:
+            return
         deadline = time.monotonic() + self.drain
-        if self.drain > 0.0 and self.busy():
-            log.info("stopping: %d running jobs have %g s to end", self.busy(), self.drain)
-        while self.busy() and time.monotonic() < deadline and self._thread.is_alive():
+        log.info("stopping: the running jobs have %g s to end", self.drain)
+        while (any(w is not None for w in self._slots) and time.monotonic() < deadline
+               and self._thread.is_alive()):
             time.sleep(TICK)
 
     def _spawn(self, slot: int) -> None:
@@ -220,7 +225,9 @@ class Supervisor:
                                         daemon=True)
         process.start()
         theirs.close()
-        self._slots[slot] = _Worker(name, process, ours)
+        worker = self._slots[slot] = _Worker(name, process, ours)
+        if self._draining:  # started as the stop began: it claims nothing
+            self._send(worker, STOP)
 
     def _send(self, worker: _Worker, message: str) -> None:
         # a gone worker raises OSError here; its sentinel tells the supervisor

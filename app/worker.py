@@ -13,8 +13,8 @@ handle: it gives the running jobs back before it stops its workers.
 A claim whose answer was lost (the connection broke after the database committed it) is
 given back as soon as the store answers again. A job whose messages are of a newer version
 than this one knows (`app.admission.MESSAGE_VERSION`: stored by a server of a newer version
-during a rolling upgrade) is given back at once, and the worker claims nothing more: its
-node is outdated, and waits to be replaced. An idle worker waits for its supervisor
+during a rolling upgrade) is given back the same way, and the worker claims nothing more:
+its node is outdated, and waits to be replaced. An idle worker waits for its supervisor
 and for the store's announcements of queued jobs (`app.idle_wait`), and looks every
 `IDLE_POLL` seconds regardless.
 """
@@ -47,6 +47,7 @@ IDLE_POLL = 1.0  # [s] an idle worker looks for queued jobs at least this often
 WATCH_INTERVAL = 0.25  # [s] between two checks that the supervising process still runs
 ORPHAN_TRIES = 20.0  # [s] an orphaned worker tries this long to give its job back
 PARENT_DIED = "the node's main process died (killed?) while the job ran"
+LOST_ANSWER = "the answer to its claim was lost"
 
 
 def load_function(spec: str) -> SolveFunction:
@@ -88,19 +89,18 @@ def _watch(parent: int) -> None:
     os._exit(0)
 
 
-def outdated(spec: WorkerSpec, record: JobRecord) -> bool:
-    """Whether the job's messages are of a newer version than this worker knows; if so,
-    it is given back (released: queued again at once, counted as nothing)."""
+def outdated(spec: WorkerSpec, record: JobRecord) -> str | None:
+    """Why the claimed job is to be given back (released: queued again at once, counted
+    as nothing) when its messages are of a newer version than this worker knows, else
+    None."""
     found = message_version(record)
     if found <= MESSAGE_VERSION:
-        return False
+        return None
     reason = (f"its messages are of version {found}, newer than version {MESSAGE_VERSION} "
               "that this node knows: left to a node of a newer version")
-    persist(lambda: spec.store.release(record.id, spec.name, reason),
-            f"job {record.id}: giving it back", give_up=spec.lease)
     log.warning("worker %s: job %s %s; this worker claims nothing more (upgrade its node)",
                 spec.name, record.id, reason)
-    return True
+    return reason
 
 
 def _take(spec: WorkerSpec, channel: Connection, record: JobRecord) -> JobEnd | None:
@@ -131,21 +131,22 @@ def serve(spec: WorkerSpec, channel: Connection) -> None:
         limit_growth(spec.memory_mb)
     idle = IdleWait(spec.store, channel)
     channel.send(READY)
-    wait_for, unsure, retired = 0.0, False, False
+    wait_for, retired = 0.0, False
+    give_back: str | None = None  # why this worker's claims are to be given back
     try:
         while not idle.stop_requested(wait_for):
-            if retired:
-                wait_for = IDLE_POLL
-                continue
             try:
-                if unsure:  # a claim whose answer was lost may have been made
-                    spec.store.release_claimed(spec.name, "the answer to its claim was lost")
-                    unsure = False
-                unsure = True
+                if give_back is not None:
+                    spec.store.release_claimed(spec.name, give_back)
+                    give_back = None
+                if retired:
+                    wait_for = IDLE_POLL
+                    continue
+                give_back = LOST_ANSWER  # until the claim's answer is in
                 record = spec.store.claim(spec.owner, spec.name, time.time() + spec.lease)
-                unsure = False
-                if record is not None and outdated(spec, record):
-                    retired = True
+                give_back = None if record is None else outdated(spec, record)
+                if give_back is not None:
+                    retired, wait_for = True, 0.0
                     continue
                 end = None if record is None else _take(spec, channel, record)
             except StoreUnavailable as exc:

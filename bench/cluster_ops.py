@@ -282,10 +282,10 @@ def _row(name: str, runs: list[dict]) -> dict:
 
 
 def _revision(rev: str) -> str:
-    """A git revision as its short hash and subject."""
-    out = subprocess.run(["git", "-C", str(ROOT), "log", "-1", "--format=%h, %s", rev],
+    """A git revision as its short hash and commit date."""
+    out = subprocess.run(["git", "-C", str(ROOT), "log", "-1", "--format=%h of %cs", rev],
                          capture_output=True, text=True, check=True).stdout.strip()
-    return f"commit {out[:80]}"
+    return f"commit {out}"
 
 
 def main(argv: list[str]) -> int:

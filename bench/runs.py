@@ -19,6 +19,7 @@ RESULTS: dict[str, tuple[str, ...]] = {
     "build": ("bench/results/build.csv",),
     "capacity": ("bench/results/capacity.csv",),
     "closed_loop": ("bench/results/closed_loop.csv", "docs/img/closed_loop.png"),
+    "cluster_ops": ("bench/results/cluster_ops.csv",),
     "container": ("bench/results/container.csv",),
     "session": ("bench/results/session.csv",),
     "dynamics_size": (),

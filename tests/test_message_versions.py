@@ -50,7 +50,8 @@ def test_a_job_of_a_newer_message_version_is_given_back_and_its_worker_retires(t
         assert released[0]["reason"] == (
             f"its messages are of version {newer}, newer than version {MESSAGE_VERSION} "
             "that this node knows: left to a node of a newer version")
-        time.sleep(1.5)  # longer than the idle worker's poll
+        time.sleep(1.5)  # longer than the idle worker's poll: it claims nothing more
+        assert [e["event"] for e in store.get("newer").history] == ["claimed", "released"]
         for job_id in ("newer", "known"):
             record = store.get(job_id)
             assert (record.status, record.attempts, record.infra_failures) == ("queued", 0, 0)

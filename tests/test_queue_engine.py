@@ -182,13 +182,14 @@ def test_a_deferred_job_is_notified_on_the_engines_channel(store):
 def stored_by_the_own_queue(conn: psycopg.Connection, job_id: str,
                             worker: str | None = None) -> None:
     """A job as undertow's own PostgreSQL queue left it: queued, or claimed by `worker`
-    with a lease that ended a second ago; no engine job either way."""
+    with a lease of 1 s renewed last 2 s ago; no engine job either way."""
+    claimed = worker is not None
     conn.execute(
         "INSERT INTO jobs (id, status, scene, owner, created, started, worker, lease_until, "
-        "attempts) VALUES (%s, %s, '{}', 'host', %s, %s, %s, %s, %s)",
-        (job_id, "queued" if worker is None else "running", time.time(),
-         None if worker is None else time.time(), worker,
-         None if worker is None else time.time() - 1.0, int(worker is not None)))
+        "lease, attempts) VALUES (%s, %s, '{}', 'host', %s, %s, %s, %s, %s, %s)",
+        (job_id, "running" if claimed else "queued", time.time(),
+         time.time() - 2.0 if claimed else None, worker,
+         time.time() - 1.0 if claimed else None, 1.0 if claimed else None, int(claimed)))
 
 
 def test_jobs_queued_or_claimed_by_the_own_queue_are_taken_over(postgres_url):

@@ -263,8 +263,10 @@ class PostgresJobStore(PostgresSql):
             self._adopt()
             before = {} if float(restarted[0][0]) < self.lease else self._requeue(
                 # claimed by a version before: the lease it wrote
-                "lease_until < :expired AND NOT EXISTS (SELECT 1 FROM undertow_queue "
-                "WHERE job_id = jobs.id)", {"expired": now}, LEASE_RAN_OUT)
+                "lease_until < :expired AND lease_until - COALESCE(lease, 0) < :now - "
+                "LEAST(COALESCE(lease, :silence), :silence) AND NOT EXISTS (SELECT 1 FROM "
+                "undertow_queue WHERE job_id = jobs.id)",
+                {"expired": now, "now": time.time(), "silence": SILENCE}, LEASE_RAN_OUT)
             stalled = [row[0] for row in self._rows(_STALLED, {
                 "ahead": now - time.time(), "lease": self.lease, "silence": SILENCE})]
             if not stalled:

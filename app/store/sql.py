@@ -202,11 +202,7 @@ class SqlJobStore(JobStore):
                  reason: str) -> dict[str, JobStatus]:
         """An infrastructure failure of the running jobs that meet `condition`."""
         policy = self.policy
-        delays = " ".join(f"WHEN {n} THEN {policy.delay(n + 1)!r}"
-                          for n in range(policy.max_retries))
-        delay = f"CASE infra_failures {delays} ELSE 0.0 END" if delays else "0.0"
-        retry_at = (f"CASE WHEN {_REQUEUE} THEN {_NOW} + {delay} END"
-                    if self.QUEUE_COLUMNS else "NULL")
+        retry_at = self._retry_at() if self.QUEUE_COLUMNS else "NULL"
         dead = (f"{DEAD_LETTER}: {reason}; it failed for infrastructure reasons "
                 f"{policy.max_retries + 1} times (UNDERTOW_MAX_RETRIES={policy.max_retries})")
         rows = self._write(
@@ -227,6 +223,15 @@ class SqlJobStore(JobStore):
             {"now": time.time(), "max": policy.max_retries, "cancelled": CANCELLED_ON_REQUEST,
              "dead": dead, "reason": reason, **params})
         return dict(rows)
+
+    def _retry_at(self) -> str:
+        """The SQL of a requeued job's retry time: now plus the policy's pause for its
+        infrastructure failures so far (NULL for a job that is not requeued)."""
+        policy = self.policy
+        delays = " ".join(f"WHEN {n} THEN {policy.delay(n + 1)!r}"
+                          for n in range(policy.max_retries))
+        delay = f"CASE infra_failures {delays} ELSE 0.0 END" if delays else "0.0"
+        return f"CASE WHEN {_REQUEUE} THEN {_NOW} + {delay} END"
 
     def requeue(self, job_id: str, worker: str | None, reason: str) -> JobStatus | None:
         done = self._requeue(f"id = :id AND {NO_WORKER_OR}",
