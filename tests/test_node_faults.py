@@ -19,6 +19,7 @@ import httpx
 import pytest
 from service_fixtures import two_link_scene
 
+from app.store import StoreUnavailable
 from app.store.postgres import PostgresJobStore
 from app.store.waits import CHECK_WAIT, REQUEST_WAIT
 from testbed import postgres as pg
@@ -208,6 +209,35 @@ def test_every_request_needing_a_stopped_database_answers_503_within_the_health_
             server.resume()
         wait_for(lambda: http.get("/healthz").status_code == 200, 30, "health back at 200")
         assert http.get(f"/v1/plans/{queued}").json()["status"] == "queued"
+
+
+def test_the_store_answers_within_seconds_of_the_databases_return_after_a_long_outage(server):
+    # psycopg_pool's own pause between two reconnection attempts doubles without bound (1, 2,
+    # 4, 8, 16 s): after 20 s away its next attempt would come about 11 s after the return
+    url = server.create_database("reconnect")
+    store = PostgresJobStore(url, timeout=1.0)
+    try:
+        store.create("a", two_link_scene(), "host")
+        server.halt()
+        try:
+            away = time.monotonic() + 20.0
+            while time.monotonic() < away:
+                with pytest.raises(StoreUnavailable):
+                    store.get("a")
+                time.sleep(0.5)
+        finally:
+            server.resume()
+        back = time.monotonic()
+        wait_for(lambda: answers(store), 30, "the store answering")
+        assert time.monotonic() - back < 5.0
+    finally:
+        store.close()
+
+
+def answers(store: PostgresJobStore) -> bool:
+    with contextlib.suppress(StoreUnavailable):
+        return store.get("a") is not None
+    return False
 
 
 def test_an_idle_node_claims_a_queued_plan_within_milliseconds(cluster):
