@@ -7,7 +7,8 @@ Each try starts a throwaway PostgreSQL server, one API-only server and worker no
 progress write each), `UNDERTOW_LEASE` 20 s unless a probe says otherwise:
 
 - *outage*: two nodes of two processes, 6 plans of 20 s (4 run, 2 wait); the database is
-  stopped (`pg_ctl stop -m fast`) for 60 s while the 4 run, then started again. Every plan
+  stopped (`pg_ctl stop -m fast`) for 60 s (and 40 s: `--outages`) while the 4 run, then
+  started again. Every plan
   must succeed, none with an infrastructure failure, none claimed twice; the verdicts of
   the plans that ended during the outage must be written within 10 s of its return; a
   solve that waited on the store would take longer than its 20 s.
@@ -28,7 +29,7 @@ Writes the section "Cluster operations on PostgreSQL" of docs/stability.md and
 bench/results/cluster_ops.csv.
 
     python -m bench cluster_ops [--tries 3] [--probes outage leases requeue upgrade]
-                                [--previous REV ...] [--upgrade-tries 1]
+                                [--outages 60 40] [--previous REV ...] [--upgrade-tries 1]
 """
 
 from __future__ import annotations
@@ -58,7 +59,9 @@ from testbed.service import ROOT
 
 SECTION = "Cluster operations on PostgreSQL"
 LEASE = 20.0  # [s]
-OUTAGE = 60.0  # [s]
+OUTAGES = (60.0, 40.0)
+"""[s] how long the outage probe stops the database, by default (the issue's 60 s, and
+one that falls between two of psycopg_pool's own reconnection attempts)."""
 ITERATION = 0.02  # [s] of the fake solver
 SETTINGS = {"UNDERTOW_SOLVE_FUNCTION": FAKE_SOLVER, "UNDERTOW_LEASE": str(LEASE),
             "UNDERTOW_MAX_QUEUED": "64", "UNDERTOW_RETRY_BACKOFF": "0.5"}
@@ -156,15 +159,15 @@ def _solve_time(record: JobRecord) -> float:
     return float(((record.plan or {}).get("solver") or {}).get("solve_time", float("nan")))
 
 
-def outage() -> dict:
-    """The database stopped for OUTAGE seconds while 4 plans of 20 s run."""
+def outage(seconds: float) -> dict:
+    """The database stopped for `seconds` while 4 plans of 20 s run."""
     with cluster() as c:
         for name in ("node-1", "node-2"):
             c.node(name, 2)
         ids = c.submit([1000] * 6)
         running = [r.id for r in c.wait_solving(4)]
         c.server.halt()
-        time.sleep(OUTAGE)
+        time.sleep(seconds)
         c.server.resume()
         back = time.time()
         ended, seen = c.finals(ids, 180.0)
@@ -295,6 +298,8 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--previous", nargs="+", default=list(PREVIOUS),
                         help="the earlier versions of the upgrade probe (git revisions)")
     parser.add_argument("--upgrade-tries", type=int, default=1)
+    parser.add_argument("--outages", type=float, nargs="+", default=list(OUTAGES),
+                        help="how long the outage probe stops the database [s]")
     args = parser.parse_args(argv)
     reason = postgres.missing()
     if reason is not None:
@@ -302,6 +307,12 @@ def main(argv: list[str]) -> int:
         return 1
     started, note, rows = time.perf_counter(), harness.machine_note(), []
     for name in args.probes:
+        if name == "outage":
+            for seconds in args.outages:
+                rows.append(_row(f"outage of {seconds:g} s", [
+                    outage(seconds) for _ in range(args.tries)]))
+                print(rows[-1], flush=True)
+            continue
         if name != "upgrade":
             rows.append(_row(name, [PROBES[name]() for _ in range(args.tries)]))
             print(rows[-1], flush=True)
@@ -315,8 +326,8 @@ def main(argv: list[str]) -> int:
         "A throwaway PostgreSQL server, one API-only server and worker nodes (`undertow "
         "worker`) on 127.0.0.1, the fake solve function (20 ms an iteration, a progress "
         f"write each), `UNDERTOW_LEASE` {LEASE:g} s unless said otherwise, a fresh cluster "
-        "per try. *outage*: two nodes of two processes, 6 plans of 20 s, the database "
-        f"stopped for {OUTAGE:g} s while 4 of them run. *leases*: node 1 with a lease of "
+        "per try. *outage of S s*: two nodes of two processes, 6 plans of 20 s, the database "
+        "stopped for S s while 4 of them run. *leases*: node 1 with a lease of "
         "1 s, node 2 with 20 s, 8 plans of 10 s, `pg_ctl restart -m fast` while 4 run. "
         "*requeue*: two idle nodes of one process, a plan of 10 s released by its node's "
         "SIGTERM, or requeued after its solver process was killed (pause "
