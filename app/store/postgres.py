@@ -261,12 +261,10 @@ class PostgresJobStore(PostgresSql):
         restarted = self._rows("SELECT EXTRACT(EPOCH FROM now() - pg_postmaster_start_time())")
         with self._transaction():
             self._adopt()
+            ended, params = self._lease_ended(now)  # claimed by a version before
             before = {} if float(restarted[0][0]) < self.lease else self._requeue(
-                # claimed by a version before: the lease it wrote
-                "lease_until < :expired AND lease_until - COALESCE(lease, 0) < :now - "
-                "LEAST(COALESCE(lease, :silence), :silence) AND NOT EXISTS (SELECT 1 FROM "
-                "undertow_queue WHERE job_id = jobs.id)",
-                {"expired": now, "now": time.time(), "silence": SILENCE}, LEASE_RAN_OUT)
+                f"{ended} AND NOT EXISTS (SELECT 1 FROM undertow_queue "
+                "WHERE job_id = jobs.id)", params, LEASE_RAN_OUT)
             stalled = [row[0] for row in self._rows(_STALLED, {
                 "ahead": now - time.time(), "lease": self.lease, "silence": SILENCE})]
             if not stalled:

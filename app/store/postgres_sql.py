@@ -159,6 +159,8 @@ class PostgresSql(SqlJobStore):
     `timeout` seconds (REQUEST_WAIT at most for an HTTP request: `app.store.waits`), or
     fails on the server, raises StoreUnavailable."""
 
+    SMALLER = "LEAST"
+
     def __init__(self, url: str, pool_size: int = 4, timeout: float = 10.0,
                  policy: RetryPolicy | None = None):
         self.url, self.pool_size, self.timeout = url, pool_size, timeout

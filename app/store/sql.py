@@ -22,6 +22,7 @@ from app.store.base import (
     BUILDING,
     CANCELLED_ON_REQUEST,
     DEAD_LETTER,
+    SILENCE,
     STATUSES,
     JobRecord,
     JobStatus,
@@ -59,6 +60,8 @@ class SqlJobStore(JobStore):
     """Whether the jobs rows are the queue too: a claim's end (`lease_until`, renewed) and
     a requeued job's retry time (`not_before`) are kept in them (SQLite); False where a
     queue engine keeps both (PostgreSQL's procrastinate), and the columns stay NULL."""
+    SMALLER = "MIN"
+    """The dialect's SQL function of the smaller of two values (PostgreSQL's LEAST)."""
 
     @abstractmethod
     def _rows(self, sql: str, params: tuple | dict = ()) -> builtins.list[tuple]:
@@ -223,6 +226,15 @@ class SqlJobStore(JobStore):
             {"now": time.time(), "max": policy.max_retries, "cancelled": CANCELLED_ON_REQUEST,
              "dead": dead, "reason": reason, **params})
         return dict(rows)
+
+    def _lease_ended(self, now: float) -> tuple[str, dict[str, Any]]:
+        """The condition (and its parameters) of a claim whose lease end, as the claim wrote
+        and renewed it (`lease_until`), comes before `now`, and that has been silent since
+        its last renewal (`lease_until - lease`) for `SILENCE` at least (its whole lease if
+        shorter)."""
+        return (f"lease_until < :expired AND lease_until - COALESCE(lease, 0) < :now - "
+                f"{self.SMALLER}(COALESCE(lease, :silence), :silence)",
+                {"expired": now, "now": time.time(), "silence": SILENCE})
 
     def _retry_at(self) -> str:
         """The SQL of a requeued job's retry time: now plus the policy's pause for its

@@ -39,7 +39,6 @@ from typing import Any
 
 from app.store.base import (
     CANCELLED_ON_REQUEST,
-    SILENCE,
     BatchRecord,
     DuplicateKey,
     JobRecord,
@@ -244,10 +243,7 @@ class SqliteJobStore(SqlJobStore):
         return {job_id: bool(cancel) for job_id, cancel in rows}
 
     def expire(self, now: float) -> dict[str, JobStatus]:
-        return self._requeue(  # renewed last at lease_until - lease
-            "lease_until < :expired AND lease_until - COALESCE(lease, 0) < "
-            ":now - MIN(COALESCE(lease, :silence), :silence)",
-            {"expired": now, "now": time.time(), "silence": SILENCE}, LEASE_RAN_OUT)
+        return self._requeue(*self._lease_ended(now), LEASE_RAN_OUT)
 
     def create_batch(self, batch_id: str, spec: dict[str, Any],
                      members: builtins.list[tuple[str, dict[str, Any]]], owner: str,
