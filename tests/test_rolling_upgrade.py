@@ -18,7 +18,6 @@ from service_fixtures import two_link_scene
 
 from app.store.postgres import PostgresJobStore
 from bench import harness
-from testbed import postgres as pg
 from testbed.cluster import FAKE_SOLVER, WorkerNode, api_server
 from testbed.service import ROOT, wait_final, wait_for
 
@@ -39,15 +38,6 @@ def previous() -> Iterator[Path]:
         yield path
 
 
-@pytest.fixture
-def server() -> Iterator[pg.PostgresServer]:
-    reason = pg.missing()
-    if reason is not None:
-        pytest.skip(reason)
-    with pg.PostgresServer() as s:
-        yield s
-
-
 def _solving_two(store: PostgresJobStore, node: WorkerNode) -> list[str] | None:
     """The ids of the plans `node` solves, once it solves two."""
     ids = [r.id for r in store.list(status="running", limit=10)
@@ -56,8 +46,8 @@ def _solving_two(store: PostgresJobStore, node: WorkerNode) -> list[str] | None:
 
 
 def test_a_node_of_the_previous_version_is_replaced_with_no_plan_run_twice(
-        tmp_path, server, previous):
-    url = server.create_database("upgrade")
+        tmp_path, postgres_url, previous):
+    url = postgres_url
     store = PostgresJobStore(url, timeout=2.0)
     with contextlib.ExitStack() as stack:
         stack.callback(store.close)
