@@ -81,12 +81,14 @@ class Cluster:
     http: httpx.Client
     folder: Path
     stack: contextlib.ExitStack
+    settings: dict[str, str]
+    """The UNDERTOW_* settings of its API server and, unless a node says otherwise, nodes."""
     nodes: dict[str, WorkerNode] = field(default_factory=dict)
 
     def node(self, name: str, processes: int, root: Path = ROOT, **extra: str) -> WorkerNode:
-        """Start worker node `name` running the code at `root`."""
+        """Start worker node `name` running the code at `root`, with `extra` settings."""
         node = WorkerNode(self.folder, name, processes, UNDERTOW_DB_URL=self.url,
-                          **{**SETTINGS, **extra}).of_version(root)
+                          **{**self.settings, **extra}).of_version(root)
         self.nodes[name] = self.stack.enter_context(node)
         return node
 
@@ -128,16 +130,18 @@ class Cluster:
 
 
 @contextlib.contextmanager
-def cluster() -> Iterator[Cluster]:
-    """A fresh PostgreSQL server and API-only server (no nodes yet)."""
+def cluster(**extra: str) -> Iterator[Cluster]:
+    """A fresh PostgreSQL server and API-only server (no nodes yet), with SETTINGS and
+    `extra` ones."""
+    settings = {**SETTINGS, **extra}
     with tempfile.TemporaryDirectory() as folder, postgres.PostgresServer() as server, \
             contextlib.ExitStack() as stack:
         url = server.create_database("cluster")
         store = PostgresJobStore(url, timeout=2.0)
         stack.callback(store.close)
-        api = stack.enter_context(api_server(Path(folder), url, "api", **SETTINGS))
+        api = stack.enter_context(api_server(Path(folder), url, "api", **settings))
         http = stack.enter_context(httpx.Client(base_url=api.url, timeout=30))
-        yield Cluster(server, url, store, http, Path(folder), stack)
+        yield Cluster(server, url, store, http, Path(folder), stack, settings)
 
 
 def claims(record: JobRecord) -> int:

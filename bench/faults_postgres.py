@@ -12,28 +12,22 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
-import tempfile
 import time
 from collections import Counter
 from collections.abc import Callable
-from pathlib import Path
-
-import httpx
 
 from app.store import FINAL
 from app.store.postgres import PostgresJobStore
 from bench import harness
-from bench.faults import scene
+from bench.cluster_ops import LEASE, cluster
+from bench.faults import LONG
 from testbed import postgres
-from testbed.cluster import FAKE_SOLVER, WorkerNode, api_server
+from testbed.cluster import WorkerNode
 from testbed.probes import worker_pids
 
 SECTION = "Reliability: faults on PostgreSQL"
-LEASE = 20.0  # [s]
 PLANS = 10
 SETTLE = 120.0  # [s]
-SETTINGS = {"UNDERTOW_SOLVE_FUNCTION": FAKE_SOLVER, "UNDERTOW_LEASE": str(LEASE),
-            "UNDERTOW_MAX_QUEUED": "64", "UNDERTOW_RETRY_BACKOFF": "0.5"}
 
 
 def _on_node(store: PostgresJobStore, node: WorkerNode) -> dict[str, str]:
@@ -80,17 +74,10 @@ one of them, none)"""
 def probe(fault: Callable[[WorkerNode, postgres.PostgresServer], None],
           counted: str, **extra: str) -> dict:
     """One try of `fault`; `extra`: more UNDERTOW_* settings of the servers and nodes."""
-    settings = {**SETTINGS, **extra}
-    with tempfile.TemporaryDirectory() as folder, postgres.PostgresServer() as server, \
-            contextlib.ExitStack() as stack:
-        url = server.create_database("faults")
-        store = PostgresJobStore(url, timeout=2.0)
-        stack.callback(store.close)
-        api = stack.enter_context(api_server(Path(folder), url, "api", **settings))
-        nodes = [stack.enter_context(WorkerNode(Path(folder), name, 2, UNDERTOW_DB_URL=url,
-                                                **settings)) for name in ("node-1", "node-2")]
-        http = stack.enter_context(httpx.Client(base_url=api.url, timeout=30))
-        ids = [http.post("/v1/plans", json=scene()).json()["id"] for _ in range(PLANS)]
+    with cluster(**extra) as c:
+        store, server = c.store, c.server
+        nodes = [c.node(name, 2) for name in ("node-1", "node-2")]
+        ids = c.submit([LONG] * PLANS)
         deadline = time.monotonic() + 60
         while len(held := _on_node(store, nodes[0])) < 2:  # both of its processes busy
             assert time.monotonic() < deadline, "node 1 did not solve two plans"
