@@ -202,15 +202,15 @@ def test_leases_are_renewed_by_job_and_worker_with_cancel_flags_and_expire(store
 
 def test_a_short_lease_being_renewed_is_not_taken_by_a_look_ahead(store):
     # a process with a long lease looks ahead by its look interval (up to 15 s): a claim of
-    # a node with a 1 s lease renewed a moment ago is healthy all the same; once silent
+    # a node with a 1.5 s lease renewed a moment ago is healthy all the same; once silent
     # for its whole lease, it is lost
     store.create("a", SCENE, "host")
-    assert claim(store, worker="w1", lease=1.0) == "a"
+    assert claim(store, worker="w1", lease=1.5) == "a"
     assert store.expire(time.time() + 5.0) == {}
-    time.sleep(1.1)  # silent for its whole lease
-    assert store.renew([("a", "w1")], time.time() + 1.0) == {"a": False}
+    time.sleep(1.6)  # silent for its whole lease
+    assert store.renew([("a", "w1")], time.time() + 1.5) == {"a": False}
     assert store.expire(time.time() + 5.0) == {}  # renewed: healthy again
-    time.sleep(1.1)
+    time.sleep(1.6)
     assert store.expire(time.time() + 5.0) == {"a": "queued"}
 
 
