@@ -34,7 +34,6 @@ from typing import Any
 import psycopg
 from psycopg.types.json import Jsonb
 from psycopg_pool import ConnectionPool, PoolTimeout
-from psycopg_pool.base import AttemptWithBackoff
 
 from app.store.base import (
     CANCELLED_ON_REQUEST,
@@ -47,12 +46,11 @@ from app.store.base import (
     StoreUnavailable,
 )
 from app.store.migrations import migrate, version
+from app.store.postgres_pool import Pool
 from app.store.sql import COLUMNS, SqlJobStore
 from app.store.waits import CHECK_WAIT, connection_wait
 
 _MIGRATION_LOCK = 0x756E6474  # advisory lock key held while migrating ("undt")
-RECONNECT_EVERY = 1.0
-"""[s] longest pause between two attempts of the pool to replace a lost connection."""
 
 _MEMBER_COLUMNS = "id, member, status, error, verified, objective, started, finished"
 
@@ -131,25 +129,6 @@ class NameLock:
         self._conn.close()
 
 
-class _Reconnect(AttemptWithBackoff):
-    """psycopg_pool's attempts to replace a lost connection, at most RECONNECT_EVERY apart
-    (its own pause doubles without bound: after a 40 s outage its next attempt came 20 s
-    after the database was back, and every verdict held meanwhile waited for it)."""
-
-    def update_delay(self, now: float) -> None:
-        super().update_delay(now)
-        self.delay = min(self.delay, RECONNECT_EVERY)
-
-
-class _Pool(ConnectionPool):
-    """A connection pool that replaces lost connections `_Reconnect`'s way."""
-
-    def _add_connection(self, attempt: AttemptWithBackoff | None,
-                        growing: bool = False) -> None:
-        super()._add_connection(attempt or _Reconnect(timeout=self.reconnect_timeout),
-                                growing)
-
-
 class PostgresSql(SqlJobStore):
     """Jobs in a PostgreSQL database at `url` ("postgresql://user:password@host:port/db"),
     without a queue: `app.store.postgres.PostgresJobStore` claims, renews, expires and
@@ -202,7 +181,7 @@ class PostgresSql(SqlJobStore):
         """This process's pool (a new one after a fork)."""
         with self._lock:
             if self._pool is None or self._pid != os.getpid():
-                self._pool = _Pool(
+                self._pool = Pool(
                     self.url, min_size=1, max_size=self.pool_size, timeout=self.timeout,
                     kwargs={"autocommit": True, "connect_timeout": max(1, int(self.timeout))},
                     check=ConnectionPool.check_connection, open=True, name="undertow-jobs")
