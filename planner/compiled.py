@@ -12,6 +12,7 @@ made leaves every caller interpreted.
 
 from __future__ import annotations
 
+import fcntl
 import hashlib
 import os
 import shutil
@@ -141,14 +142,24 @@ def wait(timeout: float = 600.0) -> None:
         proc.wait(max(deadline - time.monotonic(), 0.0))
 
 
+BUILD_LOCK = ".build.lock"
+"""A file of the cache folder whose lock a background build holds while it compiles: the
+builds of one folder run one after the other, whichever processes started them, so that a
+service meeting many structures at once runs one compiler beside its solves, not dozens."""
+
+
 def main(argv: list[str]) -> None:
     """Child process: folder name flags work file...: build the library of the saved
     functions, then remove their folder. It runs at the lowest priority (nice 19), on the
-    time solves leave idle."""
+    time solves leave idle, and after the folder's other background builds (BUILD_LOCK);
+    a library another process built meanwhile is not built again."""
     os.nice(19)
     folder, name, flags, work, *files = argv
     try:
-        _build(Path(folder), name, [ca.Function.load(f) for f in files], flags)
+        with open(Path(folder) / BUILD_LOCK, "a") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            if not (Path(folder) / f"{name}.so").exists():
+                _build(Path(folder), name, [ca.Function.load(f) for f in files], flags)
     finally:
         shutil.rmtree(work, ignore_errors=True)
 

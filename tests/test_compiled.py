@@ -90,3 +90,24 @@ class _Example:
 
     def __init__(self, scene: Scene):
         self.request = scene.model_dump(exclude_unset=True)
+
+
+def test_background_builds_of_one_folder_run_one_at_a_time(cache):
+    """While another build holds the folder's lock, a background build waits for it; once
+    the lock is released it builds. (Without the lock every structure a service meets at
+    once would start a compiler of its own.)"""
+    import fcntl
+    import time
+
+    import casadi as ca
+
+    x = ca.SX.sym("x")
+    functions = [ca.Function("waiting_f", [x], [ca.sin(x) * x])]
+    with open(cache / compiled.BUILD_LOCK, "a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        assert compiled.library("waiting", functions, background=True) is None
+        time.sleep(3.0)  # far longer than this library takes gcc when it may build
+        assert compiled.building() and not (cache / "waiting.so").exists()
+    compiled.wait(120)
+    loaded = compiled.library("waiting", functions)
+    assert loaded is not None and float(loaded["waiting_f"](2.0)) == pytest.approx(2 * np.sin(2))
