@@ -39,7 +39,8 @@ BENCHES = {
     "impossible": ("bench.impossible", "tasks that cannot be done: how many end infeasible, "
                                        "how soon"),
     "iteration_cost": ("bench.iteration_cost", "CPU per iteration on the seed arm at N = 50 and "
-                                               "100: Ipopt interpreted and compiled, fatrop"),
+                                               "100: Ipopt compiled and interpreted, fatrop, "
+                                               "and an earlier commit"),
     "memory": ("bench.memory", "plans started from a neighbour's plan against the same plans "
                                "from scratch: time, and how often the optimum is the same"),
     "moved_goals": ("bench.moved_goals", "the built-in plan examples with their goals moved by "

@@ -1,98 +1,111 @@
-"""What one iteration costs on the seed's 4-link arm, and where the time goes.
+"""What one iteration costs on the seed's 4-link arm, and where the time goes, now and at an
+earlier commit.
 
 Scene "seed-4" (bench/scenes.py: the seed arm in a horizontal plane across waveless coupling
 singularities, Legendre degree 3), one solve per plan of exactly `--iterations` iterations
 from the planner's initial guess (refinement and retries off; the NLP built and cached
-first, so no build is timed). Solvers: Ipopt with the stages' derivative kernels
-interpreted, Ipopt with them compiled to C (`solver.jit`, the default; the library built
-before timing), the same with MUMPS's workspace at its estimate plus Ipopt's own 1000 %
-(`mumps_mem_percent`; the planner's setting before it was 200 %), and fatrop with the
-stage structure declared (`solver.name: "fatrop"`; it differentiates the expanded NLP
-itself). Reported per N and solver, medians of `--repeats` solves: CPU time per iteration,
-the part in NLP function evaluations (CasADi's `t_proc_nlp_*` and the iteration callback)
-and the solver's own part (the rest: the KKT factorizations, solves and vector work), the
-CPU time the kernel spent for the process and the page faults it took, function calls per
-iteration and, for Ipopt, KKT factorizations per iteration (counted in its log of one
-more, untimed solve).
+first, so no build is timed). Configurations, each in a fresh process: Ipopt with the
+stages' kernels compiled to C (`solver.jit`, the default; the library built before timing)
+and interpreted, fatrop with the stage structure declared (`solver.name: "fatrop"`; it
+differentiates the expanded NLP itself), and the default at the commit `--before` (a
+checkout of its own). Reported per N and configuration, medians of `--repeats` solves: the
+NLP's variables and rows, CPU time per iteration, the part in NLP function evaluations
+(CasADi's `t_proc_nlp_*` and the iteration callback) and the solver's own part (the rest:
+the KKT factorizations, solves and vector work), the kernel's CPU time for the process and
+its page faults, function calls per iteration and, for Ipopt, KKT factorizations per
+iteration (counted in its log of one more, untimed solve).
 
-    python -m bench iteration_cost [--N 50 100] [--iterations 60] [--repeats 3]
+    python -m bench iteration_cost [--N 50 100] [--iterations 60] [--repeats 3] [--before C]
 """
 
 from __future__ import annotations
 
 import argparse
-import math
+import json
 import time
+from pathlib import Path
 
+from bench import harness
+
+DOC = harness.DOCS / "benchmarks.md"
+SECTION = "Cost of an iteration on the seed arm"
+BEFORE = "95d4e3d"
+"""The last commit before collocation was condensed and the NLP's rows and cost compiled."""
+CONFIGS: tuple[tuple[str, dict[str, object], bool], ...] = (
+    ("Ipopt, compiled (jit, the default)", {"jit": True}, False),
+    ("Ipopt, interpreted", {"jit": False}, False),
+    ("fatrop", {"name": "fatrop", "jit": False}, False),
+    ("before: Ipopt, compiled (jit, the default)", {"jit": True}, True))
+"""Name, solver settings of the scene, whether at the commit `--before`."""
+KEYS = ("cpu_per_iteration", "functions_per_iteration", "solver_per_iteration",
+        "kernel_per_iteration", "faults_per_iteration", "calls_per_iteration")
+
+_RUN = """
+import json, math, sys
+sys.path.insert(0, {root!r})
 from bench import harness, suite
 from bench.scenes import make_scene
 from planner import compiled
 from planner.ocp import plan
-from planner.scene import Scene
-
-DOC = harness.DOCS / "benchmarks.md"
-SECTION = "Cost of an iteration on the seed arm"
-SOLVERS: tuple[tuple[str, dict[str, object], dict[str, object]], ...] = (
-    ("Ipopt, interpreted", {"jit": False}, {}),
-    ("Ipopt, compiled (jit, the default)", {"jit": True}, {}),
-    ("Ipopt, compiled, MUMPS workspace 1000 %", {"jit": True}, {"mumps_mem_percent": 1000}),
-    ("fatrop", {"name": "fatrop", "jit": False}, {}))
-"""Name, solver settings of the scene, Ipopt options beyond the planner's."""
-
-
-def _scene(N: int, iterations: int, solver: dict) -> Scene:
-    """The seed-4 scene on N intervals, one solve of exactly `iterations` iterations."""
+N, iterations, repeats, solver = json.loads(sys.argv[1])
+def scene():
     return make_scene("seed-4", N=N, one_solve=True,
-                      solver={**solver, "max_iter": iterations, "tol": 1e-12})
-
-
-def _measure(N: int, iterations: int, solver: dict) -> dict:
-    """One solve of `iterations` iterations: CPU per iteration [ms], its split, calls."""
-    scene = _scene(N, iterations, solver)
-    _, timed = harness.build_instrumented(scene)
-    plan(scene)
+                      solver={{**solver, "max_iter": iterations, "tol": 1e-12}})
+plan(scene())  # builds the NLP, and starts the build of its compiled kernels
+compiled.wait()
+runs = []
+for _ in range(repeats):
+    s = scene()
+    _, timed = harness.build_instrumented(s)
+    plan(s)
     stats = timed.stats()
     done = max(int(stats.get("iter_count", iterations)), 1)
     functions = sum(v for k, v in stats.items()
                     if k.startswith("t_proc_nlp") or k == "t_proc_callback_fun")
     calls = sum(v for k, v in stats.items() if k.startswith("n_call_nlp"))
-    return {"iterations": done, "cpu_per_iteration": 1e3 * timed.cpu / done,
-            "functions_per_iteration": 1e3 * functions / done,
-            "solver_per_iteration": 1e3 * (timed.cpu - functions) / done,
-            "kernel_per_iteration": 1e3 * timed.kernel / done,
-            "faults_per_iteration": timed.faults / done,
-            "calls_per_iteration": calls / done}
+    runs.append({{"iterations": done, "cpu_per_iteration": 1e3 * timed.cpu / done,
+                 "functions_per_iteration": 1e3 * functions / done,
+                 "solver_per_iteration": 1e3 * (timed.cpu - functions) / done,
+                 "kernel_per_iteration": 1e3 * timed.kernel / done,
+                 "faults_per_iteration": timed.faults / done,
+                 "calls_per_iteration": calls / done}})
+from planner.ocp.problem import ProblemKey, problem
+built = problem(ProblemKey.of(scene()), wait=True)
+factorizations = math.nan
+if solver.get("name", "ipopt") == "ipopt":
+    with harness.ipopt_options({{"print_level": suite.LOG_LEVEL}}), suite.solver_log() as log:
+        plan(scene())
+    factorizations = suite.per_iteration([suite.log_counts(log(), iterations)])
+print("RESULT " + json.dumps({{"runs": runs, "variables": built.layout.size,
+                              "rows": int(built.lbg.size),
+                              "factorizations_per_iteration": factorizations}}))
+"""
 
 
-def _factorizations(N: int, iterations: int, solver: dict) -> float:
-    """KKT factorizations per iteration of the same solve, counted in Ipopt's log at
-    `bench.suite.LOG_LEVEL` (a solve of its own, not timed); NaN for a solver without
-    that log (fatrop)."""
-    if solver.get("name", "ipopt") != "ipopt":
-        return math.nan
-    with harness.ipopt_options({"print_level": suite.LOG_LEVEL}), suite.solver_log() as log:
-        plan(_scene(N, iterations, solver))
-    return suite.per_iteration([suite.log_counts(log(), iterations)])
+def _measure(root: Path, N: int, iterations: int, repeats: int, solver: dict) -> dict:
+    """One configuration on N intervals, in a fresh process of the checkout `root`."""
+    return harness.run_at(root, _RUN.format(root=str(root)),
+                          [json.dumps([N, iterations, repeats, solver])], 1800)
 
 
-def run(Ns: list[int], iterations: int, repeats: int) -> list[dict]:
+def run(Ns: list[int], iterations: int, repeats: int, before: str) -> list[dict]:
     rows = []
-    for N in Ns:
-        for name, solver, options in SOLVERS:
-            with harness.ipopt_options(options):
-                _measure(N, iterations, solver)  # builds (and compiles) the NLP
-                if solver.get("jit"):
-                    compiled.wait()
-                runs = [_measure(N, iterations, solver) for _ in range(repeats)]
-                factorizations = _factorizations(N, iterations, solver)
-            row = {"N": N, "solver": name, "iterations": runs[0]["iterations"],
-                   **{k: harness.median(r[k] for r in runs)
-                      for k in ("cpu_per_iteration", "functions_per_iteration",
-                                "solver_per_iteration", "kernel_per_iteration",
-                                "faults_per_iteration", "calls_per_iteration")},
-                   "factorizations_per_iteration": factorizations}
-            rows.append(row)
-            print(row, flush=True)
+    with harness.checkout(before) as old:
+        for N in Ns:
+            for name, solver, earlier in CONFIGS:
+                out = _measure(old if earlier else harness.ROOT, N, iterations, repeats, solver)
+                row: dict = {"N": N, "solver": name.replace("before", f"before ({before})")}
+                if "failure" in out:
+                    row["failure"] = out["failure"]
+                else:
+                    runs = out["runs"]
+                    row.update({"iterations": runs[0]["iterations"],
+                                "variables": out["variables"], "rows": out["rows"],
+                                **{k: harness.median(r[k] for r in runs) for k in KEYS},
+                                "factorizations_per_iteration":
+                                    out["factorizations_per_iteration"]})
+                rows.append(row)
+                print(row, flush=True)
     return rows
 
 
@@ -101,19 +114,23 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--N", type=int, nargs="+", default=[50, 100])
     parser.add_argument("--iterations", type=int, default=60)
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--before", default=BEFORE)
     args = parser.parse_args(argv)
     started, note = time.perf_counter(), harness.machine_note()
-    rows = run(args.N, args.iterations, args.repeats)
+    rows = run(args.N, args.iterations, args.repeats, args.before)
     harness.write_csv(harness.RESULTS / "iteration_cost.csv", rows)
     text = "\n\n".join([
         f"The seed arm in a horizontal plane (\"seed-4\", Legendre 3), one solve of "
         f"{args.iterations} iterations from the planner's initial guess, the NLP built first; "
-        f"medians of {args.repeats} solves, CPU time of this process. Functions: CasADi's "
-        "NLP function evaluations and the iteration callback; solver: the rest (KKT "
-        "factorizations and solves, vector work); of it in the kernel: the CPU time the "
-        "kernel spent for the process during the solve, most of it faulting in the pages "
-        "of memory the C heap mapped afresh.",
-        harness.table(rows, [("N", "N"), ("solver", "solver"), ("iterations", "iterations"),
+        f"medians of {args.repeats} solves, CPU time of the solving process, each "
+        f"configuration in a process of its own, \"before\" at commit {args.before} (the NLP "
+        "with the collocation states as variables, its rows and cost interpreted). "
+        "Functions: CasADi's NLP function evaluations and the iteration callback; solver: "
+        "the rest (KKT factorizations and solves, vector work); of it in the kernel: the CPU "
+        "time the kernel spent for the process during the solve.",
+        harness.table(rows, [("N", "N"), ("solver", "configuration"),
+                             ("iterations", "iterations"), ("variables", "variables"),
+                             ("rows", "rows"),
                              ("cpu_per_iteration", "CPU per iteration [ms]"),
                              ("functions_per_iteration", "functions [ms]"),
                              ("solver_per_iteration", "solver [ms]"),

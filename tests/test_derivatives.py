@@ -29,7 +29,7 @@ import numpy as np
 import pytest
 
 from planner.ocp import problem as problem_module
-from planner.ocp.assembly import Blocks, Derivatives
+from planner.ocp.assembly import Derivatives
 from planner.ocp.instance import instance
 from planner.ocp.key import ProblemKey
 from planner.ocp.mesh import Mesh
@@ -298,8 +298,7 @@ def test_the_checks_catch_a_halved_stage_hessian(monkeypatch):
     stage = good.derivatives.stage
     ins = [ca.SX.sym(f"i{k}", stage.hess.sparsity_in(k)) for k in range(stage.hess.n_in())]
     halved = ca.Function(stage.hess.name(), ins, [0.5 * stage.hess(*ins)])
-    faulty = Derivatives(Blocks(stage.jac, stage.grad, halved, stage.jac_sp, stage.grad_rows,
-                                stage.hess_sp), good.derivatives.terminal)
+    faulty = Derivatives(replace(stage, hess=halved), good.derivatives.terminal)
     monkeypatch.setattr(problem_module, "stages",
                         lambda key, compiled=False: replace(good, derivatives=faulty))
     hess_lag = problem_module.build(c.key).solver.get_function("nlp_hess_l")

@@ -115,24 +115,24 @@ def _waved_sign_changes(name: str) -> tuple[object, list[float]]:
 
 def test_the_headline_plan_passes_singular_configurations_as_the_docs_say():
     """README and docs/viewer.md: the first example's verified plan (no coupling margin)
-    crosses the waveless singularity at 1.16 s, and its waved arm has singular
-    configurations of its own near 0.06 s and 1.10 s."""
+    crosses the waveless singularity at 1.37 s, and its waved arm has singular
+    configurations of its own near 0.05 s and 1.25 s."""
     result, changes = _waved_sign_changes("seed-arm-horizontal-plan")
     v = result.verification
     t, waved = np.array(result.dense.t), np.array(v.sigma_min)
     assert result.status == "verified" and example(
         "seed-arm-horizontal-plan").request["task"].get("coupling_margin") is None
-    assert [round(c.time, 2) for c in v.waveless_singular_crossings] == [1.16]
-    assert [round(c, 2) for c in changes] == [0.06, 1.10]  # det M_pa of the waved arm
-    early, late = t < 0.5, (t > 0.9) & (t < 1.13)
+    assert [round(c.time, 2) for c in v.waveless_singular_crossings] == [1.37]
+    assert [round(c, 2) for c in changes] == [0.05, 1.25]  # det M_pa of the waved arm
+    early, late = t < 0.5, (t > 1.0) & (t < 1.3)
     lows = [(float(f"{waved[m].min():.2g}"), round(float(t[m][np.argmin(waved[m])]), 3))
             for m in (early, late)]
-    assert lows == [(6.4e-5, 0.058), (9.8e-5, 1.098)]
+    assert lows == [(0.00016, 0.047), (0.00011, 1.249)]
     readme, guide = (" ".join((ROOT / path).read_text().split())
                      for path in ("README.md", "docs/viewer.md"))
-    assert ("waveless M_pa is singular at t = 1.16 s and the waved one, with that arm's "
-            "waves, near t = 0.06 s and 1.10 s") in readme
-    assert ("to 6.4e-5 at t = 0.058 s and to 9.8e-5 at t = 1.098 s on the 2,001 dense "
+    assert ("waveless M_pa is singular at t = 1.37 s and the waved one, with that arm's "
+            "waves, near t = 0.05 s and 1.25 s") in readme
+    assert ("to 1.6e-4 at t = 0.047 s and to 1.1e-4 at t = 1.249 s on the 2,161 dense "
             "samples") in guide
     assert f"objective {result.objective:.3f} N²m²s" in guide
 

@@ -190,18 +190,25 @@ def test_a_looser_coupling_margin_never_makes_the_task_infeasible(two_link, marg
     assert result.status == "verified", result.message
 
 
-def test_a_duration_probe_at_a_local_minimum_is_refuted_by_a_second_start():
-    # the suite's task: its direct start ends at the iteration limit and the probe's
-    # time-optimal solve at a duration above the task's, while the classical inverse
-    # dynamics as the guess converges at the task's own duration. A budget long enough
-    # that every solve ends by its iterations, not by the clock
+def test_a_duration_probe_at_a_local_minimum_is_refuted_by_a_second_start(monkeypatch):
+    # the suite's task, whose probe's time-optimal solve has ended at a local minimum above
+    # the task's duration (which solve ends where depends on Ipopt's path: the probe is
+    # made to say so here), while the classical inverse dynamics as the guess converges at
+    # the task's own duration. A budget long enough that every solve ends by its
+    # iterations, not by the clock
+    from dataclasses import replace
+
+    from planner.ocp import shortest
     from testbed.suites.ordinary import tasks
 
+    own = shortest.probe
+    monkeypatch.setattr(shortest, "probe",
+                        lambda *args: replace(own(*args), too_short=True))
     scene = dict(tasks())["4-APPA-g9.81-x39"]
     scene = scene.model_copy(update={
         "solver": scene.solver.model_copy(update={"max_wall_time": 600.0})})
     result = plan(scene)
     strategies = [p.strategy for p in result.mesh_passes]
-    assert "shortest-duration probe, time-optimal: direct" in strategies
+    assert any(s.startswith("shortest-duration probe, time-optimal") for s in strategies)
     assert result.status == "verified" and result.infeasibility is None, result.message
     assert result.solver.strategy.startswith("inverse-dynamics start")

@@ -40,6 +40,7 @@ from planner.model import Structure, parameters
 from planner.ocp.accuracy import interval_errors
 from planner.ocp.guess import hermite_guess
 from planner.ocp.methods import Collocation
+from planner.ocp.methods.collocation import collocation_interpolant
 from planner.ocp.transcription import Interpolant
 from planner.ocp.verify import defect, open_loop
 from planner.scene import Scene
@@ -194,18 +195,23 @@ def solve(scene: Scene, built: Baseline | None = None, wall_time: float = WALL_C
 
 
 def interpolant(scene: Scene, built: Baseline, value) -> Interpolant | None:
-    """The collocation interpolant of a solution (the planner's own class for Legendre
+    """The collocation interpolant of a solution (the planner's own for Legendre
     collocation), None when the solution has non-finite entries."""
     N, d = scene.transcription.intervals, scene.transcription.degree
     n = scene.robot.n
     X = np.array(value(built.X))
     Xc = np.hstack([np.array(value(x)).reshape(2 * n, d) for x in built.Xc])
     U = np.hstack([np.array(value(u)).reshape(-1, d) for u in built.U])
-    blocks = {"q": X[:n], "dq": X[n:], "q_col": Xc[:n], "dq_col": Xc[n:], "tau": U}
-    if not all(np.all(np.isfinite(b)) for b in blocks.values()):
+    if not all(np.all(np.isfinite(b)) for b in (X, Xc, U)):
         return None
     breaks = np.linspace(0.0, fixed_duration(scene), N + 1)
-    return Collocation(N, d, "legendre").interpolant(blocks, breaks, None)
+
+    def per_interval(values: np.ndarray) -> np.ndarray:  # rows x (N d) -> (N, d, rows)
+        return values.T.reshape(N, d, -1)
+
+    return collocation_interpolant(Collocation(N, d, "legendre").knot_positions, breaks,
+                                   X[:n].T, X[n:].T, per_interval(Xc[:n]),
+                                   per_interval(Xc[n:]), per_interval(U))
 
 
 def verification(scene: Scene, built: Baseline, value) -> dict:

@@ -39,6 +39,21 @@ class Kernels:
     stage: ca.Function
     terminal: ca.Function
     link: int
+    lifting: Lifting | None = None
+    """The stage written on its lifted quantities, where its transcription has them."""
+
+
+@dataclass(frozen=True)
+class Lifting:
+    """A stage function written on lifted quantities z, linear in the stage's variables for
+    a given width: function(w, z, nxt, glob, common, local) -> (rows, cost) and
+    lift(w, nxt, glob, common, local) -> z, so that stage(w, ...) = function(w, lift(w, ...),
+    ...). Its derivatives follow by the chain rule from the function's, which are sparse
+    where the stage's own are dense (each collocation point's rows read that point's
+    quantities alone)."""
+
+    function: ca.Function
+    lift: ca.Function
 
 
 @dataclass(frozen=True)
@@ -71,12 +86,21 @@ def _map_stages(kernels: Kernels, layout: Layout, X: ca.MX, common: ca.MX, local
     return W, nxt, terminal, glob, local[:, :N], local[:, N]
 
 
-def nlp(kernels: Kernels, layout: Layout, X: ca.MX, common: ca.MX, local: ca.MX,
-        boundary: ca.MX | None) -> tuple[ca.MX, ca.MX]:
-    """The objective and the constraints (stage rows stage by stage, then the terminal's)."""
+def nlp(kernels: Kernels, derivs: Derivatives | None, layout: Layout, X: ca.MX,
+        common: ca.MX, local: ca.MX, boundary: ca.MX | None) -> tuple[ca.MX, ca.MX]:
+    """The objective and the constraints (stage rows stage by stage, then the terminal's):
+    with derivative kernels from their rows and cost functions (compiled with them), so
+    that an evaluation of the objective computes no row and neither is interpreted."""
+    N = layout.intervals
     W, nxt, terminal, glob, loc, loc_t = _map_stages(kernels, layout, X, common, local)
-    rows, costs = kernels.stage.map(layout.intervals)(W, nxt, glob, common, loc)
-    rows_t, cost_t = kernels.terminal(terminal, glob, common, loc_t)
+    stage_args, term_args = (W, nxt, glob, common, loc), (terminal, glob, common, loc_t)
+    if derivs is None:
+        rows, costs = kernels.stage.map(N)(*stage_args)
+        rows_t, cost_t = kernels.terminal(*term_args)
+    else:
+        rows, costs = derivs.stage.rows.map(N)(*stage_args), \
+            derivs.stage.cost.map(N)(*stage_args)
+        rows_t, cost_t = derivs.terminal.rows(*term_args), derivs.terminal.cost(*term_args)
     f = ca.sum2(costs) + cost_t + (boundary if boundary is not None else 0)
     return f, ca.vertcat(ca.vec(rows), rows_t)
 
@@ -105,7 +129,7 @@ def assemble(kernels: Kernels, derivs: Derivatives | None, layout: Layout, n_com
     common = P[:n_common]
     local = ca.reshape(P[n_common:], n_local, N + 1)
     extra = boundary(X, common, local) if boundary is not None else None
-    f, g = nlp(kernels, layout, X, common, local, extra)
+    f, g = nlp(kernels, derivs, layout, X, common, local, extra)
     oracle = {"x": X, "p": P, "f": f, "g": g}
     if derivs is None:
         return Assembly(oracle, {})
@@ -117,9 +141,12 @@ def assemble(kernels: Kernels, derivs: Derivatives | None, layout: Layout, n_com
 
 @dataclass(frozen=True)
 class Blocks:
-    """The derivative kernels of a stage (or terminal) function and where their nonzeros go."""
+    """The kernels of a stage (or terminal) function, its rows and cost apart and its
+    derivatives, and where the derivatives' nonzeros go."""
 
-    jac: ca.Function  # (w, nxt, glob, common, local) -> jacobian nonzeros
+    rows: ca.Function  # (w, nxt, glob, common, local) -> rows
+    cost: ca.Function  # -> cost
+    jac: ca.Function  # -> jacobian nonzeros
     grad: ca.Function  # -> gradient nonzeros (y = [w; glob])
     hess: ca.Function  # (w, nxt, glob, common, local, sigma, lam) -> hessian nonzeros
     jac_sp: ca.Sparsity  # rows x [w; nxt; glob]
@@ -135,14 +162,15 @@ class Derivatives:
     terminal: Blocks
 
     def functions(self) -> list[ca.Function]:
-        return [self.stage.jac, self.stage.grad, self.stage.hess,
-                self.terminal.jac, self.terminal.grad, self.terminal.hess]
+        return [f for b in (self.stage, self.terminal)
+                for f in (b.rows, b.cost, b.jac, b.grad, b.hess)]
 
     def replaced(self, functions: dict[str, ca.Function]) -> Derivatives:
         """The same kernels with each function replaced by the one of its name."""
         def swap(b: Blocks) -> Blocks:
-            return Blocks(functions[b.jac.name()], functions[b.grad.name()],
-                          functions[b.hess.name()], b.jac_sp, b.grad_rows, b.hess_sp)
+            rows, cost, jac, grad, hess = (functions[f.name()]
+                                           for f in (b.rows, b.cost, b.jac, b.grad, b.hess))
+            return Blocks(rows, cost, jac, grad, hess, b.jac_sp, b.grad_rows, b.hess_sp)
         return Derivatives(swap(self.stage), swap(self.terminal))
 
 
@@ -151,20 +179,25 @@ def derivatives(kernels: Kernels) -> Derivatives | None:
     stages or a stage is not SX (nlpsol then derives the whole NLP)."""
     if not kernels.terminal.is_a("SXFunction") or _hessian_couples(kernels):
         return None
-    return Derivatives(_blocks(kernels.stage, True), _blocks(kernels.terminal, False))
+    return Derivatives(_blocks(kernels.stage, True, kernels.lifting),
+                       _blocks(kernels.terminal, False))
 
 
-def _blocks(f: ca.Function, with_next: bool) -> Blocks:
-    """Derivative kernels of a stage (with_next) or terminal function."""
+def _blocks(f: ca.Function, with_next: bool, lifting: Lifting | None = None) -> Blocks:
+    """Derivative kernels of a stage (with_next) or terminal function, by the chain rule
+    through its lifting where it has one."""
     ins = f.sx_in()
     w, glob = ins[0], ins[2 if with_next else 1]
     nxt = ins[1] if with_next else ca.SX(0, 1)
-    rows, cost = f.call(ins)
     z, y = ca.vertcat(w, nxt, glob), ca.vertcat(w, glob)
+    rows, cost = f.call(ins)
     lam, sigma = ca.SX.sym("lam", rows.numel()), ca.SX.sym("sigma")
-    J = ca.jacobian(rows, z)
-    grad = ca.gradient(cost, y)
-    H = ca.triu(ca.hessian(sigma * cost + ca.dot(lam, rows), y)[0])
+    if lifting is None:
+        J = ca.jacobian(rows, z)
+        grad = ca.gradient(cost, y)
+        H = ca.triu(ca.hessian(sigma * cost + ca.dot(lam, rows), y)[0])
+    else:
+        J, grad, H = _chained(lifting, ins, z, y, lam, sigma)
     grad_rows = np.array(grad.sparsity().get_triplet()[0], dtype=int)
 
     def nz(m: ca.SX) -> ca.SX:
@@ -172,10 +205,37 @@ def _blocks(f: ca.Function, with_next: bool) -> Blocks:
         return ca.vertcat(*cast(list[ca.SX], m.nonzeros())) if m.nnz() else ca.SX(0, 1)
 
     name = f.name()
-    return Blocks(ca.Function(f"{name}_jac", ins, [nz(J)]),
+    return Blocks(ca.Function(f"{name}_rows", ins, [rows]),
+                  ca.Function(f"{name}_cost", ins, [cost]),
+                  ca.Function(f"{name}_jac", ins, [nz(J)]),
                   ca.Function(f"{name}_grad", ins, [nz(grad)]),
                   ca.Function(f"{name}_hess", [*ins, sigma, lam], [nz(H)]),
                   J.sparsity(), grad_rows, H.sparsity())
+
+
+def _chained(lifting: Lifting, ins: list[ca.SX], z: ca.SX, y: ca.SX, lam: ca.SX,
+             sigma: ca.SX) -> tuple[ca.SX, ca.SX, ca.SX]:
+    """The Jacobian of a lifted stage's rows in z = [w; nxt; glob], the gradient of its cost
+    and the upper triangle of its Lagrangian's Hessian in y = [w; glob], from the lifted
+    function's derivatives in its own quantities (sparse) and the lift's: with
+    u = lift(w, ...) and P = du/dy, H = [I; P]' H_(y,u) [I; P] + sum_i mu_i d2u_i/dy2,
+    mu = dL/du (the second term vanishes for a lift linear in y: a fixed duration)."""
+    u = ca.SX.sym("u", lifting.function.size1_in(1))
+    rows, cost = lifting.function(ins[0], u, *ins[1:])
+    lift = lifting.lift(*ins)
+    J = ca.jacobian(rows, z) + ca.mtimes(ca.jacobian(rows, u), ca.jacobian(lift, z))
+    P = ca.jacobian(lift, y)
+    grad = ca.gradient(cost, y) + ca.mtimes(P.T, ca.gradient(cost, u))
+    lagrangian = sigma * cost + ca.dot(lam, rows)
+    yu = ca.vertcat(y, u)
+    embed = ca.vertcat(ca.SX.eye(y.numel()), P)
+    H = ca.mtimes([embed.T, ca.hessian(lagrangian, yu)[0], embed])
+    mu = ca.SX.sym("mu", u.numel())
+    curvature = ca.hessian(ca.dot(mu, lift), y)[0]
+    if curvature.nnz():
+        H = H + ca.substitute(curvature, mu, ca.gradient(lagrangian, u))
+    J, grad, H = ca.substitute([J, grad, ca.triu(H)], [u], [lift])
+    return J, grad, H
 
 
 def _scatter(rows: np.ndarray, cols: np.ndarray,

@@ -56,6 +56,10 @@ class ProblemKey:
     """Virtual torques on the passive joints too (the relaxed dynamics of a continuation,
     `planner.ocp.continuation`): the torque vector holds the active joints' torques, then
     the passive joints' virtual ones; implicit form only."""
+    exact_tracking: bool = False
+    """The passive joints follow a prescribed motion exactly by rows at the knots
+    (`planner.ocp.terms.ExactTracking`): where the transcription has no angle variables
+    at its knots to bound (`Transcription.knot_blocks`)."""
 
     @classmethod
     def of(cls, scene: Scene, intervals: int | None = None) -> ProblemKey:
@@ -92,7 +96,9 @@ class ProblemKey:
             idle=SOLVERS[settings.name].idle_variable,
         )
         hulls = _hulls(key.method, key.degree, key.integrator, key.steps, key.form)
-        return replace(key, torque_limit=key.torque_limit and "tau" in hulls,
+        exact = task.tracking is not None and task.tracking.mode == "exact"
+        return replace(key, exact_tracking=exact and not _knot_blocks(key.method),
+                       torque_limit=key.torque_limit and "tau" in hulls,
                        position_bounds=key.position_bounds if "q" in hulls else ((), ()),
                        velocity_bounds=key.velocity_bounds if "dq" in hulls else ((), ()))
 
@@ -134,6 +140,12 @@ def _bounded(bounds: Bounds | None) -> tuple[tuple[int, ...], tuple[int, ...]]:
     def finite(values: list[float | None]) -> tuple[int, ...]:
         return tuple(j for j, v in enumerate(values) if v is not None and math.isfinite(v))
     return finite(bounds.lower), finite(bounds.upper)
+
+
+@lru_cache(maxsize=64)
+def _knot_blocks(method: str) -> tuple[str, ...]:
+    """`Transcription.knot_blocks` of a key's method."""
+    return methods.create(method, 1).knot_blocks
 
 
 @lru_cache(maxsize=64)

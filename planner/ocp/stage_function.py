@@ -8,25 +8,28 @@ transcription's symbolic type (SX, or MX where a stage calls an integrator).
 
 from __future__ import annotations
 
-from typing import Generic, overload
+from dataclasses import dataclass
+from typing import Any, Generic, cast, overload
 
 import casadi as ca
 import numpy as np
 
 from planner.dynamics import functions
 from planner.model import wave_slots
+from planner.ocp.assembly import Lifting
 from planner.ocp.key import ProblemKey
 from planner.ocp.layout import Layout, split
 from planner.ocp.parameters import Parameters, slices
 from planner.ocp.terms import Stage, Term
-from planner.ocp.transcription import Model, StagePiece, Transcription
+from planner.ocp.transcription import Lifted, Model, StagePiece, Transcription
 from planner.symbolic import Sym
 
 RowGroups = list[tuple[float, float, int]]
 """Constraint rows in groups: lower bound, upper bound, count."""
 
 ROW_KINDS = {"tip": "tip target", "margin": "coupling margin", "torque_limit": "torque limit",
-             "position_bounds": "position bound", "velocity_bounds": "velocity bound"}
+             "position_bounds": "position bound", "velocity_bounds": "velocity bound",
+             "exact_tracking": "prescribed passive motion"}
 """What a term's constraint rows are, by its name; the transcription's own rows are
 "dynamics" (collocation defects and M ddq + h - B tau) and "continuity" (the gaps between
 stages). The task's initial and final states are bounds of variables, not rows."""
@@ -67,25 +70,33 @@ class _Symbols(Generic[Sym]):
         return self.local[self.params.local[name]]
 
 
+@dataclass(frozen=True)
+class StageFunction:
+    """A stage's (or the terminal's) function (w, nxt, glob, common, local) -> (rows,
+    cost), the bounds of its row groups, what each group is (`ROW_KINDS`, for the evidence
+    of an infeasible task), and, for a lifted transcription's stage, the same function on
+    its lifted quantities (`Lifting`)."""
+
+    function: ca.Function
+    bounds: RowGroups
+    kinds: tuple[str, ...]
+    lifting: Lifting | None = None
+
+
 @overload
 def stage_function(key: ProblemKey, tr: Transcription[ca.SX], layout: Layout,
-                   params: Parameters, terms: list[Term],
-                   terminal: bool) -> tuple[ca.Function, RowGroups, tuple[str, ...]]: ...
+                   params: Parameters, terms: list[Term], terminal: bool) -> StageFunction: ...
 
 
 @overload
 def stage_function(key: ProblemKey, tr: Transcription[ca.MX], layout: Layout,
-                   params: Parameters, terms: list[Term],
-                   terminal: bool) -> tuple[ca.Function, RowGroups, tuple[str, ...]]: ...
+                   params: Parameters, terms: list[Term], terminal: bool) -> StageFunction: ...
 
 
 def stage_function(key: ProblemKey, tr: Transcription[Sym], layout: Layout, params: Parameters,
-                   terms: list[Term], terminal: bool
-                   ) -> tuple[ca.Function, RowGroups, tuple[str, ...]]:
-    """A stage's (or the terminal's) rows and cost, the bounds of its row groups and what
-    each group is (`ROW_KINDS`, for the evidence of an infeasible task), written in the
-    transcription's symbolic type (one overload each, so that a transcription of either
-    type can be passed)."""
+                   terms: list[Term], terminal: bool) -> StageFunction:
+    """A stage's (or the terminal's) function, written in the transcription's symbolic type
+    (one overload each, so that a transcription of either type can be passed)."""
     s = key.structure
     parts = layout.terminal if terminal else layout.stage
     sym = _Symbols(key, tr, layout, params, sum(p.size for p in parts), terminal)
@@ -94,6 +105,10 @@ def stage_function(key: ProblemKey, tr: Transcription[Sym], layout: Layout, para
     w = split(parts, sym.w)
     width = sym.local_of("width")
     h = sym.T * width
+    lifted = _lifted(tr, s.n, cast(Any, w), cast(Any, h)) \
+        if isinstance(tr, Lifted) and not terminal else None
+    if lifted is not None:  # the stage is written on symbols of its lifted quantities
+        w = {**w, **cast(Any, lifted[2])}
     if terminal:
         piece = tr.terminal(w, model)
     else:
@@ -121,7 +136,31 @@ def stage_function(key: ProblemKey, tr: Transcription[Sym], layout: Layout, para
     g = ca.vertcat(*(r for r, _, _ in rows)) if rows else tr.symbolic(0, 1)
     bounds = [(lo, hi, r.numel()) for r, lo, hi in rows]
     name = "terminal" if terminal else "stage"
-    return ca.Function(name, sym.inputs(terminal), [g, cost]), bounds, tuple(kinds)
+    inputs = sym.inputs(terminal)
+    if lifted is None:
+        return StageFunction(ca.Function(name, inputs, [g, cost]), bounds, tuple(kinds))
+    plain, lifting = _lifted_functions(name, cast(Any, inputs), lifted[0], lifted[1],
+                                       cast(Any, g), cast(Any, cost))
+    return StageFunction(plain, bounds, tuple(kinds), lifting)
+
+
+def _lifted(tr: Lifted, n: int, w: dict[str, ca.SX],
+            h: ca.SX) -> tuple[ca.SX, ca.SX, dict[str, ca.SX]]:
+    """A lifted transcription's stage quantities: their symbols z, their values lift(w, h)
+    as one vector, and the symbols by part."""
+    parts = tr.lifted_parts(n)
+    z = ca.SX.sym("z", sum(p.size for p in parts))
+    values = tr.lift(w, h)
+    return z, ca.vertcat(*(ca.vec(values[p.name]) for p in parts)), split(parts, z)
+
+
+def _lifted_functions(name: str, inputs: list[ca.SX], z: ca.SX, values: ca.SX, g: ca.SX,
+                      cost: ca.SX) -> tuple[ca.Function, Lifting]:
+    """The stage function of rows g and cost written on the lifted quantities z, whose
+    values are `values` (in the inputs), and its `Lifting`."""
+    plain = ca.Function(name, inputs, ca.substitute([g, cost], [z], [values]))
+    on_z = ca.Function(f"{name}_lifted", [inputs[0], z, *inputs[1:]], [g, cost])
+    return plain, Lifting(on_z, ca.Function(f"{name}_lift", inputs, [values]))
 
 
 def _residual(key: ProblemKey, residual: ca.Function, piece: StagePiece[Sym], p: Sym) -> Sym:

@@ -50,12 +50,12 @@ def stages(key: ProblemKey, compiled: bool = False) -> Stages:
     parts = tr.parts(s.n, key.torque_count())
     layout = Layout(*parts, key.global_variables(), 1)
     params = parameters(key, tr, terms)
-    stage, stage_bounds, stage_kinds = stage_function(key, tr, layout, params, terms, False)
-    terminal, terminal_bounds, terminal_kinds = stage_function(key, tr, layout, params, terms,
-                                                               True)
-    kernels = Kernels(stage, terminal, sum(p.size for p in layout.stage if p.name in tr.link))
+    stage = stage_function(key, tr, layout, params, terms, False)
+    terminal = stage_function(key, tr, layout, params, terms, True)
+    kernels = Kernels(stage.function, terminal.function,
+                      sum(p.size for p in layout.stage if p.name in tr.link), stage.lifting)
     return Stages(tr, kernels, derivatives(kernels), parts, params,
-                  (stage_bounds, terminal_bounds), (stage_kinds, terminal_kinds))
+                  (stage.bounds, terminal.bounds), (stage.kinds, terminal.kinds))
 
 
 def compiled_kernels(key: ProblemKey, derivatives: Derivatives,

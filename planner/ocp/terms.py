@@ -210,12 +210,50 @@ class Tracking(Term):
         return np.array([tracking.weight])
 
     def local_values(self, num: Numeric) -> np.ndarray:
-        tracking = num.scene.task.tracking
-        assert tracking is not None  # wanted only then
-        T, motion = num.T, tracking.motion
-        times = num.knot_times()
-        ref = motion.evaluate(times.ravel() * T, T)[0]  # (stages * m, n_passive)
-        return ref.reshape(times.shape[0], -1)  # per stage: knot-major, passive within
+        return _reference_at_knots(num)
+
+
+def _reference_at_knots(num: Numeric) -> np.ndarray:
+    """(N + 1, m n_passive) the prescribed passive motion at every stage's knots (the
+    terminal's row: at the end), knot-major, passive joints within."""
+    tracking = num.scene.task.tracking
+    assert tracking is not None  # wanted only then
+    T, motion = num.T, tracking.motion
+    times = num.knot_times()
+    ref = motion.evaluate(times.ravel() * T, T)[0]  # (stages * m, n_passive)
+    return ref.reshape(times.shape[0], -1)
+
+
+class ExactTracking(Term):
+    """q_p = q_ref at every knot, as rows: exact tracking of a prescribed passive motion
+    where the knots' angles are not variables (their bounds hold it otherwise,
+    `planner.ocp.instance`). Local: the reference at the stage's knots (n_passive x m)."""
+
+    name = "exact_tracking"
+
+    def wanted(self, key) -> bool:
+        return key.exact_tracking
+
+    def common_size(self, key) -> int:
+        return 0
+
+    def local_size(self, key, tr: AnyTranscription) -> int:
+        return len(key.structure.passive_idx) * len(tr.knot_positions)
+
+    def rows(self, stage: Stage[Sym]) -> Rows[Sym] | None:
+        knots = stage.piece.knot_q
+        m = knots.size2()
+        if stage.terminal or not m:
+            return None
+        passive = stage.structure.passive_idx
+        ref = ca.reshape(stage.local(self.name)[:len(passive) * m], len(passive), m)
+        return ca.vec(knots[passive, :] - ref), 0.0, 0.0
+
+    def common_values(self, num: Numeric) -> np.ndarray:
+        return np.zeros(0)
+
+    def local_values(self, num: Numeric) -> np.ndarray:
+        return _reference_at_knots(num)
 
 
 class TipTarget(Term):
@@ -337,7 +375,8 @@ class StateBounds(Term):
                         dtype=float)
 
 
-TERMS: tuple[Term, ...] = (Effort(), Time(), Smoothness(), Tracking(), TipTarget(),
+TERMS: tuple[Term, ...] = (Effort(), Time(), Smoothness(), Tracking(), ExactTracking(),
+                           TipTarget(),
                            CouplingMargin(), TorqueLimit(), StateBounds("q", "position_bounds"),
                            StateBounds("dq", "velocity_bounds"))
 """Every term, in the order their costs and rows enter the NLP."""

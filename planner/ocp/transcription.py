@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Generic, Protocol, TypeAlias
+from typing import Generic, Protocol, TypeAlias, runtime_checkable
 
 import casadi as ca
 import numpy as np
@@ -151,6 +151,21 @@ class Transcription(Protocol[Sym]):
         """The states and torques between the knots of a solution (blocks by name, rows x
         columns in time order) on the mesh's breakpoints [s]; fd gives the accelerations
         where they are not variables."""
+
+
+@runtime_checkable
+class Lifted(Protocol):
+    """A transcription whose stage is written on more quantities than its variables: the
+    `lifted_parts`, linear functions of the stage's variables for a given width (`lift`),
+    such as condensed collocation states. Its stage reads them from its parts like
+    variables, so that derivatives follow by the chain rule from the lifted stage's, which
+    are sparser (`planner.ocp.assembly`)."""
+
+    def lifted_parts(self, n: int) -> tuple[Part, ...]:
+        """The lifted quantities of a stage of an arm of n joints."""
+
+    def lift(self, w: dict[str, ca.SX], h: ca.SX) -> dict[str, ca.SX]:
+        """The lifted quantities of a stage with variables w and width h [s]."""
 
 
 AnyTranscription: TypeAlias = Transcription[ca.SX] | Transcription[ca.MX]

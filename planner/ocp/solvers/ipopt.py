@@ -83,6 +83,8 @@ class Ipopt:
             opts["ipopt"]["hessian_approximation"] = "limited-memory"
         elif not nlp.assembly.structured:
             opts["expand"] = True
+        else:  # nothing differentiates the oracle, whose stages may be compiled kernels
+            opts.update({"calc_lam_p": False, "no_nlp_grad": True})
         return opts
 
     def status(self, stats: dict[str, Any]) -> str:
