@@ -82,6 +82,18 @@ def library(name: str, functions: Sequence[ca.Function], flags: str = "-O1",
         return _LOADED[path]
 
 
+def loaded(name: str, names: Sequence[str]) -> dict[str, ca.Function] | None:
+    """The functions `names` of the library `name` when it is on disk (loaded once per
+    process), without building anything; None when it is not there."""
+    path = cache_dir() / f"{name}.so"
+    with _CODEGEN:
+        if path not in _LOADED:
+            if not path.exists():
+                return None
+            _LOADED[path] = {f: ca.external(f, str(path)) for f in names}
+        return _LOADED[path]
+
+
 def _writable(folder: Path) -> bool:
     """Whether the cache folder exists or can be made, and takes new files."""
     try:

@@ -111,3 +111,39 @@ def test_background_builds_of_one_folder_run_one_at_a_time(cache):
     compiled.wait(120)
     loaded = compiled.library("waiting", functions)
     assert loaded is not None and float(loaded["waiting_f"](2.0)) == pytest.approx(2 * np.sin(2))
+
+
+def test_stages_compiled_earlier_load_without_symbolic_work(cache, monkeypatch):
+    """A structure whose kernels another process compiled loads them and their layout from
+    the cache folder: no stage function is built, and every kernel, sparsity and row bound
+    is the symbolic stages' own."""
+    from planner.ocp import stages as stages_module
+    from planner.ocp.problem import ProblemKey, _stage_key
+
+    scene = Scene.model_validate({**_scene(0.33).model_dump(exclude_unset=True),
+                                  "transcription": {"method": "legendre", "intervals": 8}})
+    key = _stage_key(ProblemKey.of(scene))
+    plain = stages_module.stages(key)
+    assert stages_module.compiled_kernels(key, plain, wait=True) is not None
+    stages_module.stages.cache_clear()
+
+    def built(*args):
+        raise AssertionError("a stage function was built")
+
+    monkeypatch.setattr(stages_module, "stage_function", built)
+    found = stages_module.stages(key, True)
+    assert found.kernels is None and found.link == plain.link
+    assert (found.bounds, found.kinds) == (plain.bounds, plain.kinds)
+    rng = np.random.default_rng(7)
+    for mine, theirs in ((found.derivatives.stage, plain.derivatives.stage),
+                         (found.derivatives.terminal, plain.derivatives.terminal)):
+        assert mine.jac_sp == theirs.jac_sp and mine.hess_sp == theirs.hess_sp
+        assert np.array_equal(mine.grad_rows, theirs.grad_rows)
+        args = [rng.uniform(0.1, 1.0, theirs.hess.sparsity_in(k).shape)
+                for k in range(theirs.hess.n_in())]
+        for f in ("rows", "cost", "jac", "grad"):
+            ours, reference = getattr(mine, f), getattr(theirs, f)
+            assert np.allclose(np.array(ours(*args[:ours.n_in()])),
+                               np.array(reference(*args[:reference.n_in()])), rtol=1e-12)
+        assert np.allclose(np.array(mine.hess(*args)), np.array(theirs.hess(*args)), rtol=1e-12)
+    stages_module.stages.cache_clear()

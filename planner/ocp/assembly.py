@@ -74,27 +74,28 @@ def _columns(layout: Layout) -> tuple[int, int, int]:
     return N * nw, N * nw + layout.terminal_size, N
 
 
-def _map_stages(kernels: Kernels, layout: Layout, X: ca.MX, common: ca.MX, local: ca.MX):
+def _map_stages(link: int, layout: Layout, X: ca.MX, common: ca.MX, local: ca.MX):
     """The stage and terminal inputs: W (nw x N), NXT (link x N), glob, locals."""
     N, nw = layout.intervals, layout.stage_size
     start_t, start_g, _ = _columns(layout)
     W = ca.reshape(X[:start_t], nw, N)
     terminal = X[start_t:start_g]
-    nxt = ca.horzcat(W[:kernels.link, 1:], terminal[:kernels.link]) if N > 1 else \
-        terminal[:kernels.link]
+    nxt = ca.horzcat(W[:link, 1:], terminal[:link]) if N > 1 else terminal[:link]
     glob = X[start_g:]
     return W, nxt, terminal, glob, local[:, :N], local[:, N]
 
 
-def nlp(kernels: Kernels, derivs: Derivatives | None, layout: Layout, X: ca.MX,
-        common: ca.MX, local: ca.MX, boundary: ca.MX | None) -> tuple[ca.MX, ca.MX]:
+def nlp(kernels: Kernels | None, derivs: Derivatives | None, link: int, layout: Layout,
+        X: ca.MX, common: ca.MX, local: ca.MX, boundary: ca.MX | None) -> tuple[ca.MX, ca.MX]:
     """The objective and the constraints (stage rows stage by stage, then the terminal's):
     with derivative kernels from their rows and cost functions (compiled with them), so
-    that an evaluation of the objective computes no row and neither is interpreted."""
+    that an evaluation of the objective computes no row and neither is interpreted; else
+    from the stage functions."""
     N = layout.intervals
-    W, nxt, terminal, glob, loc, loc_t = _map_stages(kernels, layout, X, common, local)
+    W, nxt, terminal, glob, loc, loc_t = _map_stages(link, layout, X, common, local)
     stage_args, term_args = (W, nxt, glob, common, loc), (terminal, glob, common, loc_t)
     if derivs is None:
+        assert kernels is not None  # stages without derivative kernels have their functions
         rows, costs = kernels.stage.map(N)(*stage_args)
         rows_t, cost_t = kernels.terminal(*term_args)
     else:
@@ -117,23 +118,25 @@ def _hessian_couples(kernels: Kernels) -> bool:
     return ca.depends_on(grad, ca.vertcat(w, nxt, glob))
 
 
-def assemble(kernels: Kernels, derivs: Derivatives | None, layout: Layout, n_common: int,
-             n_local: int, boundary: Callable[[ca.MX, ca.MX, ca.MX], ca.MX] | None = None
-             ) -> Assembly:
-    """The NLP of N stages with `n_common` parameters and `n_local` per stage (the terminal
-    has its own column); boundary(X, common, local) -> a cost coupling neighbouring stages.
-    Without derivative kernels nlpsol derives the NLP itself."""
+def assemble(kernels: Kernels | None, derivs: Derivatives | None, link: int, layout: Layout,
+             n_common: int, n_local: int,
+             boundary: Callable[[ca.MX, ca.MX, ca.MX], ca.MX] | None = None) -> Assembly:
+    """The NLP of N stages, each reading `link` entries of the next, with `n_common`
+    parameters and `n_local` per stage (the terminal has its own column); boundary(X,
+    common, local) -> a cost coupling neighbouring stages. Without derivative kernels
+    nlpsol derives the NLP itself from the stage functions (`kernels`, which stages loaded
+    with their compiled kernels alone need not have)."""
     X = ca.MX.sym("x", layout.size)
     N = layout.intervals
     P = ca.MX.sym("p", n_common + n_local * (N + 1))
     common = P[:n_common]
     local = ca.reshape(P[n_common:], n_local, N + 1)
     extra = boundary(X, common, local) if boundary is not None else None
-    f, g = nlp(kernels, derivs, layout, X, common, local, extra)
+    f, g = nlp(kernels, derivs, link, layout, X, common, local, extra)
     oracle = {"x": X, "p": P, "f": f, "g": g}
     if derivs is None:
         return Assembly(oracle, {})
-    return Assembly(oracle, _assembled(kernels, derivs, layout, X, P, common, local, f, g, extra))
+    return Assembly(oracle, _assembled(derivs, link, layout, X, P, common, local, f, g, extra))
 
 
 # --------------------------------------------------------------------------- derivatives
@@ -260,18 +263,18 @@ def _place(local: np.ndarray, nw: int, link: int, start_g: int, with_next: bool,
     return np.where(glob[None, :], start_g + (local - glob_at)[None, :], out)
 
 
-def _assembled(kernels: Kernels, derivs: Derivatives, layout: Layout, X: ca.MX, P: ca.MX,
+def _assembled(derivs: Derivatives, link: int, layout: Layout, X: ca.MX, P: ca.MX,
                common: ca.MX, local: ca.MX, f: ca.MX, g: ca.MX, boundary: ca.MX | None) -> dict:
     """grad_f, jac_g and hess_lag functions for nlpsol, assembled from per-stage blocks."""
-    N, nw, link = layout.intervals, layout.stage_size, kernels.link
+    N, nw = layout.intervals, layout.stage_size
     start_t, start_g, _ = _columns(layout)
     nx = layout.size
-    W, nxt, terminal, glob, loc, loc_t = _map_stages(kernels, layout, X, common, local)
+    W, nxt, terminal, glob, loc, loc_t = _map_stages(link, layout, X, common, local)
     stage, term = derivs.stage, derivs.terminal
     stage_args = (W, nxt, glob, common, loc)
     term_args = (terminal, glob, common, loc_t)
     starts = np.arange(N) * nw
-    n_rows = kernels.stage.size1_out(0)
+    n_rows = stage.rows.size1_out(0)
 
     # constraint Jacobian: every row belongs to one stage, its entries are unique
     r, c = (np.array(v, dtype=int) for v in stage.jac_sp.get_triplet())

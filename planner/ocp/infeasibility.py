@@ -107,7 +107,7 @@ def violated(outcome: Outcome) -> list[ViolatedRows]:
 def _row_kinds(outcome: Outcome) -> tuple[np.ndarray, int]:
     """What every row of the outcome's NLP is, and the rows of one stage."""
     problem = outcome.inst.problem
-    parts = stages(replace(problem.key, intervals=0))
+    parts = stages(replace(problem.key, intervals=0), problem.compiled)
     (stage, terminal), (stage_kinds, terminal_kinds) = parts.bounds, parts.kinds
     counts = [c for _, _, c in stage], [c for _, _, c in terminal]
     per_stage = np.repeat(np.array(stage_kinds or ["constraint"] * len(stage), object),

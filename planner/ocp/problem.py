@@ -83,14 +83,15 @@ def build(key: ProblemKey, compiled: bool = False) -> Problem:
     parts = stages(_stage_key(key), compiled)
     tr = key.transcription()
     layout = Layout(*parts.parts, key.global_variables(), key.intervals)
-    assembly = assemble(parts.kernels, parts.derivatives, layout, parts.params.n_common,
+    assembly = assemble(parts.kernels, parts.derivatives, parts.link, layout,
+                        parts.params.n_common,
                         parts.params.n_local,
                         boundary_cost(key, layout, parts.params, terms_of(key)))
     lbg, ubg = _row_bounds(parts.bounds[0], key.intervals, parts.bounds[1])
     n_params = parts.params.n_common + parts.params.n_local * (key.intervals + 1)
     monitor = IterationMonitor(layout.size, lbg.size, n_params)
     kind = SOLVERS[key.solver]
-    opts = kind.options(Nlp(assembly, layout, parts.kernels.link,
+    opts = kind.options(Nlp(assembly, layout, parts.link,
                             sum(count for _, _, count in parts.bounds[0]), lbg, ubg, key.tol,
                             key.max_iter, monitor, tr.symbolic is ca.SX))
     solver = ca.nlpsol("plan", kind.name, assembly.nlp, opts)

@@ -8,11 +8,18 @@ run compiled (`planner.compiled`) once a library of them is on disk.
 
 from __future__ import annotations
 
+import contextlib
+import json
+import os
+import tempfile
 from dataclasses import dataclass, replace
 from functools import lru_cache
 
-from planner.compiled import library
-from planner.ocp.assembly import Derivatives, Kernels, derivatives
+import casadi as ca
+import numpy as np
+
+from planner.compiled import cache_dir, library, loaded
+from planner.ocp.assembly import Blocks, Derivatives, Kernels, derivatives
 from planner.ocp.key import ProblemKey
 from planner.ocp.layout import Layout, Part
 from planner.ocp.parameters import Parameters, parameters
@@ -24,12 +31,15 @@ from planner.ocp.transcription import AnyTranscription
 @dataclass(frozen=True)
 class Stages:
     """What a key's NLP is made of, whatever its number of intervals: the stage and terminal
-    functions with their derivative kernels, the variable parts, the parameters, and the
-    bounds of the rows of a stage and of the terminal."""
+    functions (None where the stages were loaded with their compiled kernels alone,
+    `stored`) with their derivative kernels, the entries of a stage its predecessor reads
+    (`link`), the variable parts, the parameters, and the bounds of the rows of a stage and
+    of the terminal."""
 
     transcription: AnyTranscription
-    kernels: Kernels
+    kernels: Kernels | None
     derivatives: Derivatives | None
+    link: int
     parts: tuple[tuple[Part, ...], tuple[Part, ...]]
     params: Parameters
     bounds: tuple[RowGroups, RowGroups]
@@ -40,10 +50,14 @@ class Stages:
 @lru_cache(maxsize=32)
 def stages(key: ProblemKey, compiled: bool = False) -> Stages:
     """The stages of a key (its `intervals` ignored; cached); compiled: with the derivative
-    kernels of `compiled_kernels`, which the caller found on disk."""
+    kernels of `compiled_kernels`, which the caller found on disk, loaded without any
+    symbolic work where their layout is stored beside them (`stored`)."""
     if compiled:
+        found = stored(key)
+        if found is not None:
+            return found
         plain = stages(key)
-        loaded = None if plain.derivatives is None else compiled_kernels(key, plain.derivatives)
+        loaded = None if plain.derivatives is None else compiled_kernels(key, plain)
         return plain if loaded is None else replace(plain, derivatives=loaded)
     s = key.structure
     tr, terms = key.transcription(), terms_of(key)
@@ -52,21 +66,27 @@ def stages(key: ProblemKey, compiled: bool = False) -> Stages:
     params = parameters(key, tr, terms)
     stage = stage_function(key, tr, layout, params, terms, False)
     terminal = stage_function(key, tr, layout, params, terms, True)
-    kernels = Kernels(stage.function, terminal.function,
-                      sum(p.size for p in layout.stage if p.name in tr.link), stage.lifting)
-    return Stages(tr, kernels, derivatives(kernels), parts, params,
+    link = sum(p.size for p in layout.stage if p.name in tr.link)
+    kernels = Kernels(stage.function, terminal.function, link, stage.lifting)
+    return Stages(tr, kernels, derivatives(kernels), link, parts, params,
                   (stage.bounds, terminal.bounds), (stage.kinds, terminal.kinds))
 
 
-def compiled_kernels(key: ProblemKey, derivatives: Derivatives,
-                     wait: bool = False) -> Derivatives | None:
-    """The derivative kernels (what an iteration spends its time in) compiled to C
-    (`planner.compiled`), named by the stage key's digest: every number of intervals of the
-    key, every process and every later run share the library. None while the library is
-    being built in the background (unless wait). The stage functions themselves stay
-    symbolic: nlpsol differentiates them for what it computes once per solve."""
-    loaded = library(f"stages_{key.digest()}", derivatives.functions(), background=not wait)
-    return None if loaded is None else derivatives.replaced(loaded)
+def _name(key: ProblemKey) -> str:
+    """The compiled library of a key's stages (and its layout file, `.json`)."""
+    return f"stages_{key.digest()}"
+
+
+def compiled_kernels(key: ProblemKey, plain: Stages, wait: bool = False) -> Derivatives | None:
+    """The derivative kernels (what an iteration spends its time in) and the rows and cost
+    of the symbolic stages `plain` compiled to C (`planner.compiled`), named by the stage
+    key's digest: every number of intervals of the key, every process and every later run
+    share the library, and its layout is stored beside it (`stored`). None while the
+    library is being built in the background (unless wait)."""
+    assert plain.derivatives is not None  # asked for only of stages that have kernels
+    _store_layout(key, plain)
+    loaded = library(_name(key), plain.derivatives.functions(), background=not wait)
+    return None if loaded is None else plain.derivatives.replaced(loaded)
 
 
 def compiled_ready(key: ProblemKey, wait: bool) -> bool:
@@ -75,6 +95,72 @@ def compiled_ready(key: ProblemKey, wait: bool) -> bool:
     the background."""
     if not key.jit:
         return False
+    if stored(key) is not None:
+        return True
     plain = stages(key)
-    return plain.derivatives is not None and \
-        compiled_kernels(key, plain.derivatives, wait) is not None
+    return plain.derivatives is not None and compiled_kernels(key, plain, wait) is not None
+
+
+# --------------------------------------------------------------------------- stored layout
+
+_FUNCTIONS = ("rows", "cost", "jac", "grad", "hess")
+"""The compiled functions of a stage and of the terminal, named "stage_<f>", "terminal_<f>"."""
+
+
+def _sparsity(sp: ca.Sparsity) -> list:
+    rows, cols = sp.get_triplet()
+    return [sp.size1(), sp.size2(), list(rows), list(cols)]
+
+
+def _store_layout(key: ProblemKey, plain: Stages) -> None:
+    """Write what a key's stages are beside their library (once, atomically): the rows'
+    bounds and kinds and where the kernels' nonzeros go, so that later processes load the
+    stages with no symbolic work (`stored`). Nothing where the cache folder takes no file."""
+    path = cache_dir() / f"{_name(key)}.json"
+    if path.exists() or plain.derivatives is None:
+        return
+    d = plain.derivatives
+    layout = {"link": plain.link,
+              **{name: {"bounds": plain.bounds[k], "kinds": list(plain.kinds[k]),
+                        "jac": _sparsity(b.jac_sp), "grad_rows": b.grad_rows.tolist(),
+                        "hess": _sparsity(b.hess_sp)}
+                 for k, (name, b) in enumerate((("stage", d.stage), ("terminal", d.terminal)))}}
+    with contextlib.suppress(OSError):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile("w", dir=path.parent, delete=False,
+                                         suffix=".tmp") as f:
+            json.dump(layout, f)
+        os.replace(f.name, path)
+
+
+def stored(key: ProblemKey) -> Stages | None:
+    """A key's stages loaded from their compiled library and its layout file, without
+    building the symbolic stage functions or their derivatives; None unless both are on
+    disk (and the key asks for compiled kernels)."""
+    path = cache_dir() / f"{_name(key)}.json"
+    if not key.jit or not path.exists():
+        return None
+    names = [f"{part}_{f}" for part in ("stage", "terminal") for f in _FUNCTIONS]
+    functions = loaded(_name(key), names)
+    if functions is None:
+        return None
+    layout = json.loads(path.read_text())
+
+    def blocks(part: str) -> Blocks:
+        entry = layout[part]
+        rows, cols, r, c = entry["jac"]
+        hr, hc, hrow, hcol = entry["hess"]
+        rows_f, cost, jac, grad, hess = (functions[f"{part}_{f}"] for f in _FUNCTIONS)
+        return Blocks(rows_f, cost, jac, grad, hess, ca.Sparsity.triplet(rows, cols, r, c),
+                      np.array(entry["grad_rows"], dtype=int),
+                      ca.Sparsity.triplet(hr, hc, hrow, hcol))
+
+    s, tr, terms = key.structure, key.transcription(), terms_of(key)
+
+    def groups(part: str) -> RowGroups:
+        return [(float(lo), float(hi), int(n)) for lo, hi, n in layout[part]["bounds"]]
+
+    return Stages(tr, None, Derivatives(blocks("stage"), blocks("terminal")), layout["link"],
+                  tr.parts(s.n, key.torque_count()), parameters(key, tr, terms),
+                  (groups("stage"), groups("terminal")),
+                  (tuple(layout["stage"]["kinds"]), tuple(layout["terminal"]["kinds"])))
