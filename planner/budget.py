@@ -17,6 +17,7 @@ from contextvars import ContextVar
 from functools import lru_cache
 
 import casadi as ca
+import numpy as np
 
 from planner.errors import InputError
 
@@ -70,7 +71,8 @@ def solving(deadline: float | None) -> Iterator[None]:
 class IterationCallback(ca.Callback):
     """The plumbing of an Ipopt iteration callback (nlpsol's `iteration_callback`): the
     solver's outputs x, f, g and their multipliers in, one flag out, non-zero to stop.
-    A subclass sets its state, calls this constructor last, and gives `eval`."""
+    A subclass sets its state, calls this constructor last, and gives `stop`, which reads
+    the solver's buffers in place (no matrix is built per iteration)."""
 
     def __init__(self, name: str, nx: int, ng: int, np_: int):
         ca.Callback.__init__(self)
@@ -93,6 +95,22 @@ class IterationCallback(ca.Callback):
     def get_sparsity_in(self, i: int) -> ca.Sparsity:
         return ca.Sparsity.dense(self.sizes[ca.nlpsol_out(i)], 1)
 
+    def has_eval_buffer(self) -> bool:
+        return True
+
+    def eval_buffer(self, arg, res) -> int:
+        """CasADi's copy-free call: the inputs as arrays over the solver's own memory (an
+        input the solver does not give, None, left out)."""
+        values = {name: np.frombuffer(arg[i], dtype=np.float64)
+                  for i, name in enumerate(ca.nlpsol_out()) if arg[i] is not None}
+        np.frombuffer(res[0], dtype=np.float64)[0] = float(self.stop(values))
+        return 0
+
+    def stop(self, values: dict[str, np.ndarray]) -> bool:
+        """Whether to stop the solve, given the iterate: x (nx,), f (1,), g (ng,), lam_x,
+        lam_g, lam_p, those the solver gives, arrays valid during the call only."""
+        raise NotImplementedError
+
 
 class _Stop(IterationCallback):
     """Stop Ipopt (status User_Requested_Stop) once the deadline of the thread's current
@@ -101,9 +119,9 @@ class _Stop(IterationCallback):
     def __init__(self, nx: int, ng: int, np_: int):
         super().__init__(f"stop_{nx}_{ng}_{np_}", nx, ng, np_)
 
-    def eval(self, arg) -> list[int]:
+    def stop(self, values: dict[str, np.ndarray]) -> bool:
         deadline = _solve_deadline.get()
-        return [int(deadline is not None and time.monotonic() > deadline)]
+        return deadline is not None and time.monotonic() > deadline
 
 
 @lru_cache(maxsize=64)

@@ -65,13 +65,12 @@ class IterationMonitor(IterationCallback):
         return len(v) > STALL_WINDOW and v[-1] > STALL_FLOOR \
             and min(v[-STALL_WINDOW:]) > 0.5 * min(v[:-STALL_WINDOW])
 
-    def eval(self, args):
+    def stop(self, values: dict[str, np.ndarray]) -> bool:
         self.calls += 1
-        names = ca.nlpsol_out()
-        self.last_x = np.array(args[names.index("x")]).ravel()
-        self.last_f = float(args[names.index("f")])
+        self.last_x = values["x"].copy()
+        self.last_f = float(values["f"][0])
         if self.handler is not None or self.stall:
-            g = np.asarray(args[names.index("g")]).ravel()
+            g = values.get("g", np.zeros(0))
             violation = np.maximum(self.lbg - g, 0.0) + np.maximum(g - self.ubg, 0.0)
             self.violations.append(float(violation.max(initial=0.0)))
         if self.handler is not None:
@@ -88,4 +87,4 @@ class IterationMonitor(IterationCallback):
             self.reason = "max_wall_time"
         elif not self.reason and self.stall and self.stalled():
             self.reason = "stalled"
-        return [1 if self.reason else 0]
+        return bool(self.reason)
