@@ -175,6 +175,22 @@ def test_a_deferred_companion_runs_at_the_lowest_priority():
         companion.stop()
 
 
+def test_a_companion_gets_its_priority_back_before_it_is_killed(
+        monkeypatch: pytest.MonkeyPatch):
+    companion = portfolio.Companion(lambda guard: time.sleep(30))
+    companion.defer()
+    at_kill = []
+    kill = os.kill
+
+    def recording(pid: int, sig: int) -> None:
+        at_kill.append(os.getpriority(os.PRIO_PROCESS, pid))
+        kill(pid, sig)
+
+    monkeypatch.setattr(os, "kill", recording)
+    companion.stop()
+    assert at_kill == [os.getpriority(os.PRIO_PROCESS, 0)]
+
+
 def test_a_service_plan_may_use_every_core_unless_told(monkeypatch: pytest.MonkeyPatch):
     monkeypatch.setattr(os, "sched_getaffinity", lambda _: set(range(8)))
     monkeypatch.delenv(portfolio.ENVIRONMENT)

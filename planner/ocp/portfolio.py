@@ -85,7 +85,12 @@ class Companion:
             os.setpriority(os.PRIO_PROCESS, self.pid, LOWEST)
 
     def stop(self) -> None:
-        """End the companion (if still running) and release its pipe."""
+        """End the companion (if still running) and release its pipe. A deferred companion
+        gets its priority back first where the process may raise it: a killed process
+        still needs the core to release its memory, which at the lowest priority on a
+        busy machine the plan's own process would wait for."""
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.setpriority(os.PRIO_PROCESS, self.pid, os.getpriority(os.PRIO_PROCESS, 0))
         with contextlib.suppress(ProcessLookupError):
             os.kill(self.pid, signal.SIGKILL)
         with contextlib.suppress(ChildProcessError):
