@@ -178,6 +178,6 @@ def _text(before: str | None, count: int, seed: int, repeats: int, variants: Seq
         "and assembling the plan; CPU times count the process and its companion (each "
         "process has core tokens of its own, so every plan whose continuation applies "
         "forks one)."
-        + (f" {before}: the planner before its checks were batched." if before else ""),
+        + (f" {before}: the planner of that commit, in the same run." if before else ""),
         harness.table(table, SUMMARY),
         harness.table(tasks_table, columns([c for c in ("now", before) if c]))])
