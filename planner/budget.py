@@ -68,6 +68,10 @@ def solving(deadline: float | None) -> Iterator[None]:
         _solve_deadline.reset(token)
 
 
+_OUTPUTS = tuple(ca.nlpsol_out())
+"""nlpsol's outputs, an iteration callback's inputs, in order."""
+
+
 class IterationCallback(ca.Callback):
     """The plumbing of an Ipopt iteration callback (nlpsol's `iteration_callback`): the
     solver's outputs x, f, g and their multipliers in, one flag out, non-zero to stop.
@@ -81,19 +85,19 @@ class IterationCallback(ca.Callback):
         self.construct(name, {})
 
     def get_n_in(self) -> int:
-        return ca.nlpsol_n_out()
+        return len(_OUTPUTS)
 
     def get_n_out(self) -> int:
         return 1
 
     def get_name_in(self, i: int) -> str:
-        return ca.nlpsol_out(i)
+        return _OUTPUTS[i]
 
     def get_name_out(self, i: int) -> str:
         return "stop"
 
     def get_sparsity_in(self, i: int) -> ca.Sparsity:
-        return ca.Sparsity.dense(self.sizes[ca.nlpsol_out(i)], 1)
+        return ca.Sparsity.dense(self.sizes[_OUTPUTS[i]], 1)
 
     def has_eval_buffer(self) -> bool:
         return True
@@ -102,7 +106,7 @@ class IterationCallback(ca.Callback):
         """CasADi's copy-free call: the inputs as arrays over the solver's own memory (an
         input the solver does not give, None, left out)."""
         values = {name: np.frombuffer(arg[i], dtype=np.float64)
-                  for i, name in enumerate(ca.nlpsol_out()) if arg[i] is not None}
+                  for i, name in enumerate(_OUTPUTS) if arg[i] is not None}
         np.frombuffer(res[0], dtype=np.float64)[0] = float(self.stop(values))
         return 0
 

@@ -78,8 +78,7 @@ def library(name: str, functions: Sequence[ca.Function], flags: str = "-O1",
                 return None
             folder.mkdir(parents=True, exist_ok=True)
             _build(folder, name, functions, flags)
-        _LOADED[path] = {f.name(): ca.external(f.name(), str(path)) for f in functions}
-        return _LOADED[path]
+        return _load(path, [f.name() for f in functions])
 
 
 def loaded(name: str, names: Sequence[str]) -> dict[str, ca.Function] | None:
@@ -87,11 +86,16 @@ def loaded(name: str, names: Sequence[str]) -> dict[str, ca.Function] | None:
     process), without building anything; None when it is not there."""
     path = cache_dir() / f"{name}.so"
     with _CODEGEN:
-        if path not in _LOADED:
-            if not path.exists():
-                return None
-            _LOADED[path] = {f: ca.external(f, str(path)) for f in names}
-        return _LOADED[path]
+        if path in _LOADED:
+            return _LOADED[path]
+        return _load(path, names) if path.exists() else None
+
+
+def _load(path: Path, names: Sequence[str]) -> dict[str, ca.Function]:
+    """The functions `names` of the library at `path`, kept for the process; call under
+    _CODEGEN."""
+    _LOADED[path] = {f: ca.external(f, str(path)) for f in names}
+    return _LOADED[path]
 
 
 def _writable(folder: Path) -> bool:

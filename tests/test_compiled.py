@@ -131,6 +131,7 @@ def test_stages_compiled_earlier_load_without_symbolic_work(cache, monkeypatch):
         raise AssertionError("a stage function was built")
 
     monkeypatch.setattr(stages_module, "stage_function", built)
+    assert stages_module.compiled_ready(key, wait=False)
     found = stages_module.stages(key, True)
     assert found.kernels is None and found.link == plain.link
     assert (found.bounds, found.kinds) == (plain.bounds, plain.kinds)

@@ -84,8 +84,7 @@ def build(key: ProblemKey, compiled: bool = False) -> Problem:
     tr = key.transcription()
     layout = Layout(*parts.parts, key.global_variables(), key.intervals)
     assembly = assemble(parts.kernels, parts.derivatives, parts.link, layout,
-                        parts.params.n_common,
-                        parts.params.n_local,
+                        parts.params.n_common, parts.params.n_local,
                         boundary_cost(key, layout, parts.params, terms_of(key)))
     lbg, ubg = _row_bounds(parts.bounds[0], key.intervals, parts.bounds[1])
     n_params = parts.params.n_common + parts.params.n_local * (key.intervals + 1)

@@ -14,6 +14,7 @@ import os
 import tempfile
 from dataclasses import dataclass, replace
 from functools import lru_cache
+from pathlib import Path
 
 import casadi as ca
 import numpy as np
@@ -77,6 +78,11 @@ def _name(key: ProblemKey) -> str:
     return f"stages_{key.digest()}"
 
 
+def _files(key: ProblemKey) -> tuple[Path, Path]:
+    """A key's compiled library of stages and its layout file, in the cache folder."""
+    return cache_dir() / f"{_name(key)}.so", cache_dir() / f"{_name(key)}.json"
+
+
 def compiled_kernels(key: ProblemKey, plain: Stages, wait: bool = False) -> Derivatives | None:
     """The derivative kernels (what an iteration spends its time in) and the rows and cost
     of the symbolic stages `plain` compiled to C (`planner.compiled`), named by the stage
@@ -95,17 +101,13 @@ def compiled_ready(key: ProblemKey, wait: bool) -> bool:
     the background."""
     if not key.jit:
         return False
-    if stored(key) is not None:
+    if all(path.exists() for path in _files(key)):
         return True
     plain = stages(key)
     return plain.derivatives is not None and compiled_kernels(key, plain, wait) is not None
 
 
 # --------------------------------------------------------------------------- stored layout
-
-_FUNCTIONS = ("rows", "cost", "jac", "grad", "hess")
-"""The compiled functions of a stage and of the terminal, named "stage_<f>", "terminal_<f>"."""
-
 
 def _sparsity(sp: ca.Sparsity) -> list:
     rows, cols = sp.get_triplet()
@@ -114,14 +116,17 @@ def _sparsity(sp: ca.Sparsity) -> list:
 
 def _store_layout(key: ProblemKey, plain: Stages) -> None:
     """Write what a key's stages are beside their library (once, atomically): the rows'
-    bounds and kinds and where the kernels' nonzeros go, so that later processes load the
-    stages with no symbolic work (`stored`). Nothing where the cache folder takes no file."""
-    path = cache_dir() / f"{_name(key)}.json"
+    bounds and kinds, the names of the kernels and where their nonzeros go, so that later
+    processes load the stages with no symbolic work (`stored`). Nothing where the cache
+    folder takes no file."""
+    path = _files(key)[1]
     if path.exists() or plain.derivatives is None:
         return
     d = plain.derivatives
     layout = {"link": plain.link,
               **{name: {"bounds": plain.bounds[k], "kinds": list(plain.kinds[k]),
+                        "functions": [f.name() for f in (b.rows, b.cost, b.jac, b.grad,
+                                                         b.hess)],
                         "jac": _sparsity(b.jac_sp), "grad_rows": b.grad_rows.tolist(),
                         "hess": _sparsity(b.hess_sp)}
                  for k, (name, b) in enumerate((("stage", d.stage), ("terminal", d.terminal)))}}
@@ -137,20 +142,20 @@ def stored(key: ProblemKey) -> Stages | None:
     """A key's stages loaded from their compiled library and its layout file, without
     building the symbolic stage functions or their derivatives; None unless both are on
     disk (and the key asks for compiled kernels)."""
-    path = cache_dir() / f"{_name(key)}.json"
+    path = _files(key)[1]
     if not key.jit or not path.exists():
         return None
-    names = [f"{part}_{f}" for part in ("stage", "terminal") for f in _FUNCTIONS]
-    functions = loaded(_name(key), names)
+    layout = json.loads(path.read_text())
+    functions = loaded(_name(key), [f for part in ("stage", "terminal")
+                                    for f in layout[part]["functions"]])
     if functions is None:
         return None
-    layout = json.loads(path.read_text())
 
     def blocks(part: str) -> Blocks:
         entry = layout[part]
         rows, cols, r, c = entry["jac"]
         hr, hc, hrow, hcol = entry["hess"]
-        rows_f, cost, jac, grad, hess = (functions[f"{part}_{f}"] for f in _FUNCTIONS)
+        rows_f, cost, jac, grad, hess = (functions[f] for f in entry["functions"])
         return Blocks(rows_f, cost, jac, grad, hess, ca.Sparsity.triplet(rows, cols, r, c),
                       np.array(entry["grad_rows"], dtype=int),
                       ca.Sparsity.triplet(hr, hc, hrow, hcol))

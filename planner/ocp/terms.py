@@ -376,8 +376,8 @@ class StateBounds(Term):
 
 
 TERMS: tuple[Term, ...] = (Effort(), Time(), Smoothness(), Tracking(), ExactTracking(),
-                           TipTarget(),
-                           CouplingMargin(), TorqueLimit(), StateBounds("q", "position_bounds"),
+                           TipTarget(), CouplingMargin(), TorqueLimit(),
+                           StateBounds("q", "position_bounds"),
                            StateBounds("dq", "velocity_bounds"))
 """Every term, in the order their costs and rows enter the NLP."""
 
