@@ -24,6 +24,7 @@ from planner.ocp.key import ProblemKey
 from planner.ocp.layout import Layout
 from planner.ocp.parameters import parameters
 from planner.ocp.problem import build, cached_problem, problem
+from planner.ocp.result import Progress
 from planner.ocp.stage_function import stage_function
 from planner.ocp.stages import stages
 from planner.ocp.terms import terms_of
@@ -283,6 +284,28 @@ def test_progress_is_reported_and_cancellation_stops_the_solve():
     assert all(np.isfinite(p.objective) and p.inf_pr >= 0 for p in seen)
     assert result.solver.status == "User_Requested_Stop" and not result.solver.success
     assert result.solver.message == "the solve was cancelled"
+
+
+class Watching:
+    """A handler that only watches: it passes no report on to anyone."""
+
+    reports = False
+
+    def __init__(self):
+        self.seen: list[Progress] = []
+
+    def __call__(self, progress: Progress) -> bool:
+        self.seen.append(progress)
+        return True
+
+
+def test_a_handler_that_only_watches_gets_no_dual_infeasibility():
+    watching = Watching()
+    result = plan(scene(UNDERACTUATED, N=20, duration=2.0, solver={"max_iter": 2, "retries": 0}),
+                  progress=watching)
+    assert result.solver.iterations == 2
+    assert [p.iteration for p in watching.seen] == [0, 1, 2]
+    assert all(p.inf_du is None and p.inf_pr >= 0 for p in watching.seen)
 
 
 def test_iteration_limit_is_a_structured_failure():

@@ -87,6 +87,9 @@ def test_refinement_turns_the_unverified_two_link_plan_at_30_intervals_into_a_ve
     assert passes[0].intervals == 30 and passes[-1].intervals == len(refined_plan.t) - 1 > 30
     assert [p.intervals for p in passes] == sorted(p.intervals for p in passes)
     assert passes[-1].max_local_error == refined_plan.verification.local_error
+    # only the reported pass is replayed open loop, and it carries the plan's replay error
+    assert passes[-1].resimulation_error == refined_plan.verification.resimulation_error
+    assert all(p.resimulation_error is None for p in refined_plan.mesh_passes[:-1])
     assert refined_plan.objective == pytest.approx(reference.objective, rel=0.01)
 
 

@@ -14,6 +14,13 @@ from planner.ocp.result import Progress
 
 Handler = Callable[[Progress], bool]
 
+
+def reports(handler: Handler | None) -> bool:
+    """Whether a handler passes its reports on to anyone: not when there is none, nor when
+    its `reports` attribute says it only watches (its reports then carry no dual
+    infeasibility, which costs a read of the solver's whole statistics per iteration)."""
+    return handler is not None and getattr(handler, "reports", True)
+
 STALL_WINDOW = 100
 """Iterations over which a solve that may stall must make progress towards feasibility."""
 STALL_FLOOR = 1e-3
@@ -76,7 +83,8 @@ class IterationMonitor(IterationCallback):
         if self.handler is not None:
             progress = Progress(iteration=self.iteration, objective=self.last_f,
                                 inf_pr=self.violations[-1],
-                                inf_du=self._dual_infeasibility(),
+                                inf_du=self._dual_infeasibility()
+                                if reports(self.handler) else None,
                                 elapsed=time.perf_counter() - self.started,
                                 mesh_pass=self.mesh_pass)
             if self.handler(progress) is False:

@@ -20,7 +20,6 @@ from planner.ocp.monitor import Handler
 from planner.ocp.result import MeshPass, NlpSolution
 from planner.ocp.solve import Budget, Solution, solve
 from planner.ocp.transcription import Interpolant
-from planner.ocp.verify import open_loop
 from planner.scene import DurationRange, Scene
 
 NOT_FINITE = "not run: non-finite solution"
@@ -39,7 +38,6 @@ class Outcome:
     finite: bool
     errors: np.ndarray
     errors_status: str
-    replayed: tuple[float | None, str]
     record: MeshPass
     margin: MarginProof | None = None
     """The coupling margin proven interval by interval (None without one, or not made)."""
@@ -62,7 +60,7 @@ def solve_on(scene: Scene, inst: Instance, robot: Robot, T: float, guess: Guess,
              stall: bool = False) -> Outcome:
     """Solve on the instance's mesh from a guess (or from an earlier solution, primal and
     dual; stall: a cold solve is stopped when it stalls), and estimate the plan's interval
-    errors and its open-loop replay."""
+    errors (its open-loop replay is one of the final checks, `planner.ocp.verify`)."""
     started = time.perf_counter()
     if point is None:
         solution = solve(inst, initial_point(inst, guess, T, robot), budget, progress,
@@ -76,14 +74,12 @@ def solve_on(scene: Scene, inst: Instance, robot: Robot, T: float, guess: Guess,
     checked = time.perf_counter()
     errors, status = interval_errors(outcome.robot, outcome.interp, scene.solver.jit,
                                      budget.deadline)
-    replayed = open_loop(outcome.robot, outcome.interp, scene.solver.jit, budget.deadline)
     margin = prove(outcome.robot, outcome.interp, scene.task.coupling_margin, budget.deadline)
     budget.measured = time.perf_counter() - checked  # what the final checks will scale with
     record = outcome.record.model_copy(update={
         "max_local_error": finite_or_none(float(errors.max())),
-        "resimulation_error": replayed[0], "time": time.perf_counter() - started})
-    return replace(outcome, errors=errors, errors_status=status, replayed=replayed,
-                   record=record, margin=margin)
+        "time": time.perf_counter() - started})
+    return replace(outcome, errors=errors, errors_status=status, record=record, margin=margin)
 
 
 def relaxed_solve(scene: Scene, inst: Instance, robot: Robot, T: float, name: str,
@@ -119,8 +115,7 @@ def outcome_of(scene: Scene, inst: Instance, robot: Robot, T: float, solution: S
                       status=solution.status, objective=finite_or_none(solution.objective),
                       max_local_error=None, resimulation_error=None,
                       time=time.perf_counter() - started)
-    return Outcome(inst, solution, solved, duration, interp, finite, errors, status,
-                   (None, status), record)
+    return Outcome(inst, solution, solved, duration, interp, finite, errors, status, record)
 
 
 def _duration(scene: Scene, inst: Instance, x: np.ndarray) -> float:

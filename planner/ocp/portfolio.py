@@ -19,7 +19,7 @@ import signal
 import time
 from collections.abc import Callable
 
-from planner.ocp.monitor import Handler
+from planner.ocp.monitor import Handler, reports
 from planner.ocp.result import Plan, Progress
 
 ENVIRONMENT = "UNDERTOW_SOLVER_PROCESSES"
@@ -132,6 +132,11 @@ class Watch:
 
     def __init__(self, companion: Companion, progress: Handler | None):
         self.companion, self.progress, self.cancelled = companion, progress, False
+
+    @property
+    def reports(self) -> bool:
+        """Whether its reports reach anyone (`planner.ocp.monitor.reports`)."""
+        return reports(self.progress)
 
     def __call__(self, report: Progress) -> bool:
         if self.progress is not None and self.progress(report) is False:

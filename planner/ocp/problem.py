@@ -115,7 +115,9 @@ def problem(key: ProblemKey, wait: bool = False) -> Problem:
     return cached_problem(key, compiled_ready(_stage_key(key), wait))
 
 
-@lru_cache(maxsize=32)
+@lru_cache(maxsize=256)
 def cached_problem(key: ProblemKey, compiled: bool) -> Problem:
-    """`build` of a key, cached."""
+    """`build` of a key, cached. A plan meets two or three keys (its meshes): a service's
+    or a suite's mix of scenes meets more than a few dozen, which, planned in turn,
+    would evict one another from a small cache and be rebuilt every time round."""
     return build(key, compiled)

@@ -83,7 +83,7 @@ def plan_of(scene: Scene, attempts: list[Attempt], budget: Budget,
                             compiled=outcomes[0].inst.problem.compiled,
                             initial_guess=attempt.start.guess_used,
                             strategy=attempt.start.name + refined_by),
-        mesh_passes=_records(outcomes, probe, probe_after),
+        mesh_passes=_records(outcomes, best, verification, probe, probe_after),
         feedback=feedback, verification=verification, solution=_nlp_solution(best))
     return stamped(with_verdict(infeasibility.annotate(plan, scene, attempts, best, attempt,
                                                        probe)), budget)
@@ -122,13 +122,16 @@ def _checks(scene: Scene, best: Outcome, t_dense: np.ndarray, budget: Budget,
     if not best.finite:
         return unverified(scene.solver.resimulation_tolerance), None
     return verify(best.robot, best.interp, t_dense, best.errors, best.errors_status,
-                  best.replayed, scene.task, scene.solver, converged, budget.deadline,
-                  best.margin)
+                  scene.task, scene.solver, converged, budget.deadline, best.margin)
 
 
-def _records(outcomes: list[Outcome], probe: Probe | None, after: int) -> list[MeshPass]:
-    """Every solve of the plan in the order they ran, the duration probe's included."""
-    records = [o.record for o in outcomes]
+def _records(outcomes: list[Outcome], best: Outcome, verification: Verification,
+             probe: Probe | None, after: int) -> list[MeshPass]:
+    """Every solve of the plan in the order they ran, the duration probe's included; the
+    reported one (`best`) with the open-loop replay error its `verification` measured."""
+    replayed = {"resimulation_error": verification.resimulation_error}
+    records = [o.record.model_copy(update=replayed) if o is best else o.record
+               for o in outcomes]
     if probe is None:
         return records
     return records[:after] + probe.passes + records[after:]

@@ -117,7 +117,9 @@ class MeshPass(Out):
         description="[rad] largest interval error of this solve's plan (see "
                     "Verification.local_error); None where it could not be computed")
     resimulation_error: float | None = Field(
-        description="[rad] whole-horizon open-loop replay error of this solve's plan")
+        description="[rad] whole-horizon open-loop replay error of this solve's plan: the "
+                    "plan's reported solve only (Verification.resimulation_error), None for "
+                    "the others")
     time: float = Field(description="[s] wall time of the solve and its error estimate")
 
 

@@ -41,9 +41,10 @@ CHECKS_PER_NODE = 1e-3
 """[s] Their cost per interval and joint: the interval errors, the open-loop replay and
 `verify` with its feedback took 0.36 to 1.2 ms per interval and joint on 2 to 6 links with
 50 to 400 intervals; this bounds them with room for a far-from-converged iterate."""
-CHECKS_FACTOR = 2.5
-"""The final checks cost up to this times the interval errors and open-loop replay of the
-latest solve's plan (measured: `verify` with its feedback costs 1 to 2 times them)."""
+CHECKS_FACTOR = 6.0
+"""The final checks cost up to this times the interval errors of the latest solve's plan:
+they integrate the plan's whole horizon three more times (the open-loop replay and the
+two closed-loop ones of `verify`), linearise it and sample it densely."""
 RESERVE_SHARE = 0.25
 """The most of a plan's wall time kept for its checks: a short budget still solves."""
 MARGIN = 5.0
@@ -82,7 +83,7 @@ class Budget:
     used: int = 0
     reserve: float = 0.0
     measured: float = 0.0
-    """[s] What the interval errors and open-loop replay of the latest solve's plan took."""
+    """[s] What the interval errors (and margin proof) of the latest solve's plan took."""
     cap: float = math.inf
     """When the solves of a `capped_time` block stop (time.perf_counter() seconds)."""
     solved: Clock | None = None

@@ -222,12 +222,12 @@ def _feedback(robot: Robot, interp: Interpolant, torque_limit: list[float] | flo
 
 
 def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.ndarray,
-           errors_status: str, replayed: tuple[float | None, str], task: Task,
-           settings: SolverSettings, converged: bool, deadline: float | None = None,
+           errors_status: str, task: Task, settings: SolverSettings, converged: bool,
+           deadline: float | None = None,
            proof: MarginProof | None = None) -> tuple[Verification, Feedback | None]:
-    """All checks of a plan of `robot` whose interpolant is `interp`, whose interval errors
-    [rad] are `errors` and whose open-loop replay gave `replayed`, against its `task` and
-    `settings` (solver.resimulation_tolerance, robustness, jit); verified when its solve
+    """All checks of a plan of `robot` whose interpolant is `interp` and whose interval
+    errors [rad] are `errors`, against its `task` and `settings` (solver.resimulation_tolerance,
+    robustness, jit), its open-loop replay (`open_loop`) among them; verified when its solve
     `converged`, every interval error is at most the tolerance, the plan keeps the task's
     limits (`limits`) and meets its other requirements (`planner.ocp.task_checks`)
     everywhere and, with solver.robustness, when its feedback keeps the arm that close to
@@ -235,8 +235,8 @@ def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.nd
     margin's `proof` on whole intervals is made here unless the solve made it
     (`planner.ocp.margin_proof`). Also the plan's feedback (None where the linearisation
     failed). Past `deadline` (time.perf_counter() seconds), the optional checks, the
-    closed-loop replays, are skipped (`Verification.skipped`); a replay on a perturbed
-    model stopped there counts as one that did not stay within the bound."""
+    closed-loop replays, are skipped (`Verification.skipped`); a replay on a perturbed model
+    stopped there counts as one that did not stay within the bound."""
     tolerance, compiled = settings.resimulation_tolerance, settings.jit
     kept = limits(robot, interp, t_dense, task.torque_limit, task.position_bounds,
                   task.velocity_bounds)
@@ -246,6 +246,7 @@ def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.nd
     asked = requirements(robot, interp, t_dense, task, sigma, proof, tolerance)
     crossings, waveless = singular_crossings(robot, interp, t_dense, sigma, det)
     local = float(errors.max())
+    replayed = open_loop(robot, interp, compiled, deadline)
     fb, measured = _feedback(robot, interp, task.torque_limit, compiled, deadline)
     robust, robust_ok = _robust(robot, interp, fb, task, settings, deadline)
     accurate = errors_status == "completed" and local <= tolerance
