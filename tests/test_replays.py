@@ -8,11 +8,9 @@ import numpy as np
 import pytest
 
 from planner.model import Robot, Structure
-from planner.ocp import flow as flow_module
 from planner.ocp import plan, replays
-from planner.ocp.accuracy import interval_errors
 from planner.ocp.feedback import PERTURBATION, REPLAY_TOL, replay
-from planner.ocp.flow import flow, inputs, mapped
+from planner.ocp.flow import flow, inputs
 from planner.ocp.replays import REPLAY_SAMPLES
 from planner.ocp.robustness import models, robustness
 from planner.ocp.transcription import Interpolant
@@ -90,34 +88,3 @@ def test_the_robustness_replays_agree_with_each_model_interval_by_interval(unsta
     assert report.open_loop_final_error == pytest.approx(
         max(np.abs(a[1] - goal).max() for a in alone), rel=1e-9)
     assert report.largest_torque == pytest.approx(max(c[2] for c in closed), rel=1e-12)
-
-
-def test_the_checks_integrations_on_threads_are_those_of_one_thread(unstable, monkeypatch):
-    """The interval check and the lanes of a replay split among threads where the process
-    may use two cores: the same CVODES runs, so exactly the same numbers."""
-    scene, interp, K = unstable
-    robot, breaks = scene.robot, interp.q.breaks
-    start = np.concatenate([interp.q(breaks[:1])[0], interp.dq(breaks[:1])[0]])
-    starts = np.stack([start, start + PERTURBATION])
-    one = flow_module.integrator(Structure.of(robot), interp.tau.coeffs.shape[1] - 1,
-                                 REPLAY_SAMPLES, REPLAY_TOL, False, "adams")
-
-    def checked(cores: int) -> tuple:
-        monkeypatch.setattr(flow_module, "available", lambda: cores)
-        for cached in (flow_module._flow, replays._mapped):
-            cached.cache_clear()
-        return (mapped(one, len(starts)).class_name(), interval_errors(robot, interp),
-                replay(robot, interp, starts, K, ends=True))
-
-    try:
-        (serial, (errors, status), lanes), (threaded, (errors2, status2), lanes2) = \
-            checked(1), checked(2)
-    finally:
-        for cached in (flow_module._flow, replays._mapped):
-            cached.cache_clear()
-    assert (serial, threaded) == ("Map", "ThreadMap")
-    assert np.array_equal(errors, errors2) and status == status2 == "completed"
-    for (error, status, end, peak), (error2, status2, end2, peak2) in zip(lanes, lanes2,
-                                                                          strict=True):
-        assert (error, status, peak) == (error2, status2, peak2)
-        assert np.array_equal(end, end2)

@@ -4,12 +4,12 @@ once.
 On interval k, in normalised time s = (t - t_k) / h_k in [0, 1], the arm follows M ddq +
 h = B sat(tau_k(s) + u), tau_k the plan's torque polynomial, u a constant torque offset
 [N m] (0 for the plan itself, a feedback correction otherwise) and sat the actuators'
-saturation at the task's torque limit L, min(max(., -L), L) (L = inf: none). The integrator
-is mapped over intervals, each started from its own state: one call re-integrates every
-interval of a plan, on two threads where the process may use two cores. CVODES integrates by
-Adams-Moulton with functional iteration, as `planner.simulate` does by default: the arms are
-not stiff, and on plans of the seed arm the interval check and the replays take a quarter to
-a half of BDF's time (`python -m bench verification`). Where Adams fails, BDF with Newton
+saturation at the task's torque limit L, min(max(., -L), L) (L = inf: none). The
+integrator is mapped over intervals, each started from its own state: one call
+re-integrates every interval of a plan. CVODES integrates by Adams-Moulton with
+functional iteration, as `planner.simulate` does by default: the arms are not stiff, and
+on plans of the seed arm the interval check and the replays take a quarter to a half of
+BDF's time (`python -m bench verification`). Where Adams fails, BDF with Newton
 iteration takes over.
 """
 
@@ -28,14 +28,10 @@ import numpy as np
 from planner.compiled import library, source_digest
 from planner.dynamics import functions
 from planner.model import Robot, Structure, parameters
-from planner.ocp.cores import available
 from planner.ocp.transcription import Interpolant
 from planner.simulate import METHODS, Method
 
 TOL = 1e-10  # CVODES rtol = atol of the states
-THREADS = 2
-"""The most threads a mapped integration runs on: a plan holds at most two cores, its own
-and its companion's (`planner.ocp.cores`), and its checks come after its solves."""
 _SOURCES = [Path(__file__).resolve().parents[1] / name
             for name in ("dynamics.py", "model.py", "ocp/flow.py")]
 
@@ -132,15 +128,7 @@ def ready(s: Structure, degree: int, compiled: bool) -> bool:
 def _flow(s: Structure, degree: int, outputs: int, batch: int, tol: float,
           compiled: bool) -> Flow:
     one = [integrator(s, degree, outputs, tol, compiled, method) for method in ("adams", "bdf")]
-    return Flow(*(f if batch == 1 else mapped(f, batch) for f in one))
-
-
-def mapped(f: ca.Function, batch: int) -> ca.Function:
-    """`f` mapped over `batch` independent evaluations, split among up to THREADS threads
-    (no more than the cores this process may use): the same results, in about half the
-    wall time on two cores."""
-    count = min(THREADS, available(), batch)
-    return f.map(batch, "thread", count) if count > 1 else f.map(batch)
+    return Flow(*(f if batch == 1 else f.map(batch) for f in one))
 
 
 @lru_cache(maxsize=64)

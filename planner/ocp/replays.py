@@ -24,7 +24,7 @@ import casadi as ca
 import numpy as np
 
 from planner.model import Structure
-from planner.ocp.flow import Flow, flow, integrator, mapped, quiet, ready
+from planner.ocp.flow import Flow, flow, integrator, quiet, ready
 from planner.ocp.transcription import Interpolant
 
 REPLAY_SAMPLES = 4  # comparison points per interval
@@ -152,8 +152,7 @@ def _mapped(s: Structure, degree: int, intervals: int, count: int, tol: float,
             compiled: bool) -> ca.Function:
     """(x0 (2n x count), p (n_p x intervals count), planned (2n x intervals count),
     K (na x 2n intervals count)) -> xf (2n x REPLAY_SAMPLES intervals count): `count`
-    lanes over `intervals` intervals, each with its feedback (Adams), the lanes on
-    threads of their own (`planner.ocp.flow.mapped`)."""
+    lanes over `intervals` intervals, each with its feedback (Adams)."""
     step = integrator(s, degree, REPLAY_SAMPLES, tol, compiled, "adams")
     n2, na = 2 * s.n, len(s.active_idx)
     x, planned = ca.MX.sym("x", n2), ca.MX.sym("planned", n2)
@@ -167,7 +166,7 @@ def _mapped(s: Structure, degree: int, intervals: int, count: int, tol: float,
     gains = ca.MX.sym("K", na, n2 * intervals)
     lane = ca.Function("replay_lane", [x0, ps, plans, gains],
                        [along(x0, ps, plans, gains)[1]], ["x0", "p", "planned", "K"], ["xf"])
-    return mapped(lane, count)
+    return lane.map(count)
 
 
 def _one_lane(integrate: Flow, ref: Reference, lane: Lane, x: np.ndarray, first: int,
