@@ -21,6 +21,7 @@ def reports(handler: Handler | None) -> bool:
     infeasibility, which costs a read of the solver's whole statistics per iteration)."""
     return handler is not None and getattr(handler, "reports", True)
 
+
 STALL_WINDOW = 100
 """Iterations over which a solve that may stall must make progress towards feasibility."""
 STALL_FLOOR = 1e-3

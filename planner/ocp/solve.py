@@ -42,9 +42,10 @@ CHECKS_PER_NODE = 1e-3
 `verify` with its feedback took 0.36 to 1.2 ms per interval and joint on 2 to 6 links with
 50 to 400 intervals; this bounds them with room for a far-from-converged iterate."""
 CHECKS_FACTOR = 6.0
-"""The final checks cost up to this times the interval errors of the latest solve's plan:
-they integrate the plan's whole horizon three more times (the open-loop replay and the
-two closed-loop ones of `verify`), linearise it and sample it densely."""
+"""The final checks cost up to this times what the latest solve's own checks took (its
+plan's interval errors and, with a coupling margin, their proof, `Budget.measured`): they
+integrate the plan's whole horizon three more times (the open-loop replay and the two
+closed-loop ones of `verify`), linearise it and sample it densely."""
 RESERVE_SHARE = 0.25
 """The most of a plan's wall time kept for its checks: a short budget still solves."""
 MARGIN = 5.0
