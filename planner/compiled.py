@@ -12,6 +12,7 @@ made leaves every caller interpreted.
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import hashlib
 import os
@@ -149,13 +150,16 @@ def started() -> list[str]:
         return [path.stem for path in _BUILDING]
 
 
-def wait(timeout: float = 600.0) -> None:
-    """Wait until the background builds this process started have ended [s]."""
+def wait(timeout: float = 600.0) -> list[str]:
+    """Wait until the background builds this process started have ended, for at most
+    `timeout` seconds; the names of those still building then (none when all ended)."""
     deadline = time.monotonic() + timeout
     with _CODEGEN:
         running = list(_BUILDING.values())
     for proc in running:
-        proc.wait(max(deadline - time.monotonic(), 0.0))
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            proc.wait(max(deadline - time.monotonic(), 0.0))
+    return building()
 
 
 BUILD_LOCK = ".build.lock"

@@ -35,14 +35,15 @@ def scenes() -> list[Scene]:
             if example.kind == "plan"]
 
 
-def build(ahead: list[Scene] | None = None) -> list[str]:
+def build(ahead: list[Scene] | None = None, wait: float = WAIT) -> list[str]:
     """Build the libraries of `ahead` (default: the examples' `scenes()`), those missing
-    from the cache, and wait for them; the names of those this process built."""
+    from the cache, and wait for them for at most `wait` seconds; the names of those this
+    process started building (`compiled.building()` names those still building)."""
     if not compiled.background_builds():
         return []
     for scene in scenes() if ahead is None else ahead:
         plan(scene)
-    compiled.wait(WAIT)
+    compiled.wait(wait)
     return compiled.started()
 
 

@@ -108,6 +108,7 @@ def test_background_builds_of_one_folder_run_one_at_a_time(cache):
         assert compiled.library("waiting", functions, background=True) is None
         time.sleep(3.0)  # far longer than this library takes gcc when it may build
         assert compiled.building() and not (cache / "waiting.so").exists()
+        assert compiled.wait(0.5) == ["waiting"]  # a wait that runs out names what builds
     compiled.wait(120)
     loaded = compiled.library("waiting", functions)
     assert loaded is not None and float(loaded["waiting_f"](2.0)) == pytest.approx(2 * np.sin(2))
