@@ -5,6 +5,7 @@ companion process that solves the continuation beside the plan's own starts."""
 from __future__ import annotations
 
 import os
+import threading
 import time
 from pathlib import Path
 from types import SimpleNamespace
@@ -56,6 +57,17 @@ def _children() -> list[int]:
             if int(fields[1]) == me and fields[0] != "Z":
                 out.append(int(entry.name))
     return out
+
+
+def _only(before: set[int], within: float = 10.0) -> bool:
+    """Whether within `within` seconds the live children are among `before` (a killed
+    companion is reaped by a thread while its memory is released)."""
+    deadline = time.monotonic() + within
+    while not set(_children()) <= before:
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.01)
+    return True
 
 
 def test_the_relaxed_guess_satisfies_every_row_of_the_dynamics(crossing: Scene):
@@ -146,7 +158,7 @@ def test_a_companion_solves_the_continuation_and_is_gone_when_the_plan_returns(
     strategies = {p.strategy.split(":")[0] for p in result.mesh_passes}
     assert "continuation" in strategies and "direct" in strategies
     assert result.solver.iterations == sum(p.iterations for p in result.mesh_passes)
-    assert set(_children()) <= before
+    assert _only(before)
 
 
 def test_a_cancelled_plan_ends_cancelled_whatever_its_companion_found(
@@ -155,7 +167,7 @@ def test_a_cancelled_plan_ends_cancelled_whatever_its_companion_found(
     before = set(_children())
     result = plan(crossing, progress=lambda p: p.iteration < 5)
     assert result.solver.status == "User_Requested_Stop" and not result.solver.success
-    assert set(_children()) <= before
+    assert _only(before)
 
 
 def test_a_companion_stops_once_the_process_that_forked_it_is_gone(
@@ -173,6 +185,25 @@ def test_a_deferred_companion_runs_at_the_lowest_priority():
         assert os.getpriority(os.PRIO_PROCESS, companion.pid) == portfolio.LOWEST
     finally:
         companion.stop()
+
+
+def test_a_stopped_companion_is_reaped_by_a_thread_not_by_the_plan(
+        monkeypatch: pytest.MonkeyPatch):
+    companion = portfolio.Companion(lambda guard: time.sleep(30))
+    reapers = []
+    waitpid = os.waitpid
+
+    def recording(pid: int, options: int) -> tuple[int, int]:
+        reapers.append(threading.current_thread())
+        return waitpid(pid, options)
+
+    monkeypatch.setattr(os, "waitpid", recording)
+    companion.stop()
+    deadline = time.monotonic() + 10.0
+    while Path(f"/proc/{companion.pid}").exists() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert not Path(f"/proc/{companion.pid}").exists()  # no zombie left behind
+    assert reapers and threading.main_thread() not in reapers
 
 
 def test_a_companion_gets_its_priority_back_before_it_is_killed(

@@ -5,7 +5,8 @@ where the machine has two cores or more). With two, the process that plans forks
 companion that solves the continuation start (`planner.ocp.continuation`) while it goes
 through its own starts; the first verified plan wins and the other process stops. The
 companion is forked, so it needs no start-up and shares the NLPs already built; it stops
-by itself when the process that forked it is gone, and is killed when the plan ends.
+by itself when the process that forked it is gone, and is killed when the plan ends (and
+reaped by a thread, so that the plan does not wait for its memory to be released).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import os
 import pickle
 import select
 import signal
+import threading
 import time
 from collections.abc import Callable
 
@@ -88,13 +90,14 @@ class Companion:
         """End the companion (if still running) and release its pipe. A deferred companion
         gets its priority back first where the process may raise it: a killed process
         still needs the core to release its memory, which at the lowest priority on a
-        busy machine the plan's own process would wait for."""
+        busy machine would take long. That release (about 25 ms of a plan's process's
+        size) is not waited for: a thread of its own reaps the companion."""
         with contextlib.suppress(ProcessLookupError, PermissionError):
             os.setpriority(os.PRIO_PROCESS, self.pid, os.getpriority(os.PRIO_PROCESS, 0))
         with contextlib.suppress(ProcessLookupError):
             os.kill(self.pid, signal.SIGKILL)
-        with contextlib.suppress(ChildProcessError):
-            os.waitpid(self.pid, 0)
+        threading.Thread(target=_reap, args=(self.pid,), name=f"reap-{self.pid}",
+                         daemon=True).start()
         with contextlib.suppress(OSError):
             os.close(self._fd)
 
@@ -105,6 +108,12 @@ class Companion:
         self.finished = True
         with contextlib.suppress(pickle.UnpicklingError, EOFError, ValueError):
             self.plan = pickle.loads(b"".join(chunks))
+
+
+def _reap(pid: int) -> None:
+    """Wait for the child `pid` to end, so that it leaves no zombie."""
+    with contextlib.suppress(ChildProcessError):
+        os.waitpid(pid, 0)
 
 
 def _verified(plan: Plan) -> bool:
