@@ -132,10 +132,12 @@ def test_a_start_that_diverges_leaves_the_other_replays_whole(seed_arm):
                                              "the state became non-finite between t = 0 s"))
 
 
-def test_the_compiled_dynamics_give_the_same_checks(seed_arm, tmp_path, monkeypatch):
+def test_the_compiled_dynamics_give_the_same_checks(unstable, tmp_path, monkeypatch):
+    """On a two-link arm, whose flow gcc builds in seconds (the seed arm's took it minutes
+    at the lowest priority on a busy machine)."""
     monkeypatch.setenv("UNDERTOW_CACHE_DIR", str(tmp_path))
     monkeypatch.setenv("UNDERTOW_BUILDS", "background")
-    sc, result, interp = seed_arm
+    sc, result, interp = unstable
     interpreted, _ = interval_errors(sc.robot, interp)
     interval_errors(sc.robot, interp, compiled=True)  # interpreted while gcc builds the flow
     compiled_code.wait(300)

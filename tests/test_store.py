@@ -478,9 +478,10 @@ def test_writes_checkpoint_the_log_every_interval(tmp_path):
     assert SqliteJobStore(copy).count_by_status()["queued"] == 7
 
 
-def filled(path, jobs: int) -> SqliteJobStore:
-    """A store of `jobs` jobs of 500 bytes each, all in its main file."""
-    store = SqliteJobStore(path)
+def filled(path, jobs: int, busy_timeout: float = 30.0) -> SqliteJobStore:
+    """A store of `jobs` jobs of 500 bytes each, all in its main file; `busy_timeout` [s]:
+    the store's."""
+    store = SqliteJobStore(path, busy_timeout)
     for k in range(jobs):
         store.create(f"j{k}", {"pad": "x" * 500}, "host")
     store.checkpoint(final=True)
@@ -608,7 +609,7 @@ def test_a_write_ahead_log_deleted_under_the_service_refuses_writes_and_keeps_jo
 @pytest.mark.parametrize("damage", ["garbage", "pages", "other database"])
 def test_a_file_overwritten_in_place_refuses_new_jobs_and_health(tmp_path, damage):
     path = tmp_path / "db.sqlite3"
-    store = filled(path, 50)
+    store = filled(path, 50, busy_timeout=2.0)  # another database's file is waited on first
     store.check()
     if damage == "garbage":
         path.write_bytes(b"\x5a" * path.stat().st_size)  # same inode, same size
