@@ -45,6 +45,21 @@ def test_a_holder_that_dies_gives_its_core_back(pool):
     cores.release(token)
 
 
+def test_a_forked_child_does_not_keep_its_parents_core(pool):
+    """A killed companion still releasing its memory must not hold the plan's cores: the
+    next plan takes them at once."""
+    token = cores.take(1)
+    assert token is not None
+    companion = portfolio.Companion(lambda guard: os.pause())  # alive throughout
+    try:
+        cores.release(token)
+        again = cores.take(1)
+        assert again is not None
+        cores.release(again)
+    finally:
+        companion.stop()
+
+
 def test_a_plan_runs_alone_when_no_core_is_free(pool, monkeypatch):
     monkeypatch.setenv(portfolio.ENVIRONMENT, "2")
     monkeypatch.setattr(cores, "available", lambda: 2)

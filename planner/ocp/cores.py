@@ -5,7 +5,9 @@ Each core is a lock file in one directory of the user (`UNDERTOW_CORE_DIR`, defa
 `<tempdir>/undertow-cores-<uid>`). A plan takes a free token for its own process when there
 is one, and its companion needs one more; a plan that finds none runs alone. Tokens are
 `flock` locks, which the kernel drops when the process holding them ends, so a killed plan
-never keeps a core. Two solver workers of the service on two cores thus give a lone plan
+never keeps a core. A forked child (a plan's companion) closes the tokens it inherits: a
+core is held by the plan that took it, which gives it back when it returns, not by a killed
+companion still releasing its memory. Two solver workers of the service on two cores thus give a lone plan
 both cores, and each of two concurrent plans one.
 """
 
@@ -29,16 +31,35 @@ def directory() -> Path:
     return Path(tempfile.gettempdir()) / f"undertow-cores-{os.getuid()}"
 
 
+_HELD: set[int] = set()
+"""The descriptors of the tokens this process holds."""
+
+
+def _close_inherited() -> None:
+    """In a forked child: close the tokens' descriptors it inherited (the lock stays its
+    parent's)."""
+    for fd in _HELD:
+        with contextlib.suppress(OSError):
+            os.close(fd)
+    _HELD.clear()
+
+
+os.register_at_fork(after_in_child=_close_inherited)
+
+
 class Token:
     """One core, held until `release` (or the holder's death)."""
 
     def __init__(self, fd: int, index: int):
         self.fd, self.index = fd, index
+        _HELD.add(fd)
 
     def release(self) -> None:
         """Give the core back."""
-        with contextlib.suppress(OSError):
-            os.close(self.fd)
+        if self.fd in _HELD:
+            _HELD.discard(self.fd)
+            with contextlib.suppress(OSError):
+                os.close(self.fd)
 
 
 def available() -> int:
