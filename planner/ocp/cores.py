@@ -7,8 +7,8 @@ is one, and its companion needs one more; a plan that finds none runs alone. Tok
 `flock` locks, which the kernel drops when the process holding them ends, so a killed plan
 never keeps a core. A forked child (a plan's companion) closes the tokens it inherits: a
 core is held by the plan that took it, which gives it back when it returns, not by a killed
-companion still releasing its memory. Two solver workers of the service on two cores thus give a lone plan
-both cores, and each of two concurrent plans one.
+companion still releasing its memory. Two solver workers of the service on two cores thus
+give a lone plan both cores, and each of two concurrent plans one.
 """
 
 from __future__ import annotations
