@@ -4,6 +4,8 @@ holds, and a dead holder never keeps one."""
 from __future__ import annotations
 
 import os
+import time
+from pathlib import Path
 
 import pytest
 
@@ -45,13 +47,24 @@ def test_a_holder_that_dies_gives_its_core_back(pool):
     cores.release(token)
 
 
+def _started(flag: Path) -> None:
+    """A companion's run: say it has started, then wait to be killed."""
+    flag.touch()
+    os.pause()
+
+
 def test_a_forked_child_does_not_keep_its_parents_core(pool):
     """A killed companion still releasing its memory must not hold the plan's cores: the
     next plan takes them at once."""
     token = cores.take(1)
     assert token is not None
-    companion = portfolio.Companion(lambda guard: os.pause())  # alive throughout
+    flag = pool / "started"
+    companion = portfolio.Companion(lambda guard: _started(flag))  # alive throughout
     try:
+        deadline = time.monotonic() + 30.0
+        while not flag.exists() and time.monotonic() < deadline:  # it has run its fork hook
+            time.sleep(0.01)
+        assert flag.exists()
         cores.release(token)
         again = cores.take(1)
         assert again is not None
