@@ -256,8 +256,8 @@ def _build_ahead(suite: str, count: int, seed: int, categories: tuple[str, ...],
     built = prebuild.build([s for s in scenes if s.solver.jit], wait=BUILD_WAIT)
     print(f"compiled kernels: {len(built)} libraries built ahead in "
           f"{time.perf_counter() - started:.0f} s", flush=True)
-    if compiled.building():
-        print(f"compiled kernels: {len(compiled.building())} libraries still building after "
+    if still := compiled.building():
+        print(f"compiled kernels: {len(still)} libraries still building after "
               f"{BUILD_WAIT:.0f} s; the tasks of their structures start interpreted",
               flush=True)
 

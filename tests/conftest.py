@@ -12,6 +12,7 @@ from __future__ import annotations
 import importlib.util
 import os
 import tempfile
+import time
 import zlib
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -83,6 +84,14 @@ def rotational_mass(robot: Robot) -> np.ndarray:
     beyond = np.cumsum(inertia[::-1])[::-1]
     n = robot.n
     return beyond[np.maximum.outer(np.arange(n), np.arange(n))]
+
+
+def wait_until(predicate: Callable[[], bool], timeout: float = 30.0) -> None:
+    """Wait until `predicate()` holds; fail when `timeout` seconds pass first."""
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        assert time.monotonic() < deadline, "condition not reached in time"
+        time.sleep(0.02)
 
 
 @pytest.fixture

@@ -12,6 +12,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from conftest import wait_until
 
 from app.settings import Settings
 from planner.dynamics import Dynamics
@@ -57,17 +58,6 @@ def _children() -> list[int]:
             if int(fields[1]) == me and fields[0] != "Z":
                 out.append(int(entry.name))
     return out
-
-
-def _only(before: set[int], within: float = 10.0) -> bool:
-    """Whether within `within` seconds the live children are among `before` (a killed
-    companion is reaped by a thread while its memory is released)."""
-    deadline = time.monotonic() + within
-    while not set(_children()) <= before:
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.01)
-    return True
 
 
 def test_the_relaxed_guess_satisfies_every_row_of_the_dynamics(crossing: Scene):
@@ -158,7 +148,7 @@ def test_a_companion_solves_the_continuation_and_is_gone_when_the_plan_returns(
     strategies = {p.strategy.split(":")[0] for p in result.mesh_passes}
     assert "continuation" in strategies and "direct" in strategies
     assert result.solver.iterations == sum(p.iterations for p in result.mesh_passes)
-    assert _only(before)
+    wait_until(lambda: set(_children()) <= before, 10.0)  # a thread reaps the companion
 
 
 def test_a_cancelled_plan_ends_cancelled_whatever_its_companion_found(
@@ -167,7 +157,7 @@ def test_a_cancelled_plan_ends_cancelled_whatever_its_companion_found(
     before = set(_children())
     result = plan(crossing, progress=lambda p: p.iteration < 5)
     assert result.solver.status == "User_Requested_Stop" and not result.solver.success
-    assert _only(before)
+    wait_until(lambda: set(_children()) <= before, 10.0)  # a thread reaps the companion
 
 
 def test_a_companion_stops_once_the_process_that_forked_it_is_gone(
@@ -199,10 +189,7 @@ def test_a_stopped_companion_is_reaped_by_a_thread_not_by_the_plan(
 
     monkeypatch.setattr(os, "waitpid", recording)
     companion.stop()
-    deadline = time.monotonic() + 10.0
-    while Path(f"/proc/{companion.pid}").exists() and time.monotonic() < deadline:
-        time.sleep(0.01)
-    assert not Path(f"/proc/{companion.pid}").exists()  # no zombie left behind
+    wait_until(lambda: not Path(f"/proc/{companion.pid}").exists(), 10.0)  # no zombie
     assert reapers and threading.main_thread() not in reapers
 
 

@@ -4,10 +4,10 @@ holds, and a dead holder never keeps one."""
 from __future__ import annotations
 
 import os
-import time
 from pathlib import Path
 
 import pytest
+from conftest import wait_until
 
 from planner.examples import example
 from planner.ocp import cores, portfolio
@@ -61,10 +61,7 @@ def test_a_forked_child_does_not_keep_its_parents_core(pool):
     flag = pool / "started"
     companion = portfolio.Companion(lambda guard: _started(flag))  # alive throughout
     try:
-        deadline = time.monotonic() + 30.0
-        while not flag.exists() and time.monotonic() < deadline:  # it has run its fork hook
-            time.sleep(0.01)
-        assert flag.exists()
+        wait_until(flag.exists)  # the companion has run its fork hook
         cores.release(token)
         again = cores.take(1)
         assert again is not None

@@ -8,6 +8,7 @@ import signal
 import time
 
 import pytest
+from conftest import wait_until
 
 from app import jobs
 from app.job_run import out_of_memory
@@ -39,13 +40,6 @@ def wait_final(store, job_id: str, timeout: float = 30.0):
             return record
         time.sleep(0.02)
     raise AssertionError(f"job {job_id} still {store.get(job_id).status}")
-
-
-def wait_until(predicate, timeout: float = 30.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        assert time.monotonic() < deadline, "condition not reached in time"
-        time.sleep(0.02)
 
 
 def unfinished(store) -> int:

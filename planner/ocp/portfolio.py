@@ -90,8 +90,8 @@ class Companion:
         """End the companion (if still running) and release its pipe. A deferred companion
         gets its priority back first where the process may raise it: a killed process
         still needs the core to release its memory, which at the lowest priority on a
-        busy machine would take long. That release (about 25 ms of a plan's process's
-        size) is not waited for: a thread of its own reaps the companion."""
+        busy machine would take long. That release is not waited for: a thread of its
+        own reaps the companion."""
         with contextlib.suppress(ProcessLookupError, PermissionError):
             os.setpriority(os.PRIO_PROCESS, self.pid, os.getpriority(os.PRIO_PROCESS, 0))
         with contextlib.suppress(ProcessLookupError):
