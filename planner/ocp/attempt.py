@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -15,6 +15,7 @@ from planner.model import Robot
 from planner.ocp import continuation, shortest
 from planner.ocp.guess import Guess, interpolant_guess
 from planner.ocp.instance import instance
+from planner.ocp.margin_reserve import next_reserve, reserved_margin, with_margin
 from planner.ocp.mesh import Mesh
 from planner.ocp.monitor import Handler
 from planner.ocp.outcome import Outcome, relaxed_solve, solve_on
@@ -181,25 +182,51 @@ def refine(scene: Scene, made: Attempt, budget: Budget, progress: Handler | None
            first_pass: int) -> None:
     """Refine the mesh of the attempt's last outcome while it converged but is not
     accurate, and stop at an artefact of the mesh (`artefact`): the next start follows.
+    An accurate plan whose coupling margin dips between its knots is solved again on its
+    mesh with a reserve above the margin where the task leaves room for one
+    (`planner.ocp.margin_reserve`), else its mesh is cut there.
     `first_pass`: the plan's solves before the attempt's."""
     refinement, tolerance = scene.transcription.refinement, scene.solver.resimulation_tolerance
     passes = refinement.max_passes if made.start.max_refinements is None \
         else min(refinement.max_passes, made.start.max_refinements)
-    outcomes = made.outcomes
+    outcomes, reserve, held = made.outcomes, 0.0, None
     while refinement.enabled and len(outcomes) <= passes and not budget.spent:
         last = outcomes[-1]
         if len(outcomes) > 1 and artefact(outcomes[-2], last) \
                 or not last.solution.success or last.accurate(tolerance):
             return
         unproven = _unproven(last, tolerance)
-        mesh = refined(last.inst.mesh, last.errors, last.inst.problem.transcription.order,
-                       tolerance, refinement.max_intervals, unproven)
+        more = None if unproven is None or last.margin is None \
+            else next_reserve(last.margin, reserve)
+        margin = None if more is None else reserved_margin(scene.task, last.robot, more)
+        if margin is not None:
+            reserve, held, mesh = more, margin, last.inst.mesh
+        else:
+            mesh = refined(last.inst.mesh, last.errors, last.inst.problem.transcription.order,
+                           tolerance, refinement.max_intervals, unproven)
         if mesh is None:
             return
-        inst = instance(scene, last.robot, mesh, last.T)
-        made.add(solve_on(scene, inst, last.robot, last.T,
-                          interpolant_guess(last.interp, last.T), budget, progress,
-                          first_pass + len(made.passes), last.record.strategy))
+        made.add(_refined_solve(scene, last, mesh, held, budget, progress,
+                                first_pass + len(made.passes)))
+
+
+def _refined_solve(scene: Scene, last: Outcome, mesh: Mesh, held: float | None,
+                   budget: Budget, progress: Handler | None, mesh_pass: int) -> Outcome:
+    """The solve that follows `last` on `mesh` with its knots held at the margin `held`
+    [kg m^2] (None: the task's own), its record saying the reserve: on the same mesh from
+    `last`'s solution (primal and dual where it has both), on another from its
+    interpolant."""
+    inst = instance(with_margin(scene, held), last.robot, mesh, last.T)
+    solution = last.solution
+    same = mesh is last.inst.mesh and solution.lam_x is not None and solution.lam_g is not None
+    outcome = solve_on(scene, inst, last.robot, last.T, interpolant_guess(last.interp, last.T),
+                       budget, progress, mesh_pass, last.record.strategy,
+                       solution if same else None)
+    task_margin = scene.task.coupling_margin
+    if held is None or task_margin is None:
+        return outcome
+    reserve = held / task_margin - 1.0
+    return replace(outcome, record=outcome.record.model_copy(update={"margin_reserve": reserve}))
 
 
 def _unproven(last: Outcome, tolerance: float) -> np.ndarray | None:

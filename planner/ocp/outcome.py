@@ -56,7 +56,7 @@ class Outcome:
 
 def solve_on(scene: Scene, inst: Instance, robot: Robot, T: float, guess: Guess,
              budget: Budget, progress: Handler | None, mesh_pass: int,
-             strategy: str, point: NlpSolution | None = None,
+             strategy: str, point: NlpSolution | Solution | None = None,
              stall: bool = False) -> Outcome:
     """Solve on the instance's mesh from a guess (or from an earlier solution, primal and
     dual; stall: a cold solve is stopped when it stalls), and estimate the plan's interval

@@ -35,12 +35,15 @@ DENSE_POINTS = 2000  # about this many dense samples per plan, at least REPLAY_S
 # interval and a multiple of them, so that the replays' samples are among the dense ones
 
 
-def best_of(attempts: list[Attempt]) -> tuple[Outcome, Attempt]:
-    """The outcome the plan reports and its attempt: converged plans first, then the
-    smallest interval error; where the attempts agree that the task is infeasible, the
-    most informative of them."""
+def best_of(attempts: list[Attempt], tolerance: float) -> tuple[Outcome, Attempt]:
+    """The outcome the plan reports and its attempt: converged plans first, then those
+    accurate within `tolerance` [rad] with their coupling margin proven, then the smallest
+    interval error; where the attempts agree that the task is infeasible, the most
+    informative of them."""
     ranked = [(o, a) for a in attempts for o in a.outcomes]
-    best = min(ranked, key=lambda pair: (not pair[0].solution.success, pair[0].worst_error()))
+    best = min(ranked, key=lambda pair: (not pair[0].solution.success,
+                                         not pair[0].accurate(tolerance),
+                                         pair[0].worst_error()))
     if infeasibility.agreed(attempts):
         return infeasibility.most_informative(attempts) or best
     return best
@@ -51,7 +54,7 @@ def plan_of(scene: Scene, attempts: list[Attempt], budget: Budget,
     """The plan of the best outcome of the attempts, checked, with the infeasibility the
     attempts or the duration probe (`probe`, which ran after the plan's first
     `probe_after` solves) establish."""
-    best, attempt = best_of(attempts)
+    best, attempt = best_of(attempts, scene.solver.resimulation_tolerance)
     outcomes = [o for a in attempts for o in a.passes]
     sol, interp = best.solution, best.interp
     breaks = best.inst.mesh.breaks * best.T

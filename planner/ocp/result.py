@@ -121,6 +121,11 @@ class MeshPass(Out):
                     "plan's reported solve only (Verification.resimulation_error), None for "
                     "the others")
     time: float = Field(description="[s] wall time of the solve and its error estimate")
+    margin_reserve: float | None = Field(
+        default=None, description=(
+            "the relative reserve above task.coupling_margin that this solve held at its "
+            "knots, after an earlier plan's margin dipped between them (docs/planner.md, "
+            "\"Margin reserve\"); None: the task's margin itself"))
 
 
 class WaveOut(Out):
