@@ -12,6 +12,7 @@ import pytest
 from planner.certify.boxes import Bound
 from planner.coupling_block import along
 from planner.examples import example
+from planner.ocp.infeasibility import reported
 from planner.ocp.margin_proof import MARGIN_RTOL, MarginProof
 from planner.ocp.margin_reserve import (
     MAX_RESERVE,
@@ -108,3 +109,13 @@ def test_the_plan_reported_is_an_accurate_one_before_a_smaller_error():
     failed = _outcome(False, True, 1e-9)
     attempt = SimpleNamespace(outcomes=[failed, dipping], start=SimpleNamespace(continues=False))
     assert best_of([attempt], 1e-3)[0] is dipping
+
+
+def test_a_solve_that_held_a_reserve_is_no_witness_of_infeasibility():
+    def solve(reserve: float | None) -> SimpleNamespace:
+        return SimpleNamespace(finite=True,
+                               solution=SimpleNamespace(status="Infeasible_Problem_Detected"),
+                               record=SimpleNamespace(margin_reserve=reserve))
+
+    assert reported(solve(None))
+    assert not reported(solve(0.01))

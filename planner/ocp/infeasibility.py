@@ -46,8 +46,11 @@ CHECKS_STATUS = "Infeasible_Task"
 
 
 def reported(outcome: Outcome) -> bool:
-    """Whether a solve ended saying that its constraints cannot all hold."""
-    return outcome.finite and outcome.solution.status in INFEASIBLE
+    """Whether a solve of the task's own NLP ended saying that its constraints cannot all
+    hold (one that held a reserve above the task's coupling margin,
+    `planner.ocp.margin_reserve`, asked more than the task and is no witness)."""
+    return outcome.finite and outcome.solution.status in INFEASIBLE \
+        and outcome.record.margin_reserve is None
 
 
 def _reporting(attempts: list[Attempt]) -> list[tuple[Outcome, Attempt]]:
