@@ -320,7 +320,8 @@ def _attempt(name: str, status: str, continues: bool = False):
     from types import SimpleNamespace
 
     solution = SimpleNamespace(status=status, success=False, g=None)
-    outcome = SimpleNamespace(solution=solution, finite=True)
+    outcome = SimpleNamespace(solution=solution, finite=True,
+                              record=SimpleNamespace(margin_reserve=None))
     start = SimpleNamespace(name=name, continues=continues)
     return SimpleNamespace(start=start, outcomes=[outcome]), outcome
 
