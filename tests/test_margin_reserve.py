@@ -119,3 +119,37 @@ def test_a_solve_that_held_a_reserve_is_no_witness_of_infeasibility():
 
     assert reported(solve(None))
     assert not reported(solve(0.01))
+
+
+def test_a_held_margin_the_task_leaves_no_more_room_for_is_not_solved_again(monkeypatch):
+    """Where the ends cap the reserve at what a pass already held, the next pass cuts the
+    mesh instead of solving the same NLP again."""
+    from planner.ocp import attempt as attempt_module
+    from planner.ocp.mesh import Mesh
+
+    scene = Scene.model_validate(example("seed-arm-plan").request)
+    mesh = Mesh.uniform(10)
+    proof = _proof(0.005, [0.006] * 9 + [0.00499])
+
+    def dipping() -> SimpleNamespace:
+        return SimpleNamespace(
+            solution=SimpleNamespace(success=True, objective=1.0), accurate=lambda tol: False,
+            errors=np.full(10, 1e-6), margin=proof, robot=scene.robot, T=1.6,
+            inst=SimpleNamespace(mesh=mesh,
+                                 problem=SimpleNamespace(transcription=SimpleNamespace(order=4))),
+            record=SimpleNamespace(strategy="direct"))
+
+    solved: list[tuple[int, float | None]] = []
+
+    def solve(scene, last, mesh, held, budget, progress, mesh_pass):
+        solved.append((mesh.intervals, held))
+        return dipping()
+
+    monkeypatch.setattr(attempt_module, "reserved_margin", lambda task, robot, r: 0.00502)
+    monkeypatch.setattr(attempt_module, "_refined_solve", solve)
+    made = SimpleNamespace(start=SimpleNamespace(max_refinements=2), outcomes=[dipping()])
+    made.add = made.outcomes.append
+    made.passes = made.outcomes
+    attempt_module.refine(scene, made, SimpleNamespace(spent=False), None, 0)
+    assert solved[0] == (10, 0.00502)  # held on its own mesh
+    assert solved[1][0] > 10 and solved[1][1] == 0.00502  # then cut, still held
