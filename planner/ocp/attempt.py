@@ -199,7 +199,9 @@ def refine(scene: Scene, made: Attempt, budget: Budget, progress: Handler | None
         more = None if unproven is None or last.margin is None \
             else next_reserve(last.margin, reserve)
         margin = None if more is None else reserved_margin(scene.task, last.robot, more)
-        if margin is not None and (held is None or margin > held):  # not what failed before
+        mesh: Mesh | None
+        if more is not None and margin is not None \
+                and (held is None or margin > held):  # not what failed before
             reserve, held, mesh = more, margin, last.inst.mesh
         else:
             mesh = refined(last.inst.mesh, last.errors, last.inst.problem.transcription.order,
