@@ -75,11 +75,10 @@ def test_co_design_holds_the_reserve_whatever_its_starting_ends():
 
 
 def test_a_plan_whose_margin_dips_between_knots_is_held_with_a_reserve_and_verified():
-    """co-design-20 of the hard suite: its first accurate plan (60 intervals) rides the
-    margin and dips below it between knots; solved again on that mesh with a reserve, its
-    plan keeps the task's own margin on every interval. Cutting the mesh instead left it
-    unverified after its whole budget."""
-    scene = dict(hard_tasks())["co-design-20"]
+    """co-design-44 of the hard suite from its direct start: its first accurate plan (60
+    intervals) rides the margin and dips below it between knots; solved again on that mesh
+    with a reserve, its plan keeps the task's own margin on every interval."""
+    scene = dict(hard_tasks())["co-design-44"]
     scene = scene.model_copy(update={"solver": scene.solver.model_copy(
         update={"max_wall_time": 600.0})})
     result = plan(scene, starts=["direct"])
