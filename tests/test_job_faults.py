@@ -221,8 +221,8 @@ def test_a_second_server_that_cannot_start_leaves_the_first_ones_job_alone(tmp_p
     on the same store and port, exits without touching the job the first one runs."""
     first = fake_server(tmp_path)
     with first, httpx.Client(base_url=first.url, timeout=30) as api:
-        job_id = post(api, iterations=250)  # 5 s
-        wait_for(api, job_id, solving)
+        job_id = post(api, iterations=6000)  # 120 s: still running however slowly the
+        wait_for(api, job_id, solving)  # second server starts, and then cancelled
         second = LiveServer(first.db_path, port=first.port, UNDERTOW_INSTANCE=name,
                             UNDERTOW_WORKERS="1",
                             UNDERTOW_SOLVE_FUNCTION="testbed.fake_solvers:fake_plan")
@@ -235,9 +235,10 @@ def test_a_second_server_that_cannot_start_leaves_the_first_ones_job_alone(tmp_p
         assert (during["status"], during["attempts"], during["infra_failures"]) == (
             "running", 1, 0), during
         assert [e["event"] for e in during["history"]] == ["claimed"]
+        assert api.delete(f"/v1/plans/{job_id}").status_code == 202  # stopping
         done = wait_final(api, job_id)
         assert (done["status"], done["attempts"], done["infra_failures"]) == (
-            "succeeded", 1, 0), done
+            "cancelled", 1, 0), done
         assert api.get("/healthz").status_code == 200
 
 

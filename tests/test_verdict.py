@@ -192,11 +192,12 @@ def test_a_looser_coupling_margin_never_makes_the_task_infeasible(two_link, marg
 
 
 def test_a_duration_probe_at_a_local_minimum_is_refuted_by_a_second_start(monkeypatch):
-    # the suite's task, whose probe's time-optimal solve has ended at a local minimum above
-    # the task's duration (which solve ends where depends on Ipopt's path: the probe is
-    # made to say so here), while the classical inverse dynamics as the guess converges at
-    # the task's own duration. A budget long enough that every solve ends by its
-    # iterations, not by the clock
+    # a suite's task whose probe is made to say the duration too short (a time-optimal
+    # solve that ends at a local minimum above the task's duration; which solve ends where
+    # depends on Ipopt's path), after a first start given no time at all (so the probe
+    # runs whatever path that start would take), while the classical inverse dynamics as
+    # the guess converges at the task's own duration. A budget long enough that every
+    # other solve ends by its iterations, not by the clock
     from dataclasses import replace
 
     from planner.ocp import shortest
@@ -205,11 +206,13 @@ def test_a_duration_probe_at_a_local_minimum_is_refuted_by_a_second_start(monkey
     own = shortest.probe
     monkeypatch.setattr(shortest, "probe",
                         lambda *args: replace(own(*args), too_short=True))
-    scene = dict(tasks())["4-APPA-g9.81-x39"]
+    monkeypatch.setattr(shortest, "FIRST_SHARE", 1e-9)
+    scene = dict(tasks())["3-AAP-g9.81-r19"]
     scene = scene.model_copy(update={
         "solver": scene.solver.model_copy(update={"max_wall_time": 600.0})})
     result = plan(scene)
     strategies = [p.strategy for p in result.mesh_passes]
+    assert result.mesh_passes[1].status == "Maximum_WallTime_Exceeded"
     assert any(s.startswith("shortest-duration probe, time-optimal") for s in strategies)
     assert result.status == "verified" and result.infeasibility is None, result.message
     assert result.solver.strategy.startswith("inverse-dynamics start")
