@@ -4,8 +4,10 @@ A library is named by a digest of what decides its code; it is built on first us
 in a temporary folder) and renamed into place atomically, so processes sharing the cache
 folder never load a partial one. $UNDERTOW_CACHE_DIR names the folder (default
 ~/.cache/undertow). A caller that need not wait has the library built in the background,
-by a process of its own at the lowest priority (`python -m planner.compiled`), and goes on
-with the interpreted functions meanwhile. With $UNDERTOW_BUILDS=off no background build
+by its builder (`_Builder`: one process of its own at the lowest priority, `python -m
+planner.compiled`, which builds what the process asks of it one library after the other
+and finishes after the process has gone), and goes on with the interpreted functions
+meanwhile. With $UNDERTOW_BUILDS=off no background build
 starts (libraries already on disk are still loaded), and a cache folder that cannot be
 made leaves every caller interpreted.
 """
@@ -15,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import hashlib
+import json
 import os
 import shutil
 import subprocess
@@ -24,12 +27,90 @@ import threading
 import time
 from collections.abc import Iterable, Sequence
 from pathlib import Path
+from typing import Any
 
 import casadi as ca
 
-_CODEGEN = threading.Lock()  # one compilation at a time per process, and guards the dicts below
+
+class _Build:
+    """A background build this process asked for: its status, None until the builder says
+    it ended (0: the library is on disk, else it failed)."""
+
+    def __init__(self) -> None:
+        self.status: int | None = None
+        self._ended = threading.Event()
+
+    def end(self, status: int) -> None:
+        self.status = status
+        self._ended.set()
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """Wait for its end, for at most `timeout` seconds; whether it has ended."""
+        return self._ended.wait(timeout)
+
+
+class _Builder:
+    """The process's builder: one `python -m planner.compiled` process that builds the
+    libraries asked of it one after the other, each asked for by a JSON line on its stdin
+    and reported on its stdout when it ends. A process meeting many structures at once
+    thus runs one builder, not a process per library; the builder finishes what it was
+    asked after the process has gone (its stdin ends then)."""
+
+    def __init__(self) -> None:
+        self.process = subprocess.Popen(
+            [sys.executable, "-m", "planner.compiled"], stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        self._pending: dict[str, _Build] = {}
+        self._lock = threading.Lock()
+        threading.Thread(target=self._listen, name="compiled-builder", daemon=True).start()
+
+    def alive(self) -> bool:
+        return self.process.poll() is None
+
+    def ask(self, request: dict[str, Any], build: _Build) -> bool:
+        """Send a build's request; False where the builder has gone."""
+        with self._lock:
+            self._pending[request["library"]] = build
+        try:
+            assert self.process.stdin is not None
+            self.process.stdin.write(json.dumps(request) + "\n")
+            self.process.stdin.flush()
+        except (OSError, ValueError):
+            with self._lock:
+                self._pending.pop(request["library"], None)
+            return False
+        return True
+
+    def _listen(self) -> None:
+        """End each build the builder reports; when it has gone, those it left as failed."""
+        assert self.process.stdout is not None
+        for line in self.process.stdout:
+            with contextlib.suppress(ValueError, KeyError, TypeError):
+                told = json.loads(line)
+                with self._lock:
+                    build = self._pending.pop(told["library"])
+                build.end(int(told["status"]))
+        with self._lock:
+            left, self._pending = list(self._pending.values()), {}
+        for build in left:
+            build.end(1)
+
+
+_CODEGEN = threading.Lock()  # one compilation at a time per process, and guards the names below
 _LOADED: dict[Path, dict[str, ca.Function]] = {}  # libraries loaded by this process
-_BUILDING: dict[Path, subprocess.Popen] = {}  # background builds started by this process
+_BUILDING: dict[Path, _Build] = {}  # background builds this process asked for
+_BUILDER: _Builder | None = None  # the process's builder, started with its first build
+
+
+def _forked() -> None:
+    """In a forked child (a plan's companion): the parent's builder and locks stay the
+    parent's; the child starts a builder of its own for what it asks (a library the parent
+    built meanwhile is not built again)."""
+    global _CODEGEN, _BUILDING, _BUILDER
+    _CODEGEN, _BUILDING, _BUILDER = threading.Lock(), {}, None
+
+
+os.register_at_fork(after_in_child=_forked)
 
 
 def cache_dir() -> Path:
@@ -70,8 +151,8 @@ def library(name: str, functions: Sequence[ca.Function], flags: str = "-O1",
         if path in _LOADED:
             return _LOADED[path]
         started = _BUILDING.get(path)
-        if not background and started is not None and started.poll() is None:
-            started.wait()  # the build this process started in the background, not a second
+        if not background and started is not None:
+            started.wait()  # the build this process asked for in the background, not a second
         if not path.exists():
             if background:
                 if background_builds() and _writable(folder):
@@ -121,44 +202,54 @@ def _build(folder: Path, name: str, functions: Sequence[ca.Function], flags: str
 
 
 def _start(folder: Path, name: str, functions: Sequence[ca.Function], flags: str) -> None:
-    """Build the library in a child process, unless this process already is or its build
-    failed (then the functions stay interpreted here); call under _CODEGEN. The functions
-    travel as CasADi's serialised files."""
+    """Ask the process's builder (started where it has none, or it has gone) for the
+    library, unless this process already has or its build failed (then the functions stay
+    interpreted here); call under _CODEGEN. The functions travel as CasADi's serialised
+    files."""
+    global _BUILDER
     path = folder / f"{name}.so"
     started = _BUILDING.get(path)
-    if started is not None and started.poll() != 0:
+    if started is not None and started.status != 0:
         return
     work = Path(tempfile.mkdtemp(prefix=f"{name}.", dir=folder))
     files = []
     for function in functions:
         files.append(str(work / f"{function.name()}.casadi"))
         function.save(files[-1])
-    _BUILDING[path] = subprocess.Popen(
-        [sys.executable, "-m", "planner.compiled", str(folder), name, flags, str(work), *files],
-        stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    request = {"library": str(path), "folder": str(folder), "name": name, "flags": flags,
+               "work": str(work), "files": files}
+    _BUILDING[path] = build = _Build()
+    try:
+        if _BUILDER is None or not _BUILDER.alive():
+            _BUILDER = _Builder()
+        asked = _BUILDER.ask(request, build)
+    except OSError:
+        asked = False
+    if not asked:
+        shutil.rmtree(work, ignore_errors=True)
+        build.end(1)
 
 
 def building() -> list[str]:
-    """Names of the libraries this process is building in the background."""
+    """Names of the libraries this process has asked its builder for that have not ended."""
     with _CODEGEN:
-        return [path.stem for path, proc in _BUILDING.items() if proc.poll() is None]
+        return [path.stem for path, build in _BUILDING.items() if build.status is None]
 
 
 def started() -> list[str]:
-    """Names of the libraries this process has started building in the background."""
+    """Names of the libraries this process has asked to build in the background."""
     with _CODEGEN:
         return [path.stem for path in _BUILDING]
 
 
 def wait(timeout: float = 600.0) -> list[str]:
-    """Wait until the background builds this process started have ended, for at most
-    `timeout` seconds; the names of those still building then (none when all ended)."""
+    """Wait until the background builds this process asked for have ended, for at most
+    `timeout` seconds; the names of those not ended then (none when all ended)."""
     deadline = time.monotonic() + timeout
     with _CODEGEN:
-        running = list(_BUILDING.values())
-    for proc in running:
-        with contextlib.suppress(subprocess.TimeoutExpired):
-            proc.wait(max(deadline - time.monotonic(), 0.0))
+        asked = list(_BUILDING.values())
+    for build in asked:
+        build.wait(max(deadline - time.monotonic(), 0.0))
     return building()
 
 
@@ -168,21 +259,40 @@ builds of one folder run one after the other, whichever processes started them, 
 service meeting many structures at once runs one compiler beside its solves, not dozens."""
 
 
-def main(argv: list[str]) -> None:
-    """Child process: folder name flags work file...: build the library of the saved
-    functions, then remove their folder. It runs at the lowest priority (nice 19), on the
-    time solves leave idle, and after the folder's other background builds (BUILD_LOCK);
-    a library another process built meanwhile is not built again."""
+def main() -> None:
+    """The builder process: for each request on stdin (a JSON line: library, folder, name,
+    flags, work, files), build the library of the saved functions, remove their folder
+    and say so on stdout (library, status: 0 built or found built, 1 failed). It runs at
+    the lowest priority (nice 19), on the time solves leave idle, and each build after the
+    folder's other background builds (BUILD_LOCK); a library another process built
+    meanwhile is not built again. It ends when its stdin does, after the last request."""
     os.nice(19)
-    folder, name, flags, work, *files = argv
+    told = True
+    for line in sys.stdin:
+        request = json.loads(line)
+        status = _build_asked(request)
+        if told:
+            try:
+                print(json.dumps({"library": request["library"], "status": status}), flush=True)
+            except OSError:  # the process that asked has gone: build the rest all the same
+                told = False
+
+
+def _build_asked(request: dict[str, Any]) -> int:
+    """Build one requested library: 0 when it is on disk then, 1 when the build failed."""
+    folder = Path(request["folder"])
     try:
-        with open(Path(folder) / BUILD_LOCK, "a") as lock:
+        with open(folder / BUILD_LOCK, "a") as lock:
             fcntl.flock(lock, fcntl.LOCK_EX)
-            if not (Path(folder) / f"{name}.so").exists():
-                _build(Path(folder), name, [ca.Function.load(f) for f in files], flags)
+            if not (folder / f"{request['name']}.so").exists():
+                _build(folder, request["name"],
+                       [ca.Function.load(f) for f in request["files"]], request["flags"])
+        return 0
+    except (OSError, RuntimeError, subprocess.SubprocessError):
+        return 1
     finally:
-        shutil.rmtree(work, ignore_errors=True)
+        shutil.rmtree(request["work"], ignore_errors=True)
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    main()

@@ -114,6 +114,66 @@ def test_background_builds_of_one_folder_run_one_at_a_time(cache):
     assert loaded is not None and float(loaded["waiting_f"](2.0)) == pytest.approx(2 * np.sin(2))
 
 
+def _builder_processes() -> int:
+    """This process's children that run `python -m planner.compiled`."""
+    import os
+    from pathlib import Path
+
+    count = 0
+    for proc in Path("/proc").iterdir():
+        try:
+            parent = int((proc / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            command = (proc / "cmdline").read_bytes().split(b"\0")
+        except (OSError, ValueError, IndexError):
+            continue
+        count += parent == os.getpid() and b"planner.compiled" in command
+    return count
+
+
+def test_a_process_runs_one_builder_at_a_time(cache):
+    """Structures met at once are built by one builder process, one after the other, not
+    by a Python process each waiting on the folder's lock."""
+    import fcntl
+    import time
+
+    import casadi as ca
+
+    x = ca.SX.sym("x")
+    libraries = {f"queued{k}": [ca.Function(f"queued{k}_f", [x], [ca.sin(x) * x + k])]
+                 for k in range(3)}
+    with open(cache / compiled.BUILD_LOCK, "a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        for name, functions in libraries.items():
+            assert compiled.library(name, functions, background=True) is None
+        time.sleep(1.0)
+        assert _builder_processes() == 1 and set(libraries) <= set(compiled.building())
+    assert compiled.wait(120) == []
+    for k, (name, functions) in enumerate(libraries.items()):
+        loaded = compiled.library(name, functions)
+        assert loaded is not None
+        assert float(loaded[f"{name}_f"](2.0)) == pytest.approx(2 * np.sin(2) + k)
+
+
+def test_the_builder_finishes_what_it_was_asked_after_the_process_has_gone(cache):
+    """A command-line plan exits at once; the libraries its plan asked for are built all
+    the same, for the next one."""
+    import subprocess
+    import sys
+    import time
+
+    script = ("import casadi as ca\n"
+              "from planner import compiled\n"
+              "x = ca.SX.sym('x')\n"
+              "for k in range(2):\n"
+              "    compiled.library(f'left{k}', [ca.Function(f'left{k}_f', [x], [x + k])],\n"
+              "                     background=True)\n")
+    subprocess.run([sys.executable, "-c", script], check=True, timeout=120)
+    deadline = time.monotonic() + 120
+    while not all((cache / f"left{k}.so").exists() for k in range(2)):
+        assert time.monotonic() < deadline, sorted(p.name for p in cache.iterdir())
+        time.sleep(0.2)
+
+
 def test_stages_compiled_earlier_load_without_symbolic_work(cache, monkeypatch):
     """A structure whose kernels another process compiled loads them and their layout from
     the cache folder: no stage function is built, and every kernel, sparsity and row bound
