@@ -51,6 +51,14 @@ def _clone(folder: Path, venv: str | None) -> list[str]:
     return make
 
 
+def _reinstall(venv: str) -> None:
+    """Point a reused virtualenv's editable install back at this checkout: the clone's
+    `make install` pointed it at the clone, which is gone once the runs end (the
+    `undertow` command then finds no package)."""
+    subprocess.run([str(Path(venv) / "bin" / "python"), "-m", "pip", "install", "--quiet",
+                    "--no-deps", "-e", str(harness.ROOT)], check=True, capture_output=True)
+
+
 def _counts(output: str) -> str:
     """pytest's last summary line, e.g. "1374 passed, 3 skipped in 480.1s"."""
     lines = [line.strip("= ") for line in output.splitlines() if re.search(r" in [\d.]+s", line)]
@@ -104,10 +112,14 @@ def main(argv: list[str]) -> int:
                         help="reuse this virtualenv instead of building one in the clone")
     args = parser.parse_args(argv)
     started, note = time.perf_counter(), harness.machine_note()
-    with tempfile.TemporaryDirectory(prefix="undertow-test-times-") as folder:
-        make = _clone(Path(folder), args.venv)
-        rows = [_run(make, kind == "loaded", args.pytest_args)
-                for kind in args.runs.split(",")]
+    try:
+        with tempfile.TemporaryDirectory(prefix="undertow-test-times-") as folder:
+            make = _clone(Path(folder), args.venv)
+            rows = [_run(make, kind == "loaded", args.pytest_args)
+                    for kind in args.runs.split(",")]
+    finally:
+        if args.venv:
+            _reinstall(args.venv)
     for row in rows:
         print(row, flush=True)
     harness.write_csv(CSV, rows)
