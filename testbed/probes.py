@@ -3,7 +3,6 @@ mid-solve, clients that go away. Each fault case returns a row with `ok`."""
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import signal
@@ -14,6 +13,7 @@ from typing import Any
 import httpx
 
 from testbed.service import LiveServer, wait_final
+from testbed.worker_watch import children
 
 QUICK: dict[str, Any] = {"robot": {"links": [
     {"length": 0.5, "mass": 1.0, "inertia": 0.01, "joint": "passive"},
@@ -65,28 +65,10 @@ def malformed_bodies() -> list[tuple[str, bytes, str]]:
     ]
 
 
-def _children(pid: int) -> list[int]:
-    """Process ids whose parent is pid (read from /proc)."""
-    out = []
-    for entry in os.listdir("/proc"):
-        if entry.isdigit():
-            with contextlib.suppress(OSError), open(f"/proc/{entry}/stat") as f:
-                fields = f.read().rsplit(")", 1)[1].split()
-                if int(fields[1]) == pid:
-                    out.append(int(entry))
-    return out
-
-
-def _cmdline(pid: int) -> str:
-    with contextlib.suppress(OSError), open(f"/proc/{pid}/cmdline", "rb") as f:
-        return f.read().replace(b"\0", b" ").decode(errors="replace")
-    return ""
-
-
 def worker_pids(server_pid: int) -> list[int]:
     """The plan workers of a server: its spawned children (not the resource tracker)."""
-    return [p for p in _children(server_pid)
-            if "spawn_main" in _cmdline(p) and "resource_tracker" not in _cmdline(p)]
+    return [pid for (pid, _), command in children(server_pid).items()
+            if "spawn_main" in command and "resource_tracker" not in command]
 
 
 def kill_worker_case(live: LiveServer, http: httpx.Client) -> dict:

@@ -26,7 +26,7 @@ cancel)."""
 STARTUP = "exited during start-up"
 
 
-def _children(parent: int) -> dict[tuple[int, int], str]:
+def children(parent: int) -> dict[tuple[int, int], str]:
     """The children of process `parent`: (pid, start time in clock ticks) -> command line."""
     found = {}
     for entry in os.listdir("/proc"):
@@ -47,7 +47,7 @@ def _children(parent: int) -> dict[tuple[int, int], str]:
 
 def workers_of(parent: int) -> set[tuple[int, int]]:
     """The worker processes (pid, start time) of the server process `parent` now."""
-    return {key for key, command in _children(parent).items() if SPAWNED in command
+    return {key for key, command in children(parent).items() if SPAWNED in command
             and "spawn_main" in command}
 
 

@@ -117,17 +117,10 @@ def test_background_builds_of_one_folder_run_one_at_a_time(cache):
 def _builder_processes() -> int:
     """This process's children that run `python -m planner.compiled`."""
     import os
-    from pathlib import Path
 
-    count = 0
-    for proc in Path("/proc").iterdir():
-        try:
-            parent = int((proc / "stat").read_text().rsplit(")", 1)[1].split()[1])
-            command = (proc / "cmdline").read_bytes().split(b"\0")
-        except (OSError, ValueError, IndexError):
-            continue
-        count += parent == os.getpid() and b"planner.compiled" in command
-    return count
+    from testbed.worker_watch import children
+
+    return sum("planner.compiled" in command for command in children(os.getpid()).values())
 
 
 def test_a_process_runs_one_builder_at_a_time(cache):
