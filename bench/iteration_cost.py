@@ -6,14 +6,16 @@ singularities, Legendre degree 3), one solve per plan of exactly `--iterations` 
 from the planner's initial guess (refinement and retries off; the NLP built and cached
 first, so no build is timed). Configurations, each in a fresh process: Ipopt with the
 stages' kernels compiled to C (`solver.jit`, the default; the library built before timing)
-and interpreted, fatrop with the stage structure declared (`solver.name: "fatrop"`; it
-differentiates the expanded NLP itself), and the default at the commit `--before` (a
-checkout of its own). Reported per N and configuration, medians of `--repeats` solves: the
-NLP's variables and rows, CPU time per iteration, the part in NLP function evaluations
-(CasADi's `t_proc_nlp_*` and the iteration callback) and the solver's own part (the rest:
-the KKT factorizations, solves and vector work), the kernel's CPU time for the process and
-its page faults, function calls per iteration and, for Ipopt, KKT factorizations per
-iteration (counted in its log of one more, untimed solve).
+and interpreted, fatrop with the stage structure declared (`solver.name: "fatrop"`) on the
+same assembled derivative kernels, compiled and interpreted, and the default at the commit
+`--before` (a checkout of its own). Reported per N and configuration, medians of `--repeats`
+solves: the NLP's variables and rows, CPU time per iteration, the part in NLP function
+evaluations (CasADi's `t_proc_nlp_*` and the iteration callback) and the solver's own part
+(the rest: the KKT factorizations, solves and vector work), the kernel's CPU time for the
+process and its page faults, function calls per iteration, for fatrop the part its own
+statistics give its search directions (`compute_sd_time`: the stage-wise factorization and
+solve of the KKT system) and, for Ipopt, KKT factorizations per iteration (counted in its
+log of one more, untimed solve).
 
     python -m bench iteration_cost [--N 50 100] [--iterations 60] [--repeats 3] [--before C]
 """
@@ -34,11 +36,13 @@ BEFORE = "95d4e3d"
 CONFIGS: tuple[tuple[str, dict[str, object], bool], ...] = (
     ("Ipopt, compiled (jit, the default)", {"jit": True}, False),
     ("Ipopt, interpreted", {"jit": False}, False),
-    ("fatrop", {"name": "fatrop", "jit": False}, False),
+    ("fatrop, compiled", {"name": "fatrop", "jit": True}, False),
+    ("fatrop, interpreted", {"name": "fatrop", "jit": False}, False),
     ("before: Ipopt, compiled (jit, the default)", {"jit": True}, True))
 """Name, solver settings of the scene, whether at the commit `--before`."""
 KEYS = ("cpu_per_iteration", "functions_per_iteration", "solver_per_iteration",
-        "kernel_per_iteration", "faults_per_iteration", "calls_per_iteration")
+        "kernel_per_iteration", "faults_per_iteration", "calls_per_iteration",
+        "kkt_per_iteration")
 
 _RUN = """
 import json, math, sys
@@ -68,7 +72,9 @@ for _ in range(repeats):
                  "solver_per_iteration": 1e3 * (timed.cpu - functions) / done,
                  "kernel_per_iteration": 1e3 * timed.kernel / done,
                  "faults_per_iteration": timed.faults / done,
-                 "calls_per_iteration": calls / done}})
+                 "calls_per_iteration": calls / done,
+                 "kkt_per_iteration": 1e3 * stats.get("fatrop", {{}}).get(
+                     "compute_sd_time", math.nan) / done}})
 from planner.ocp.problem import ProblemKey, problem
 built = problem(ProblemKey.of(scene()), wait=True)
 factorizations = math.nan
@@ -137,6 +143,7 @@ def main(argv: list[str]) -> int:
                              ("kernel_per_iteration", "of it in the kernel [ms]"),
                              ("faults_per_iteration", "page faults per iteration"),
                              ("calls_per_iteration", "function calls per iteration"),
+                             ("kkt_per_iteration", "of it in the KKT system (fatrop) [ms]"),
                              ("factorizations_per_iteration",
                               "KKT factorizations per iteration")]),
         f"Rows: `bench/results/iteration_cost.csv`. "

@@ -33,6 +33,7 @@ from planner.ocp.assembly import Derivatives
 from planner.ocp.instance import instance
 from planner.ocp.key import ProblemKey
 from planner.ocp.mesh import Mesh
+from planner.ocp.solvers.fatrop import oracle_functions
 from planner.scene import Scene
 
 N = 3
@@ -306,3 +307,34 @@ def test_the_checks_catch_a_halved_stage_hessian(monkeypatch):
     with pytest.raises(AssertionError, match="hess_lag"):
         assert_close(dense(hess_lag(pt.x, pt.p, pt.sigma, pt.lam)),
                      dense(c.plain(pt.x, pt.p, pt.sigma, pt.lam)[4]), 1e-10, "hess_lag")
+
+
+FATROP_CASES = sorted(name for name in STRUCTURED if name.endswith("fixed-T-all-terms")
+                      and name.split("/")[0].startswith(("legendre", "radau", "shooting")))
+"""Structured cases a fatrop scene can name (stages that close their gaps, a fixed
+duration)."""
+
+
+@pytest.mark.parametrize("name", FATROP_CASES)
+def test_fatrop_functions_match_the_plain_graph(name):
+    """What fatrop gets from the assembled kernels (`oracle_functions`): the objective's
+    gradient, the rows and Jacobian, the Lagrangian's gradient and its whole Hessian, and
+    the objective, rows and Lagrangian gradient the multipliers are read from."""
+    c = case(name)
+    functions = oracle_functions(c.ipopt)
+    for k, pt in enumerate(c.points):
+        ref = c.plain(pt.x, pt.p, pt.sigma, pt.lam)
+        gradient = dense(ref[2]).ravel() * pt.sigma + dense(ref[3]).T @ pt.lam
+        assert_close(dense(functions["nlp_grad_f"](pt.x, pt.p)), dense(ref[2]), 1e-10,
+                     f"nlp_grad_f at point {k}")
+        g, jac = functions["nlp_jac_g"](pt.x, pt.p)
+        assert_close(dense(g), dense(ref[1]), 1e-12, f"nlp_jac_g's rows at point {k}")
+        assert_close(dense(jac), dense(ref[3]), 1e-10, f"nlp_jac_g at point {k}")
+        grad_l, hess = functions["nlp_hess_l"](pt.x, pt.p, pt.sigma, pt.lam)
+        assert_close(dense(grad_l).ravel(), gradient, 1e-10, f"Lagrangian gradient at point {k}")
+        assert_close(dense(hess), full_hessian(dense(ref[4])), 1e-10,
+                     f"nlp_hess_l (whole) at point {k}")
+        f, g, grad_x, grad_p = functions["nlp_grad"](pt.x, pt.p, pt.sigma, pt.lam)
+        assert_close(dense(f), dense(ref[0]), 1e-12, f"nlp_grad's objective at point {k}")
+        assert_close(dense(grad_x).ravel(), gradient, 1e-10, f"nlp_grad at point {k}")
+        assert dense(grad_p).shape == (pt.p.size, 1) and not dense(grad_p).any()

@@ -6,6 +6,7 @@ import pytest
 from pydantic import ValidationError
 
 from planner.ocp import plan
+from planner.ocp.problem import ProblemKey, problem
 from planner.scene import Scene
 from testbed.suites.ordinary import tasks
 
@@ -32,3 +33,22 @@ def test_fatrop_needs_stages_that_close_their_gaps():
     with pytest.raises(ValidationError, match="solver.name: 'fatrop' needs a transcription "
                                               "whose stages close their gaps explicitly"):
         Scene.model_validate(sc)
+
+
+def test_fatrop_factors_the_stage_structure_with_the_assembled_derivatives():
+    """fatrop's own statistics report the stages the layout declares (N stages of the node
+    state and the other stage variables), and its Hessian is the per-stage kernels'
+    (`nlp_hess_l_stages`), not CasADi's derivative of the expanded NLP."""
+    sc = dict(tasks())["2-PA-g9.81-x15"]
+    scene = sc.model_copy(update={"solver": sc.solver.model_copy(
+        update={"name": "fatrop", "retries": 0})})
+    prob = problem(ProblemKey.of(scene))
+    called = {f.name() for f in prob.solver.get_function("nlp_hess_l").find_functions()}
+    assert "nlp_hess_l_stages" in called
+    assert plan(scene).solver.status == "Solve_Succeeded"
+    stats, layout, N = prob.solver.stats(), prob.layout, prob.layout.intervals
+    link = layout.stage_size - stats["nu"][0]
+    assert stats["N"] == N and stats["nx"] == [link] * (N + 1) and link == 2 * 2
+    assert stats["nu"] == [layout.stage_size - link] * N + [0]
+    assert sum(stats["nx"]) + sum(stats["nu"]) == layout.size
+    assert stats["n_call_nlp_hess_l"] >= stats["iter_count"] > 0
