@@ -7,6 +7,7 @@ from pydantic import ValidationError
 
 from planner.ocp import plan
 from planner.ocp.problem import ProblemKey, problem
+from planner.ocp.shortest import time_optimal
 from planner.scene import Scene
 from testbed.suites.ordinary import tasks
 
@@ -52,3 +53,13 @@ def test_fatrop_factors_the_stage_structure_with_the_assembled_derivatives():
     assert stats["nu"] == [layout.stage_size - link] * N + [0]
     assert sum(stats["nx"]) + sum(stats["nu"]) == layout.size
     assert stats["n_call_nlp_hess_l"] >= stats["iter_count"] > 0
+
+
+def test_a_fatrop_scene_probes_its_shortest_duration_with_ipopt():
+    """The duration probe frees the duration, which fatrop cannot state: the probe's scene
+    is one the schema accepts, solved by Ipopt, and otherwise the scene's own settings."""
+    sc = dict(tasks())["4-APPA-g9.81-x39"]
+    scene = sc.model_copy(update={"solver": sc.solver.model_copy(update={"name": "fatrop"})})
+    probe = time_optimal(scene, 0.5, 3.0, 0.1)
+    assert Scene.model_validate(probe.model_dump()) == probe
+    assert probe.solver == scene.solver.model_copy(update={"name": "ipopt"})

@@ -102,11 +102,12 @@ def unlimited(scene: Scene, T: float) -> Scene:
 
 def time_optimal(scene: Scene, shortest: float, longest: float, effort: float) -> Scene:
     """The task with its duration free in [shortest, longest] [s] and the objective
-    duration + `effort` x effort."""
+    duration + `effort` x effort, solved by Ipopt (fatrop states no free duration)."""
     objective = Objective(effort=effort, time=1.0, smoothness=0.0)
     task = scene.task.model_copy(update={
         "duration": DurationRange(min=shortest, max=longest), "objective": objective})
-    return scene.model_copy(update={"task": task})
+    solver = scene.solver.model_copy(update={"name": "ipopt"})
+    return scene.model_copy(update={"task": task, "solver": solver})
 
 
 def stretch_factor(scene: Scene, motion: Plan) -> float:
