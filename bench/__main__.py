@@ -67,6 +67,8 @@ BENCHES = {
                                              "time"),
     "planner_speed": ("bench.planner_speed", "the planner against a plain Opti script on a seed "
                                              "scene, and where a solve's time goes"),
+    "refined_tails": ("bench.refined_tails", "the hard suite's slowest tasks solve by solve, "
+                                             "now and at an earlier commit"),
     "refinement": ("bench.refinement", "mesh refinement on the two-link example at other "
                                        "numbers of intervals; what each retry recovers"),
     "replan": ("bench.replan", "warm replanning: a moved goal on the seed arm, warm against "

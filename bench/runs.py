@@ -41,6 +41,7 @@ RESULTS: dict[str, tuple[str, ...]] = {
     "pickup": ("bench/results/pickup.csv",),
     "plan_response": ("bench/results/plan_response.csv",),
     "planner_speed": ("bench/results/planner_speed*.csv",),
+    "refined_tails": ("bench/results/refined_tails.csv",),
     "refinement": ("bench/results/refinement_*.csv",),
     "replan": ("bench/results/replan.csv",),
     "reliability": ("bench/results/reliability.csv",),

@@ -63,6 +63,7 @@ SMALL: dict[str, Small] = {
     "pickup": Small((("--plans", "1"),), needs=("postgres",)),
     "plan_response": Small((("--repeats", "1"),)),
     "planner_speed": Small((("--N", "10", "--repeats", "1", "--baseline-repeats", "1"),)),
+    "refined_tails": Small((("--before", "HEAD", "--tasks", "torque-limit-28:31415926"),)),
     "refinement": Small((("--intervals", "20", "--seeds", "20261123", "--count", "1",
                           "--max-iter", "5"),)),
     "replan": Small((("--moves", "1", "--no-jit"),)),

@@ -27,11 +27,12 @@ from bench.harness import ROOT
 SLOW_AFTER = 20.0
 """[s] A small mode that takes longer on this 2-core machine is `slow`."""
 SLOW = frozenset({"cluster_ops", "container", "faults", "iteration_cost", "peer_opty", "pickup",
-                  "planner_internals", "reliability", "replan", "scale_out",
+                  "planner_internals", "refined_tails", "reliability", "replan", "scale_out",
                   "seed_iterations", "stress", "suite", "test_times"})
 """The benchmarks whose small mode takes over SLOW_AFTER (bench/smoke.py says what they
 run): live servers and clusters, faults and their recovery, compiled NLPs (jit), peers
-in processes of their own, the horizontal seed arm, make test itself."""
+in processes of their own, the horizontal seed arm, hard tasks in two checkouts, make
+test itself."""
 TIMEOUT = 900.0  # [s] a small mode still running then has hung
 
 

@@ -13,8 +13,9 @@ import numpy as np
 
 from planner.model import Robot
 from planner.ocp import continuation, shortest
+from planner.ocp.carried import Point, carried
 from planner.ocp.guess import Guess, interpolant_guess
-from planner.ocp.instance import instance
+from planner.ocp.instance import Instance, initial_point, instance
 from planner.ocp.margin_reserve import next_reserve, reserved_margin, with_margin
 from planner.ocp.mesh import Mesh
 from planner.ocp.monitor import Handler
@@ -22,6 +23,7 @@ from planner.ocp.outcome import Outcome, relaxed_solve, solve_on
 from planner.ocp.refine import refined
 from planner.ocp.result import NlpSolution
 from planner.ocp.solve import Budget
+from planner.ocp.solvers import SOLVERS
 from planner.scene import Scene
 
 
@@ -208,27 +210,57 @@ def refine(scene: Scene, made: Attempt, budget: Budget, progress: Handler | None
                            tolerance, refinement.max_intervals, unproven)
         if mesh is None:
             return
-        made.add(_refined_solve(scene, last, mesh, held, budget, progress,
-                                first_pass + len(made.passes)))
+        *failed, solved = _refined_solve(scene, last, mesh, held, budget, progress,
+                                         first_pass + len(made.passes))
+        made.passes.extend(failed)
+        made.add(solved)
 
 
 def _refined_solve(scene: Scene, last: Outcome, mesh: Mesh, held: float | None,
-                   budget: Budget, progress: Handler | None, mesh_pass: int) -> Outcome:
-    """The solve that follows `last` on `mesh` with its knots held at the margin `held`
-    [kg m^2] (None: the task's own), its record saying the reserve: on the same mesh from
-    `last`'s solution (primal and dual where it has both), on another from its
-    interpolant."""
+                   budget: Budget, progress: Handler | None, mesh_pass: int) -> list[Outcome]:
+    """The solves that follow `last` on `mesh` with its knots held at the margin `held`
+    [kg m^2] (None: the task's own), their records saying the reserve: on the same mesh
+    from `last`'s solution (primal and dual where it has both); on another from its
+    interpolant with its multipliers carried over (`planner.ocp.carried`) and, where that
+    solve fails, again from its interpolant alone. The last of them is the one that
+    counts."""
     inst = instance(with_margin(scene, held), last.robot, mesh, last.T)
-    solution = last.solution
+    solution, guess = last.solution, interpolant_guess(last.interp, last.T)
     same = mesh is last.inst.mesh and solution.lam_x is not None and solution.lam_g is not None
-    outcome = solve_on(scene, inst, last.robot, last.T, interpolant_guess(last.interp, last.T),
-                       budget, progress, mesh_pass, last.record.strategy,
-                       solution if same else None)
+    point = solution if same \
+        else _carried_start(last, inst, guess, scene.solver.resimulation_tolerance)
+    solved = [solve_on(scene, inst, last.robot, last.T, guess, budget, progress, mesh_pass,
+                       last.record.strategy, point)]
+    if not same and point is not None and not solved[0].solution.success \
+            and not budget.spent:
+        solved.append(solve_on(scene, inst, last.robot, last.T, guess, budget, progress,
+                               mesh_pass + 1, last.record.strategy))
     task_margin = scene.task.coupling_margin
     if held is None or task_margin is None:
-        return outcome
-    reserve = held / task_margin - 1.0
-    return replace(outcome, record=outcome.record.model_copy(update={"margin_reserve": reserve}))
+        return solved
+    update = {"margin_reserve": held / task_margin - 1.0}
+    return [replace(o, record=o.record.model_copy(update=update)) for o in solved]
+
+
+CARRY_WITHIN = 10.0
+"""A refined solve starts from the multipliers of the plan before only where that plan's
+interval errors are at most this many times the tolerance: a plan further off may sit at
+an optimum of its coarser mesh alone, which a warm start would not leave (the two-link
+example on 30 intervals, tests/test_refinement.py), while a cold start from its
+interpolant finds the refined mesh's own."""
+
+
+def _carried_start(last: Outcome, inst: Instance, guess: Guess,
+                   tolerance: float) -> Point | None:
+    """The start of a solve on a refinement of `last`'s mesh: `last`'s plan interpolated,
+    with its multipliers carried over; None where its interval errors exceed CARRY_WITHIN
+    times the `tolerance` [rad], the multipliers cannot be carried, or the solver takes
+    none."""
+    if SOLVERS[inst.problem.key.solver].warm_options is None \
+            or not last.worst_error() <= CARRY_WITHIN * tolerance:
+        return None
+    x0 = initial_point(inst, guess, last.T, last.robot)
+    return carried(last.inst, last.solution, inst, x0)
 
 
 def _unproven(last: Outcome, tolerance: float) -> np.ndarray | None:

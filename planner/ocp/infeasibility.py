@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import replace
 
 import numpy as np
 
@@ -30,8 +29,8 @@ from planner.feasibility import Issue
 from planner.ocp.attempt import Attempt
 from planner.ocp.evidence import Infeasibility, InfeasibleField, ViolatedRows
 from planner.ocp.outcome import Outcome
-from planner.ocp.problem import stages
 from planner.ocp.result import DenseTrajectory, Plan, SolverReport, waves_of
+from planner.ocp.row_kinds import row_kinds
 from planner.ocp.shortest import Probe
 from planner.ocp.solve import INFEASIBLE
 from planner.ocp.verification import Verification
@@ -92,7 +91,7 @@ def violated(outcome: Outcome) -> list[ViolatedRows]:
         return []
     violation = np.maximum(problem.lbg - g, 0.0) + np.maximum(g - problem.ubg, 0.0)
     violation = np.nan_to_num(violation, nan=np.inf)
-    kinds, stage_rows = _row_kinds(outcome)
+    kinds, stage_rows = row_kinds(problem)
     N = outcome.inst.mesh.intervals
     out = []
     for kind in dict.fromkeys(kinds):
@@ -105,22 +104,6 @@ def violated(outcome: Outcome) -> list[ViolatedRows]:
         out.append(ViolatedRows(kind=str(kind), rows=int(rows.size),
                                 largest=float(violation[worst]), time=at))
     return sorted(out, key=lambda v: -v.largest)
-
-
-def _row_kinds(outcome: Outcome) -> tuple[np.ndarray, int]:
-    """What every row of the outcome's NLP is, and the rows of one stage."""
-    problem = outcome.inst.problem
-    parts = stages(replace(problem.key, intervals=0), problem.compiled)
-    (stage, terminal), (stage_kinds, terminal_kinds) = parts.bounds, parts.kinds
-    counts = [c for _, _, c in stage], [c for _, _, c in terminal]
-    per_stage = np.repeat(np.array(stage_kinds or ["constraint"] * len(stage), object),
-                          counts[0])
-    final = np.repeat(np.array(terminal_kinds or ["constraint"] * len(terminal), object),
-                      counts[1])
-    kinds = np.concatenate([np.tile(per_stage, problem.key.intervals), final])
-    if kinds.size != problem.lbg.size:
-        return np.full(problem.lbg.size, "constraint", object), 0
-    return kinds, int(per_stage.size)
 
 
 def durations(scene: Scene) -> list[float]:

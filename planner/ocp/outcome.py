@@ -12,6 +12,7 @@ import numpy as np
 from planner.dynamics import Dynamics
 from planner.model import Robot
 from planner.ocp.accuracy import interval_errors
+from planner.ocp.carried import Point
 from planner.ocp.codesign import solved_robot
 from planner.ocp.guess import Guess
 from planner.ocp.instance import Instance, initial_point
@@ -56,7 +57,7 @@ class Outcome:
 
 def solve_on(scene: Scene, inst: Instance, robot: Robot, T: float, guess: Guess,
              budget: Budget, progress: Handler | None, mesh_pass: int,
-             strategy: str, point: NlpSolution | Solution | None = None,
+             strategy: str, point: NlpSolution | Solution | Point | None = None,
              stall: bool = False) -> Outcome:
     """Solve on the instance's mesh from a guess (or from an earlier solution, primal and
     dual; stall: a cold solve is stopped when it stalls), and estimate the plan's interval
