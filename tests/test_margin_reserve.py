@@ -142,7 +142,7 @@ def test_a_held_margin_the_task_leaves_no_more_room_for_is_not_solved_again(monk
 
     def solve(scene, last, mesh, held, budget, progress, mesh_pass):
         solved.append((mesh.intervals, held))
-        return dipping()
+        return [dipping()]
 
     monkeypatch.setattr(attempt_module, "reserved_margin", lambda task, robot, r: 0.00502)
     monkeypatch.setattr(attempt_module, "_refined_solve", solve)
