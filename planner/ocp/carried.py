@@ -3,16 +3,15 @@ solve starts near the optimum in its dual as well as its primal values.
 
 A refined mesh cuts the intervals of the one before (`planner.ocp.mesh.Mesh.split`), and
 the rows and variables of every stage are the same quantities on either mesh. The
-multipliers of the continuity rows, the gaps between stages, approximate the costate at
-the node that ends the stage, a function of time: they are interpolated linearly over the
-coarse nodes' times. A stage's other rows (its collocation defects and path constraints)
-and the bounds of its variables carry a share of the interval's integral: the multipliers
-of a coarse interval's are scaled by the width of each fine interval inside it over its
-own. The terminal's rows and variables and the global variables are the same on both
-meshes: their multipliers are copied. In the refined solves of the hard suite's slowest
-co-design and torque-limited tasks, a warm start from these took a fraction of the
-iterations of a cold start from the interpolated plan alone (docs/planner.md,
-"Refinement").
+multipliers of the rows that read the next stage's variables (the continuity rows, and a
+defect written between an interval's two nodes) approximate the costate at the node that
+ends the stage, a function of time: they are interpolated linearly over the coarse nodes'
+times. A stage's other rows (collocation and dynamics equations at its points, path
+constraints) and the bounds of its variables carry a share of the interval's integral:
+the multipliers of a coarse interval's are scaled by the width of each fine interval
+inside it over its own. The terminal's rows and variables and the global variables are
+the same on both meshes: their multipliers are copied (docs/planner.md, "Meshes and
+refinement").
 """
 
 from __future__ import annotations
