@@ -125,10 +125,23 @@ def measures(mpa: np.ndarray) -> Measures:
     if rows == 0:
         nan = np.full(K, np.nan)
         return Measures(det=None, sigma_min=nan, least=nan, sigma_max=nan)
+    if rows == 1:  # one passive joint: the row's one singular value is its length
+        length = np.linalg.norm(mpa[:, 0, :], axis=1)
+        return Measures(det=determinants(mpa), sigma_min=length, least=length,
+                        sigma_max=length)
     sv = np.linalg.svd(mpa, compute_uv=False)  # (K, min(r, c)), descending
-    return Measures(det=np.linalg.det(mpa) if rows == cols else None,
+    return Measures(det=determinants(mpa),
                     sigma_min=sv[:, rows - 1] if rows <= cols else np.zeros(K),
                     least=sv[:, -1], sigma_max=sv[:, 0])
+
+
+def determinants(mpa: np.ndarray) -> np.ndarray | None:
+    """det (K,) of a batch of square blocks (K, r, r) [kg^r m^2r]; None for blocks that
+    are not square."""
+    K, rows, cols = mpa.shape
+    if rows != cols:
+        return None
+    return mpa[:, 0, 0].copy() if rows == 1 else np.linalg.det(mpa)
 
 
 def condition(sigma_min: np.ndarray, sigma_max: np.ndarray) -> list[float | None]:
@@ -186,7 +199,7 @@ def refine(s: Structure, p: np.ndarray, path: Path, lo: np.ndarray, hi: np.ndarr
 
     def det_at(u: np.ndarray, k: np.ndarray) -> np.ndarray:
         q = path(u.ravel(), k.ravel().astype(int))
-        det = measures(evaluate(s, q, p, deadline)).det
+        det = determinants(evaluate(s, q, p, deadline))
         if det is None:
             raise ValueError("det M_pa needs a square coupling block")
         return det.reshape(u.shape)
@@ -219,7 +232,7 @@ def zeros_along(robot: Robot, path: Callable[[np.ndarray], np.ndarray], u: np.nd
     s = structure or Structure.of(robot)
     p = parameters(robot, s)
     if det is None:
-        det = measures(evaluate(s, path(u), p, deadline)).det
+        det = determinants(evaluate(s, path(u), p, deadline))
     if det is None:
         return None
     k = np.flatnonzero(np.sign(det[:-1]) * np.sign(det[1:]) < 0.0)

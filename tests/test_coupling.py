@@ -51,7 +51,7 @@ def wavy_det(q0: float, q1: float, a: float, n: float, eps: float) -> float:
 # --------------------------------------------------------------------------- values
 
 
-@pytest.mark.parametrize("joints", ["papa", "paa", "ppa", "appap"])
+@pytest.mark.parametrize("joints", ["pa", "papa", "paa", "ppa", "appap"])
 def test_batch_measures_match_an_independent_mass_matrix(joints, rng):
     robot = chain(joints, inertia=0.01)
     Q = rng.uniform(-np.pi, np.pi, (300, robot.n))
@@ -65,7 +65,10 @@ def test_batch_measures_match_an_independent_mass_matrix(joints, rng):
     expected_min = sv[:, rows - 1] if rows <= cols else np.zeros(len(Q))
     assert np.allclose(smin, expected_min, rtol=1e-10, atol=1e-14)
     assert np.allclose(smax, sv[:, 0], rtol=1e-10)
+    assert np.allclose(m.least, sv[:, -1], rtol=1e-10, atol=1e-14)
     assert (det is None) == (rows != cols)
+    if det is not None:
+        assert np.allclose(det, np.linalg.det(reference), rtol=1e-10, atol=1e-14)
 
 
 def test_report_lists_every_configuration_with_condition(rng):
