@@ -8,7 +8,7 @@ each stated as `python -m bench suite --suite hard` states it for the default pl
 its own checkout with UNDERTOW_SOLVER_PROCESSES=1 (no companion: the plan is the same
 sequence of solves every run, so the versions' iterations compare one to one), the
 earlier version first. Per plan: verified, wall and CPU time, iterations, and every solve
-(intervals, iterations, status, largest interval error).
+(intervals, iterations, status).
 
     python -m bench refined_tails --before COMMIT [--tasks NAME:SEED,...]
 """
@@ -34,29 +34,27 @@ TASKS = ("co-design-20:20261125", "co-design-32:20261125", "bounds-31:20261125",
 TIMEOUT = 1800.0  # [s] one version's whole run
 
 _RUN = """
-import json, os, resource, sys, time
+import json, os, sys, time
 os.environ["UNDERTOW_SOLVER_PROCESSES"] = "1"
 sys.path.insert(0, os.getcwd())
+from bench.harness import cpu_time
 from bench.suite import with_uncertainty
 from planner.ocp import plan
 from planner.scene import Scene
 from testbed.suites import hard
-def cpu():
-    child = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return time.process_time() + child.ru_utime + child.ru_stime
 rows = []
 for item in json.loads(sys.argv[1]):
     name, seed = item.split(":")
     scene = hard.hard_task(hard.index_of(name), int(seed))[1]
     scene = Scene.model_validate(with_uncertainty(scene.model_dump(mode="json")))
-    started, used = time.perf_counter(), cpu()
+    started, used = time.perf_counter(), cpu_time()
     result = plan(scene)
     s = result.solver
     rows.append({"task": name, "seed": int(seed),
                  "verified": bool(s.success and result.verification.verified),
-                 "wall": time.perf_counter() - started, "cpu": cpu() - used,
+                 "wall": time.perf_counter() - started, "cpu": cpu_time() - used,
                  "iterations": s.iterations,
-                 "solves": [[p.intervals, p.iterations, p.status, p.max_local_error]
+                 "solves": [[p.intervals, p.iterations, p.status]
                             for p in result.mesh_passes]})
     print(json.dumps(rows[-1]), file=sys.stderr, flush=True)
 print("RESULT " + json.dumps({"rows": rows}))
@@ -74,8 +72,8 @@ def run(before: str, tasks: list[str]) -> list[dict]:
             for row in out["rows"]:
                 solves = row.pop("solves")
                 rows.append({**row, "version": version, "count": len(solves),
-                             "solves": " ".join(f"{n}:{it}:{status}" for n, it, status, _
-                                                in solves)})
+                             "solves": " ".join(f"{n}:{it}:{status}"
+                                                for n, it, status in solves)})
     return rows
 
 
