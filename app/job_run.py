@@ -76,7 +76,8 @@ class _Reporter:
         self.go_on, self.expired = True, False
         self.unwritten = 0
         self._latest: dict[str, Any] | None = None
-        self._lock, self._wake, self._closing = threading.Lock(), threading.Event(), False
+        self._lock, self._wake, self._closing = threading.Lock(), threading.Event(), \
+            threading.Event()
         self._writer = threading.Thread(target=self._write_loop, daemon=True,
                                         name=f"progress-{job_id}")
         self._writer.start()
@@ -94,8 +95,9 @@ class _Reporter:
     def close(self, wait: float = 2 * PROGRESS_INTERVAL) -> None:
         """Write the last progress if the store takes it within `wait` seconds [s], and
         stop the writer (a write still blocked on the store is left to finish by itself:
-        the verdict does not wait for it)."""
-        self._closing = True
+        the verdict does not wait for it). A writer pausing between two writes is woken
+        at once: the verdict does not wait for the pause either."""
+        self._closing.set()
         self._wake.set()
         self._writer.join(wait)
         if self.unwritten:
@@ -107,15 +109,15 @@ class _Reporter:
         while True:
             self._wake.wait()
             pause = PROGRESS_INTERVAL - (time.monotonic() - last)
-            if pause > 0 and not self._closing:
-                time.sleep(pause)
+            if pause > 0:
+                self._closing.wait(pause)
             self._wake.clear()
             with self._lock:
                 latest, self._latest = self._latest, None
             if latest is not None:
                 last = time.monotonic()
                 self._write(latest)
-            if self._closing:
+            if self._closing.is_set():
                 return
 
     def _write(self, latest: dict[str, Any]) -> None:

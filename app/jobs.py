@@ -122,8 +122,8 @@ class JobRunner:
             self._waiters.setdefault(job_id, []).append(entry)
         try:
             while time.monotonic() < deadline:
-                record = await to_thread.run_sync(self.store.get, job_id)
-                if record is None or record.status in FINAL:
+                status = await to_thread.run_sync(self.store.status, job_id)
+                if status is None or status in FINAL:
                     return
                 with contextlib.suppress(TimeoutError):
                     await asyncio.wait_for(ended.wait(), min(

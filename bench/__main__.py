@@ -53,6 +53,8 @@ BENCHES = {
                                              "guesses on the underactuated scenes"),
     "ipopt_settings": ("bench.ipopt_settings", "MUMPS ordering and scaling and the barrier "
                                                "update: cost per iteration and where Ipopt ends"),
+    "job_latency": ("bench.job_latency", "plan jobs through the service, submit to answer: "
+                                         "what the service adds to the plan, now and before"),
     "limits": ("bench.limits", "torque limits held at the torque variables only against on "
                                "whole intervals, on time-optimal tasks"),
     "passive_margin": ("bench.passive_margin", "the two-link example with its end state and "

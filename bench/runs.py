@@ -34,6 +34,7 @@ RESULTS: dict[str, tuple[str, ...]] = {
     "fuzz": ("bench/results/fuzz.csv",),
     "initial_guess": ("bench/results/initial_guess.csv",),
     "ipopt_settings": ("bench/results/ipopt_settings.csv", "bench/results/ipopt_inertia.csv"),
+    "job_latency": ("bench/results/job_latency.csv",),
     "limits": ("bench/results/limits.csv",),
     "passive_margin": ("bench/results/passive_margin.csv",),
     "peer_opty": ("bench/results/peer_opty.csv",),

@@ -55,6 +55,7 @@ SMALL: dict[str, Small] = {
     "ipopt_settings": Small((("--repeats", "1", "--scenes", "arm-2:10"),
                              ("--inertia", "--tasks", "free-time-41", "--cap", "20",
                               "--variants", "Ipopt's own,idle 1/2 x4 1e-8"))),
+    "job_latency": Small((("--before", "HEAD", "--count", "1", "--repeats", "1"),)),
     "limits": Small((("--methods", "trapezoidal"),)),
     "passive_margin": Small((("--finals", "0:1.75", "--durations", "2"),)),
     "peer_opty": Small((("--scenes", "arm-2", "--nodes", "20", "--methods", "midpoint"),),

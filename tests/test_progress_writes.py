@@ -7,6 +7,9 @@ from __future__ import annotations
 import threading
 import time
 
+import pytest
+
+from app import job_run
 from app.job_run import _Reporter
 from app.store import StoreUnavailable
 from planner.service import Progress
@@ -65,3 +68,21 @@ def test_a_cancel_read_back_stops_the_solve_at_a_later_iteration():
         time.sleep(0.02)
     reporter.close()
     assert answers[0] is True and answers[-1] is False
+
+
+def test_closing_wakes_a_writer_that_waits_between_writes(monkeypatch: pytest.MonkeyPatch):
+    """The verdict follows the solve at once: closing does not wait out the pause between
+    two progress writes (an hour here), and the latest progress is still written."""
+    monkeypatch.setattr(job_run, "PROGRESS_INTERVAL", 3600.0)
+    store = AwayStore()
+    store.back.set()
+    reporter = _Reporter(store, "job", time.monotonic() + 3600, "worker")
+    reporter(_progress(0))
+    wait_until_written = time.monotonic() + 30
+    while not store.written and time.monotonic() < wait_until_written:
+        time.sleep(0.01)
+    reporter(_progress(1))  # the writer now pauses before writing it
+    time.sleep(0.2)  # (to be in that pause when it closes; it passes either way)
+    reporter.close(wait=30)
+    assert not reporter._writer.is_alive()
+    assert [p["iteration"] for p in store.written] == [0, 1]

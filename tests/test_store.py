@@ -103,6 +103,16 @@ def test_transitions_are_conditional_on_the_status(store):
     assert store.get("a").error == "boom"
 
 
+def test_a_status_is_read_as_the_job_says_it(store):
+    assert store.status("missing") is None
+    store.create("s", SCENE, "host")
+    assert store.status("s") == store.get("s").status == "queued"
+    claim(store)
+    assert store.status("s") == "running"
+    store.finish("s", "succeeded", {"verification": {"verified": True}}, None)
+    assert store.status("s") == store.get("s").status == "succeeded"
+
+
 def test_cancel_queued_is_immediate_and_running_is_flagged(store):
     store.create("q", SCENE, "host")
     assert store.request_cancel("q").status == "cancelled"

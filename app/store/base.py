@@ -209,6 +209,11 @@ class JobStore(ABC):
         """The job, or None when there is no such id."""
 
     @abstractmethod
+    def status(self, job_id: str) -> JobStatus | None:
+        """The job's status alone (its plan is not read), or None when there is no such
+        id."""
+
+    @abstractmethod
     def list(self, status: JobStatus | None = None, limit: int = 50,
              offset: int = 0, dead_letter: bool | None = None,
              summaries: bool = False) -> list[JobRecord]:

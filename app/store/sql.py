@@ -97,6 +97,10 @@ class SqlJobStore(JobStore):
         rows = self._rows(f"SELECT {COLUMNS} FROM jobs WHERE id = ?", (job_id,))
         return self._record(rows[0]) if rows else None
 
+    def status(self, job_id: str) -> JobStatus | None:
+        rows = self._rows("SELECT status FROM jobs WHERE id = ?", (job_id,))
+        return rows[0][0] if rows else None
+
     def list(self, status: JobStatus | None = None, limit: int = 50,
              offset: int = 0, dead_letter: bool | None = None,
              summaries: bool = False) -> builtins.list[JobRecord]:

@@ -5,7 +5,7 @@ are atomic without explicit transactions; the busy timeout makes concurrent writ
 instead of failing.
 
 A plan and its NLP solution, the bulk of a job (about 0.55 MB of JSON for a plan of the
-seed's 4-link arm), are stored as their JSON compressed by zlib, 2.4 times smaller; the
+seed's 4-link arm), are stored as their JSON compressed by zlib (`PACK_LEVEL`); the
 plans of earlier versions, stored as JSON text, are read as they are. A plan's verdict
 and objective, which a batch's summary reads, have columns of their own.
 
@@ -56,8 +56,10 @@ from app.store.sqlite_locks import NameLock
 log = logging.getLogger("undertow.store")
 
 _MEMBER_COLUMNS = "id, member, status, error, verified, objective, started, finished"
-PACK_LEVEL = 6
-"""zlib's level for plans and NLP solutions, its default (9 saves under 0.2 % more)."""
+PACK_LEVEL = 1
+"""zlib's level for plans and NLP solutions: its fastest, since every job's verdict waits
+for it; zlib's default, 6, keeps a plan a few per cent smaller (docs/bench-service.md,
+"Plan jobs through the service: submit to answer")."""
 
 
 def _loads(value: str | bytes | None) -> Any:
