@@ -20,7 +20,6 @@ writes them, so the machines of one deployment keep their clocks synchronised (N
 from __future__ import annotations
 
 import builtins
-import json
 import os
 import re
 import threading
@@ -32,9 +31,10 @@ from functools import partial
 from typing import Any
 
 import psycopg
-from psycopg.types.json import Jsonb
+from psycopg.types.json import Jsonb, set_json_loads
 from psycopg_pool import ConnectionPool, PoolTimeout
 
+from app.store import json_text
 from app.store.base import (
     CANCELLED_ON_REQUEST,
     BatchRecord,
@@ -59,13 +59,15 @@ _NAMED = re.compile(r"(?<![:\w]):([a-z_]+)")
 """A named parameter of the shared statements (`:name`, never a `::type` cast)."""
 
 
+def _reads_json_text(conn: psycopg.Connection) -> None:
+    """A pooled connection decodes json and jsonb columns by `app.store.json_text`."""
+    set_json_loads(json_text.loads, conn)
+
+
 def _jsonb(value: Any) -> Jsonb | None:
-    """A JSON parameter (no NaN or Inf: PostgreSQL's jsonb refuses them too)."""
-    return None if value is None else Jsonb(value, dumps=_dumps)
-
-
-def _dumps(value: Any) -> str:
-    return json.dumps(value, allow_nan=False, separators=(",", ":"))
+    """A JSON parameter (`app.store.json_text`: no NaN or Inf, which PostgreSQL's jsonb
+    refuses)."""
+    return None if value is None else Jsonb(value, dumps=json_text.dumps)
 
 
 def _job(row: tuple) -> JobRecord:
@@ -184,7 +186,8 @@ class PostgresSql(SqlJobStore):
                 self._pool = Pool(
                     self.url, min_size=1, max_size=self.pool_size, timeout=self.timeout,
                     kwargs={"autocommit": True, "connect_timeout": max(1, int(self.timeout))},
-                    check=ConnectionPool.check_connection, open=True, name="undertow-jobs")
+                    check=ConnectionPool.check_connection, configure=_reads_json_text,
+                    open=True, name="undertow-jobs")
                 self._pid = os.getpid()
             return self._pool
 

@@ -12,12 +12,12 @@ with each store; the migrations of both are one list (`app.store.migrations`).
 from __future__ import annotations
 
 import builtins
-import json
 import math
 import time
 from abc import abstractmethod
 from typing import Any
 
+from app.store import json_text
 from app.store.base import (
     BUILDING,
     CANCELLED_ON_REQUEST,
@@ -327,4 +327,4 @@ def history(value: Any) -> builtins.list[dict[str, Any]] | None:
     """A history column's value (JSON text or already decoded) as a list."""
     if value is None:
         return None
-    return json.loads(value) if isinstance(value, str) else value
+    return json_text.loads(value) if isinstance(value, str) else value

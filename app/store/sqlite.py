@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import builtins
 import contextlib
-import json
 import logging
 import os
 import sqlite3
@@ -37,6 +36,7 @@ import zlib
 from collections.abc import Sequence
 from typing import Any
 
+from app.store import json_text
 from app.store.base import (
     CANCELLED_ON_REQUEST,
     BatchRecord,
@@ -67,13 +67,12 @@ def _loads(value: str | bytes | None) -> Any:
     NLP solutions since schema version 9; those of earlier versions are text)."""
     if value is None:
         return None
-    return json.loads(zlib.decompress(value) if isinstance(value, bytes) else value)
+    return json_text.loads(zlib.decompress(value) if isinstance(value, bytes) else value)
 
 
 def _pack(value: Any) -> bytes | None:
     """A plan or NLP solution as the store keeps it: its JSON compressed by zlib."""
-    text = _dumps(value)
-    return None if text is None else zlib.compress(text.encode(), PACK_LEVEL)
+    return None if value is None else zlib.compress(json_text.dumps(value), PACK_LEVEL)
 
 
 def _job(row: tuple) -> JobRecord:
@@ -95,7 +94,7 @@ def _member(row: tuple) -> MemberRecord:
 
 
 def _dumps(value: Any) -> str | None:
-    return None if value is None else json.dumps(value, allow_nan=False, separators=(",", ":"))
+    return None if value is None else json_text.dumps(value).decode()
 
 
 class SqliteJobStore(SqlJobStore):
