@@ -106,19 +106,25 @@ class _Reporter:
 
     def _write_loop(self) -> None:
         last = -math.inf
-        while True:
+        while not self._closing.is_set():
             self._wake.wait()
             pause = PROGRESS_INTERVAL - (time.monotonic() - last)
             if pause > 0:
                 self._closing.wait(pause)
             self._wake.clear()
-            with self._lock:
-                latest, self._latest = self._latest, None
-            if latest is not None:
-                last = time.monotonic()
-                self._write(latest)
-            if self._closing.is_set():
-                return
+            last = self._write_latest(last)
+        self._write_latest(last)  # progress that came during the last write, once
+
+    def _write_latest(self, last: float) -> float:
+        """Write the latest progress, if any came since the last write; when this write
+        began (`last` without one)."""
+        with self._lock:
+            latest, self._latest = self._latest, None
+        if latest is None:
+            return last
+        began = time.monotonic()
+        self._write(latest)
+        return began
 
     def _write(self, latest: dict[str, Any]) -> None:
         """Write one progress and read the cancel flag; refused, keep it for the next

@@ -86,3 +86,30 @@ def test_closing_wakes_a_writer_that_waits_between_writes(monkeypatch: pytest.Mo
     reporter.close(wait=30)
     assert not reporter._writer.is_alive()
     assert [p["iteration"] for p in store.written] == [0, 1]
+
+
+def test_progress_that_comes_during_the_last_write_is_written_when_closing():
+    class Slow(AwayStore):
+        """A store whose first write waits until `release`."""
+
+        def __init__(self) -> None:
+            super().__init__()
+            self.entered, self.release = threading.Event(), threading.Event()
+
+        def report_progress(self, job_id, progress, worker=None) -> bool:
+            self.entered.set()
+            assert self.release.wait(30)
+            self.written.append(progress)
+            return True
+
+    store = Slow()
+    reporter = _Reporter(store, "job", time.monotonic() + 3600, "worker")
+    reporter(_progress(0))
+    assert store.entered.wait(30)  # the writer is writing 0
+    reporter(_progress(1))
+    closing = threading.Thread(target=reporter.close, kwargs={"wait": 30})
+    closing.start()
+    assert reporter._closing.wait(30)
+    store.release.set()
+    closing.join(60)
+    assert [p["iteration"] for p in store.written] == [0, 1]
