@@ -5,9 +5,10 @@ service then serves in-process (FastAPI's TestClient). Timed, median of `--repea
 
 - the whole GET of `/v1/plans/{id}`, from sending the request to the decoded body, and a
   GET of `/healthz` beside it (what any request costs);
-- its parts: reading the job from the store (the row and `json.loads` of the plan), the
-  validation of the stored plan into the response model (`Job.of`), the serialisation of
-  that model to JSON, and the client's decoding of the body.
+- its parts: reading the job from the store (the row, and the decompression and decoding
+  of the plan's JSON, `app.store.json_text`), the validation of the stored plan into the
+  response model (`Job.of`), the serialisation of that model to JSON, and the client's
+  decoding of the body.
 
     python -m bench plan_response [--repeats 50]
 """
