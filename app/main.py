@@ -22,7 +22,7 @@ from fastapi import Depends, FastAPI, Request
 from fastapi.responses import JSONResponse
 from fastapi_offline import FastAPIOffline
 
-from app import errors, viewer
+from app import errors, startup_objects, viewer
 from app.auth import ApiKeyMiddleware
 from app.body_limit import BodyLimitMiddleware
 from app.deps import require_api_key
@@ -75,6 +75,7 @@ def create_app(settings: Settings | None = None, solve: SolveFunction | None = N
         app.state.sync_memory = MemoryBudget(settings.sync_memory_mb)
         app.state.metrics.watch_memory(app.state.sync_memory)
         sweeper = asyncio.create_task(_sweep_sessions(app.state.sessions))
+        startup_objects.freeze()
         try:
             yield
         finally:

@@ -31,6 +31,7 @@ import time
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
 
+from app import startup_objects
 from app.admission import MESSAGE_VERSION, message_version, stored
 from app.idle_wait import IdleWait
 from app.job_run import SolveFunction, fail, run_job, running
@@ -130,6 +131,7 @@ def serve(spec: WorkerSpec, channel: Connection) -> None:
     if spec.memory_mb is not None:
         limit_growth(spec.memory_mb)
     idle = IdleWait(spec.store, channel)
+    startup_objects.freeze()
     channel.send(READY)
     wait_for, retired = 0.0, False
     give_back: str | None = None  # why this worker's claims are to be given back

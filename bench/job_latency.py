@@ -1,10 +1,10 @@
 """Plan jobs through the service, submit to answer: where the time goes beside the plan.
 
-Two servers on 127.0.0.1, one of this checkout and one of an earlier commit (`--before`),
+Servers on 127.0.0.1, one of this checkout and one of each earlier commit (`--before`),
 each with one solver worker and a SQLite store of its own, run side by side (an idle one
 costs nothing). Each plans the first `--count` tasks of the default suite once (its worker
 builds their NLPs), then each task is submitted `--repeats` times to each server in
-turn, one plan at a time (the order of the two servers alternating), as `POST
+turn, one plan at a time (the order of the servers alternating), as `POST
 /v1/plans?wait=30`: the answer carries the plan. Per job, from the job's own times (one
 machine's clock) and the plan's report:
 
@@ -19,7 +19,7 @@ machine's clock) and the plan's report:
 - whole: the request's start to its answer; its share beside the plan;
 - and the sizes: the answer, a plan and an NLP solution as each store keeps them.
 
-    python -m bench job_latency --before COMMIT [--count 16] [--repeats 3]
+    python -m bench job_latency --before COMMIT[,COMMIT...] [--count 16] [--repeats 3]
 """
 
 from __future__ import annotations
@@ -38,6 +38,7 @@ from datetime import datetime
 from pathlib import Path
 
 import httpx
+import numpy as np
 
 from bench import harness
 from testbed.service import free_port
@@ -109,15 +110,17 @@ def submit(http: httpx.Client, body: dict) -> dict:
             "bytes": len(answer.content)}
 
 
-def run(before: str, count: int, repeats: int) -> list[dict]:
-    """Every measured job of both versions, as rows."""
+def run(befores: list[str], count: int, repeats: int) -> list[dict]:
+    """Every measured job of this checkout ("now") and of each earlier commit, as rows."""
     chosen = [(name, scene.model_dump(mode="json")) for name, scene in tasks(count, SEED)]
     rows = []
-    with harness.checkout(before) as old, tempfile.TemporaryDirectory() as a, \
-            tempfile.TemporaryDirectory() as b, \
-            server(harness.ROOT, Path(a)) as now_url, server(old, Path(b)) as old_url:
-        clients = {"now": httpx.Client(base_url=now_url, timeout=120),
-                   before: httpx.Client(base_url=old_url, timeout=120)}
+    with contextlib.ExitStack() as stack:
+        roots = {"now": harness.ROOT, **{c: stack.enter_context(harness.checkout(c))
+                                         for c in befores}}
+        folders = {v: Path(stack.enter_context(tempfile.TemporaryDirectory())) for v in roots}
+        clients = {v: stack.enter_context(httpx.Client(
+            base_url=stack.enter_context(server(root, folders[v])), timeout=120))
+            for v, root in roots.items()}
         for http in clients.values():  # the workers build the tasks' NLPs
             for _, body in chosen:
                 submit(http, body)
@@ -128,9 +131,7 @@ def run(before: str, count: int, repeats: int) -> list[dict]:
                     rows.append({"version": version, "task": name, "repeat": r,
                                  **submit(clients[version], body)})
                     print(rows[-1], flush=True)
-        for http in clients.values():
-            http.close()
-        sizes = {"now": stored(Path(a)), before: stored(Path(b))}
+        sizes = {v: stored(folder) for v, folder in folders.items()}
     return [{**row, **sizes[row["version"]]} for row in rows]
 
 
@@ -151,6 +152,8 @@ def summary(rows: list[dict], version: str) -> dict:
            "verified": sum(r["verified"] for r in mine)}
     for key, _ in STAGES:
         out[key] = statistics.median(r[key] for r in mine)
+    for key in ("whole", "beside"):
+        out[f"{key}_p90"] = float(np.percentile([r[key] for r in mine], 90))
     out["share"] = statistics.median(100 * r["beside"] / r["whole"] for r in mine)
     out["kb"] = statistics.median(r["bytes"] for r in mine) / 1e3
     out["stored_plan_kb"] = mine[0]["stored_plan_kb"]
@@ -160,21 +163,25 @@ def summary(rows: list[dict], version: str) -> dict:
 
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench job_latency", description=__doc__)
-    parser.add_argument("--before", required=True, help="the earlier commit")
+    parser.add_argument("--before", required=True,
+                        help="the earlier commits, comma-separated")
     parser.add_argument("--count", type=int, default=16)
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args(argv)
     started, note = time.perf_counter(), harness.machine_note()
-    rows = run(args.before, args.count, args.repeats)
-    table = [summary(rows, v) for v in ("now", args.before)]
+    befores = args.before.split(",")
+    rows = run(befores, args.count, args.repeats)
+    table = [summary(rows, v) for v in ("now", *befores)]
     columns = [("version", "version"), ("jobs", "jobs"), ("verified", "verified"),
-               *STAGES, ("share", "median share beside the plan [%]"),
+               *STAGES, ("whole_p90", "whole, 90th percentile [ms]"),
+               ("beside_p90", "beside the plan, 90th percentile [ms]"),
+               ("share", "median share beside the plan [%]"),
                ("kb", "answer [kB]"), ("stored_plan_kb", "plan as stored [kB]"),
                ("stored_solution_kb", "NLP solution as stored [kB]")]
     text = "\n\n".join([
         f"The first {args.count} tasks of the default suite, each submitted {args.repeats} "
-        "times to a server of this checkout (now) and one of the earlier commit "
-        f"({args.before}) in turn, one plan at a time, as `POST /v1/plans?wait=30` on "
+        "times to a server of this checkout (now) and one of each earlier commit "
+        f"({', '.join(befores)}) in turn, one plan at a time, as `POST /v1/plans?wait=30` on "
         "127.0.0.1; each server has one solver worker and a SQLite store of its own, its "
         "NLPs built by a first pass over the tasks. Medians over the jobs, from each job's "
         "`created`, `started` and `finished` and its plan's `solver.total_time`: submit, "
@@ -182,8 +189,9 @@ def main(argv: list[str]) -> int:
         "worker beside the plan (the progress writer's end, the verdict, the plan's JSON "
         "and its compression, the store write); the answer, the job's end to the "
         "response's last byte; whole, the request to its answer, and what of it is beside "
-        "the plan. The sizes: the answer's JSON, and the median plan and NLP solution as "
-        "each store keeps them (zlib-compressed JSON).",
+        "the plan (with their 90th percentiles over the jobs). The sizes: the answer's "
+        "JSON, and the median plan and NLP solution as each store keeps them "
+        "(zlib-compressed JSON).",
         harness.table(table, columns),
         f"Rows: `bench/results/job_latency.csv`. "
         f"{harness.manifest('job_latency', argv, started, note)}"])

@@ -172,7 +172,8 @@ SERVICE = frozenset({
     "test_openapi_client.py", "test_plan_budget.py", "test_plots.py", "test_queue_engine.py",
     "test_readme.py", "test_rolling_upgrade.py",
     "test_sampling.py", "test_scene_validation.py", "test_schemathesis.py", "test_server.py",
-    "test_service_interface.py", "test_store.py", "test_store_drills.py",
+    "test_service_interface.py", "test_startup_objects.py", "test_store.py",
+    "test_store_drills.py",
     "test_store_integrity.py", "test_store_waits.py", "test_stop_status.py", "test_stress.py",
     "test_sync_deadlines.py", "test_viewer.py"})
 """Files that exercise the service (app/): its app in-process, live servers and worker
