@@ -1,12 +1,12 @@
 """Plan jobs through the service, submit to answer: where the time goes beside the plan.
 
-Servers on 127.0.0.1, one of this checkout and one of each earlier commit (`--before`),
-each with one solver worker and a SQLite store of its own, run side by side (an idle one
-costs nothing). Each plans the first `--count` tasks of the default suite once (its worker
-builds their NLPs), then each task is submitted `--repeats` times to each server in
-turn, one plan at a time (the order of the servers alternating), as `POST
-/v1/plans?wait=30`: the answer carries the plan. Per job, from the job's own times (one
-machine's clock) and the plan's report:
+Live servers on 127.0.0.1 (`testbed.service.LiveServer`), one of this checkout and one of
+each earlier commit (`--before`), each with one solver worker and a SQLite store of its
+own, run side by side (an idle one costs nothing). Each plans the first `--count` tasks of
+the default suite once (its worker builds their NLPs), then each task is submitted
+`--repeats` times to each server in turn, one plan at a time (the order of the servers
+alternating), as `POST /v1/plans?wait=30`: the answer carries the plan. Per job, from
+the job's own times (one machine's clock) and the plan's report:
 
 - submit: the request's start to the job's `created` (admission and the insert);
 - pickup: `created` to `started` (the worker's claim);
@@ -26,14 +26,10 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import os
-import signal
 import sqlite3
 import statistics
-import subprocess
 import tempfile
 import time
-from collections.abc import Iterator
 from datetime import datetime
 from pathlib import Path
 
@@ -41,7 +37,7 @@ import httpx
 import numpy as np
 
 from bench import harness
-from testbed.service import free_port
+from testbed.service import LiveServer
 from testbed.suites.ordinary import SEED, tasks
 
 DOC = harness.DOCS / "bench-service.md"
@@ -50,41 +46,6 @@ CSV = harness.RESULTS / "job_latency.csv"
 STAGES = [("submit", "submit [ms]"), ("pickup", "pickup [ms]"), ("plan", "plan [ms]"),
           ("worker", "worker beside the plan [ms]"), ("answer", "answer [ms]"),
           ("whole", "whole [ms]"), ("beside", "beside the plan [ms]")]
-
-
-@contextlib.contextmanager
-def server(root: Path, folder: Path) -> Iterator[str]:
-    """uvicorn serving the checkout at `root` with one solver worker and a store in
-    `folder`, as `make serve` starts it; its URL."""
-    port = free_port()
-    env = {**os.environ, "UNDERTOW_DB_PATH": str(folder / "jobs.sqlite3"),
-           "UNDERTOW_INSTANCE": f"bench-{port}", "UNDERTOW_WORKERS": "1",
-           "UNDERTOW_LOG_LEVEL": "WARNING"}
-    command = [harness.PYTHON, "-m", "uvicorn", "app.main:app", "--host", "127.0.0.1",
-               "--port", str(port), "--no-access-log"]
-    if (root / "app" / "server.py").exists():
-        command += ["--http", "app.server:HeadTimeoutProtocol"]
-    with open(folder / "server.log", "ab") as log:
-        proc = subprocess.Popen(command, cwd=root, env=env, stdout=log,
-                                stderr=subprocess.STDOUT, start_new_session=True)
-    url = f"http://127.0.0.1:{port}"
-    try:
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline:
-            with contextlib.suppress(httpx.HTTPError):
-                if httpx.get(url + "/healthz", timeout=1).status_code == 200:
-                    break
-            if proc.poll() is not None:
-                raise RuntimeError(f"{root}: the server exited")
-            time.sleep(0.2)
-        yield url
-    finally:
-        with contextlib.suppress(ProcessLookupError):
-            os.killpg(proc.pid, signal.SIGTERM)
-        try:
-            proc.wait(30)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
 
 
 def _seconds(stamp: str) -> float:
@@ -118,9 +79,11 @@ def run(befores: list[str], count: int, repeats: int) -> list[dict]:
         roots = {"now": harness.ROOT, **{c: stack.enter_context(harness.checkout(c))
                                          for c in befores}}
         folders = {v: Path(stack.enter_context(tempfile.TemporaryDirectory())) for v in roots}
-        clients = {v: stack.enter_context(httpx.Client(
-            base_url=stack.enter_context(server(root, folders[v])), timeout=120))
-            for v, root in roots.items()}
+        servers = {v: stack.enter_context(LiveServer(folders[v] / "jobs.sqlite3", root=root,
+                                                     UNDERTOW_WORKERS="1"))
+                   for v, root in roots.items()}
+        clients = {v: stack.enter_context(httpx.Client(base_url=live.url, timeout=120))
+                   for v, live in servers.items()}
         for http in clients.values():  # the workers build the tasks' NLPs
             for _, body in chosen:
                 submit(http, body)

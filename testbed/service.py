@@ -29,10 +29,12 @@ def free_port() -> int:
 
 
 class LiveServer:
-    """uvicorn serving app.main:app on 127.0.0.1 in a subprocess, with its own store."""
+    """uvicorn serving app.main:app on 127.0.0.1 in a subprocess, with its own store; the
+    app of the checkout at `root` (this one by default)."""
 
-    def __init__(self, db_path: Path, port: int | None = None, **env: str):
-        self.db_path, self.port = db_path, port or free_port()
+    def __init__(self, db_path: Path, port: int | None = None, *, root: Path | str = ROOT,
+                 **env: str):
+        self.db_path, self.port, self.root = db_path, port or free_port(), Path(root)
         self.env = {**os.environ, "UNDERTOW_DB_PATH": str(db_path),
                     "UNDERTOW_INSTANCE": "e2e", "UNDERTOW_LOG_LEVEL": "WARNING", **env}
         self.proc: subprocess.Popen | None = None
@@ -48,7 +50,7 @@ class LiveServer:
             self.proc = subprocess.Popen(
                 [sys.executable, "-m", "uvicorn", "app.main:app", "--host", "127.0.0.1",
                  "--port", str(self.port), "--no-access-log", "--http", PROTOCOL],
-                cwd=ROOT, env=self.env, stdout=log, stderr=subprocess.STDOUT,
+                cwd=self.root, env=self.env, stdout=log, stderr=subprocess.STDOUT,
                 start_new_session=True)
         return self.proc
 
