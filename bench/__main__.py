@@ -15,6 +15,9 @@ import sys
 from bench import harness
 
 BENCHES = {
+    "blas_threads": ("bench.blas_threads", "two solver processes at once on the hard suite, "
+                                           "the solver's OpenBLAS on one thread or on its "
+                                           "own count"),
     "build": ("bench.build", "building an NLP against the number of links, now and at an "
                              "earlier commit"),
     "cluster_ops": ("bench.cluster_ops", "a PostgreSQL cluster through a 60 s database outage, "

@@ -17,6 +17,7 @@ from bench.harness import ROOT
 
 RESULTS: dict[str, tuple[str, ...]] = {
     "build": ("bench/results/build.csv",),
+    "blas_threads": ("bench/results/blas_threads.csv",),
     "capacity": ("bench/results/capacity.csv",),
     "closed_loop": ("bench/results/closed_loop.csv", "docs/img/closed_loop.png"),
     "cluster_ops": ("bench/results/cluster_ops.csv",),

@@ -34,6 +34,7 @@ class Small:
 
 
 SMALL: dict[str, Small] = {
+    "blas_threads": Small((("--count", "2", "--rounds", "2"),)),
     "build": Small((("--links", "2"),)),
     "closed_loop": Small((("--scenes", "two-link-plan", "--N", "20", "--updates", "5"),)),
     "capacity": Small((("--points", "1"),)),

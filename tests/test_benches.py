@@ -26,8 +26,8 @@ from bench.harness import ROOT
 
 SLOW_AFTER = 20.0
 """[s] A small mode that takes longer on this 2-core machine is `slow`."""
-SLOW = frozenset({"cluster_ops", "container", "faults", "iteration_cost", "job_latency",
-                  "peer_opty", "pickup",
+SLOW = frozenset({"blas_threads", "cluster_ops", "container", "faults", "iteration_cost",
+                  "job_latency", "peer_opty", "pickup",
                   "planner_internals", "refined_tails", "reliability", "replan", "scale_out",
                   "seed_iterations", "stress", "suite", "test_times"})
 """The benchmarks whose small mode takes over SLOW_AFTER (bench/smoke.py says what they
