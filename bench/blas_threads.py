@@ -1,16 +1,17 @@
-"""Two solver processes at once, with the solver's OpenBLAS on one thread or on its own
-thread count: what `planner.blas_threads` changes where every core holds a solve.
+"""Two solver processes at once, with the solver's OpenBLAS on its own thread count or on
+one thread: does MUMPS' BLAS, a thread per core by default, slow the solves down where
+every core already holds one?
 
 The first `--count` tasks of the hard suite (`testbed.suites.hard`, `--seed`), stated as
 `python -m bench suite --suite hard` states them (with its uncertainty), split between two
 processes that plan their halves at the same time (tasks alternating), as two solver
 workers of the service do on a 2-core machine: each plan alone
 (UNDERTOW_SOLVER_PROCESSES=1, no companion), with core tokens of their own. Two
-configurations in rounds, the order alternating (one, own, own, one, ...) so that neither
-always runs first: "one thread", the planner's, and "own", OPENBLAS_NUM_THREADS set to the
-machine's cores (OpenBLAS' own default). The compiled kernels are built before the first
-round. Per task and round: wall and CPU time of the plan (the NLP's build in its first
-plan included, alike in both), iterations, verified, the threads OpenBLAS ran; per
+configurations in rounds, the order alternating (own, one, one, own, ...) so that neither
+always runs first: "own", the planner's (OpenBLAS' own count: a thread per core), and "one
+thread" (OPENBLAS_NUM_THREADS=1). The compiled kernels are built before the first round.
+Per task and round: wall and CPU time of the plan (the NLP's build in its first plan
+included, alike in both), iterations, verified, the threads OpenBLAS ran; per
 configuration: verified plans, the median and 90th percentile over the tasks of each
 task's median time, and the median round's makespan (the later of its two processes).
 
@@ -35,8 +36,8 @@ from testbed.suites import hard
 DOC = harness.DOCS / "benchmarks.md"
 SECTION = "Two solver processes at once: the solver's BLAS threads"
 CSV = harness.RESULTS / "blas_threads.csv"
-CONFIGS = {"one thread": "the planner's: OpenBLAS on one thread (`planner.blas_threads`)",
-           "own": "OPENBLAS_NUM_THREADS = the machine's cores, OpenBLAS' own default"}
+CONFIGS = {"own": "the planner's: OpenBLAS' own count, a thread per core",
+           "one thread": "OPENBLAS_NUM_THREADS=1"}
 PROCESSES = 2
 
 _RUN = """
@@ -45,15 +46,19 @@ config, seed, indices = json.loads(sys.argv[1])
 os.environ["UNDERTOW_SOLVER_PROCESSES"] = "1"
 os.environ["UNDERTOW_CORE_DIR"] = tempfile.mkdtemp(prefix="undertow-cores-")
 os.environ.pop("OPENBLAS_NUM_THREADS", None)
-if config == "own":
-    os.environ["OPENBLAS_NUM_THREADS"] = str(os.cpu_count() or 1)
+if config == "one thread":  # read by OpenBLAS when the first solver loads it
+    os.environ["OPENBLAS_NUM_THREADS"] = "1"
 sys.path.insert(0, {root!r})
+import ctypes, pathlib
+import casadi
 from bench import harness
 from bench.suite import with_uncertainty
-from planner import blas_threads
 from planner.ocp import plan
 from planner.scene import Scene
 from testbed.suites import hard
+def threads():
+    lib = pathlib.Path(casadi.__file__).resolve().parent / "libcasadi-tp-openblas.so.0"
+    return ctypes.CDLL(str(lib)).openblas_get_num_threads() if lib.exists() else None
 rows = []
 for index in indices:
     name, scene = hard.hard_task(index, seed)
@@ -64,13 +69,13 @@ for index in indices:
     rows.append({{"task": name, "wall": wall, "cpu": cpu,
                   "iterations": result.solver.iterations,
                   "verified": bool(result.solver.success and result.verification.verified),
-                  "threads": blas_threads.threads()}})
+                  "threads": threads()}})
 print("RESULT " + json.dumps({{"rows": rows}}))
 """
 
 
 def order(rounds: int) -> list[str]:
-    """The configuration of each round: one, own, own, one, one, own, ..."""
+    """The configuration of each round: own, one, one, own, own, one, ..."""
     pair = list(CONFIGS)
     return [pair[(r + r // 2) % 2] for r in range(rounds)]
 
@@ -141,7 +146,7 @@ def main(argv: list[str]) -> int:
         "configuration's rounds (the NLP's build in a process's first plan of a structure "
         "included, alike in both); the makespan is a round's wall time, the later of its two "
         "processes; CPU counts each plan's process. `python -m bench suite --suite hard "
-        "--configs 'undertow,BLAS threads'` compares the same two where a plan has the "
+        "--configs 'undertow,one BLAS thread'` compares the same two where a plan has the "
         "machine to itself and its companion.",
         harness.table(table, [("config", "configuration"), ("what", "setting"),
                               ("threads", "OpenBLAS threads"), ("rounds", "rounds"),

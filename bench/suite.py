@@ -66,7 +66,6 @@ from pydantic import ValidationError
 from bench import harness
 from bench.examples import BEFORE
 from bench.scenes import fixed_duration
-from planner import blas_threads
 from planner.ocp.solvers.ipopt import INERTIA_OPTIONS
 from planner.scene import DurationRange, Scene
 from testbed.suites import hard as hard_suite
@@ -79,8 +78,8 @@ CONFIGS = {
     "fatrop": "solver.name fatrop",
     "idle variable": "an idle NLP variable, perturb_dec_fact 1/2, perturb_inc_fact 4, "
                      "first_hessian_perturbation 1e-8",
-    "BLAS threads": "the solver's OpenBLAS on a thread per core, its own default "
-                    "(the planner's: one, `planner.blas_threads`)",
+    "one BLAS thread": "OPENBLAS_NUM_THREADS 1: the solver's OpenBLAS on one thread (the "
+                       "planner's: OpenBLAS' own count, a thread per core)",
     "before": f"the planner of {BEFORE}, before plans were refined and checked interval by "
               "interval (verified: the whole-horizon replay within 1e-3 rad)",
     "Opti script": "plain CasADi Opti, Legendre 3, 50 intervals, Ipopt defaults",
@@ -271,8 +270,8 @@ def run_planner(config: str, count: int, seed: int, suite: str = "default",
     scene's solver.max_wall_time instead of its own."""
     from planner.ocp import plan
 
-    if config == "BLAS threads":  # read by OpenBLAS when the first solver loads it
-        os.environ[blas_threads.ENVIRONMENT] = str(os.cpu_count() or 1)
+    if config == "one BLAS thread":  # read by OpenBLAS when the first solver loads it
+        os.environ["OPENBLAS_NUM_THREADS"] = "1"
     changes = _settings(config)
     if cap is not None:
         changes = _merged(changes, {"solver": {"max_wall_time": cap}})

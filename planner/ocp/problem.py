@@ -18,7 +18,6 @@ from functools import lru_cache
 import casadi as ca
 import numpy as np
 
-from planner import blas_threads
 from planner.ocp.assembly import assemble
 from planner.ocp.boundary import boundary_cost
 from planner.ocp.key import ProblemKey
@@ -94,7 +93,6 @@ def build(key: ProblemKey, compiled: bool = False) -> Problem:
     opts = kind.options(Nlp(assembly, layout, parts.link,
                             sum(count for _, _, count in parts.bounds[0]), lbg, ubg, key.tol,
                             key.max_iter, monitor, tr.symbolic is ca.SX))
-    blas_threads.limit()
     solver = ca.nlpsol("plan", kind.name, assembly.nlp, opts)
     return Problem(key, layout, tr, parts.params, lbg, ubg, solver, monitor,
                    time.perf_counter() - start, assembly.structured, assembly.nlp, opts,

@@ -18,7 +18,7 @@ from functools import lru_cache
 
 import casadi as ca
 
-from planner import blas_threads, budget
+from planner import budget
 from planner.dynamics import derive
 from planner.exclusive import Exclusive
 from planner.model import Structure
@@ -114,5 +114,4 @@ def _build(s: Structure, K: int) -> tuple[Exclusive, int]:
            "p": ca.vertcat(base, freq, ca.vec(QP), ca.vec(DQP), ca.vec(DDQP), H.T, X0,
                            ca.vec(C))}
     options = {**IPOPT, "expand": True, **budget.ipopt_stop(nlp)}
-    blas_threads.limit()
     return Exclusive(ca.nlpsol("waves_motion", "ipopt", nlp, options)), nz

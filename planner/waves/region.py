@@ -12,7 +12,7 @@ from functools import lru_cache
 import casadi as ca
 import numpy as np
 
-from planner import blas_threads, budget
+from planner import budget
 from planner.certify import PROOF_RTOL, Bound, CouplingCertificate, decide, region
 from planner.coupling_block import evaluate, measures
 from planner.dynamics import derive
@@ -134,6 +134,5 @@ def _region_nlp(s: Structure, count: int) -> Exclusive:
     g = _sample_bound(s).map(count)(Q, p, sig**2, C)
     nlp = {"x": ca.vertcat(a, eps, sig), "p": ca.vertcat(base, freq, ca.vec(Q), ca.vec(C)),
            "f": -sig, "g": ca.vec(g)}
-    blas_threads.limit()
     return Exclusive(ca.nlpsol("waves_region", "ipopt", nlp,
                                {**IPOPT, **budget.ipopt_stop(nlp)}))
