@@ -28,9 +28,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from bench import harness
-from bench.suite import BUILD_WAIT
-from planner import prebuild
+from bench import harness, suite
 from testbed.suites import hard
 
 DOC = harness.DOCS / "benchmarks.md"
@@ -80,12 +78,6 @@ def order(rounds: int) -> list[str]:
     return [pair[(r + r // 2) % 2] for r in range(rounds)]
 
 
-def build_ahead(seed: int, count: int) -> None:
-    """The compiled kernels of the tasks, built before any round is timed."""
-    scenes = [prebuild.one_iteration(scene) for _, scene in hard.hard_tasks(count, seed)]
-    prebuild.build([s for s in scenes if s.solver.jit], wait=BUILD_WAIT)
-
-
 def one_round(config: str, seed: int, count: int, number: int) -> list[dict]:
     """Both processes' rows of one round, each with its round, process and makespan."""
     halves = [list(range(p, count, PROCESSES)) for p in range(PROCESSES)]
@@ -131,7 +123,7 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--rounds", type=int, default=4)
     args = parser.parse_args(argv)
     started, note = time.perf_counter(), harness.machine_note()
-    build_ahead(args.seed, args.count)
+    suite.build_ahead("hard", args.count, args.seed, (), {})  # before any round is timed
     rows: list[dict] = []
     for number, config in enumerate(order(args.rounds)):
         print(f"round {number}: {config}", flush=True)

@@ -242,7 +242,7 @@ def _limit_excess(scene: Scene, result) -> float | None:
     return excess / max(float(np.max(limit)), 1e-12)
 
 
-def _build_ahead(suite: str, count: int, seed: int, categories: tuple[str, ...],
+def build_ahead(suite: str, count: int, seed: int, categories: tuple[str, ...],
                  changes: dict) -> None:
     """The compiled kernels of every task's structure built before any task is timed, as a
     service has them once it has met a structure (`planner.prebuild`); their build time is
@@ -276,7 +276,7 @@ def run_planner(config: str, count: int, seed: int, suite: str = "default",
     if cap is not None:
         changes = _merged(changes, {"solver": {"max_wall_time": cap}})
     hard = suite == "hard"
-    _build_ahead(suite, count, seed, categories, changes)
+    build_ahead(suite, count, seed, categories, changes)
     rows = []
     with harness.ipopt_options(*_ipopt(config, hard)):
         for name, scene in suite_tasks(suite, count, seed, tuple(categories)):
