@@ -110,6 +110,9 @@ BENCHES = {
     "wave_certificates": ("bench.wave_certificates", "wave designs and co-designs proven along "
                                                      "their motions and over regions: bound, "
                                                      "boxes, time"),
+    "wave_aliasing": ("bench.wave_aliasing", "the hard suite's slowest tasks on coarse "
+                                             "meshes: interval errors against the wave's "
+                                             "phase across an interval"),
 }
 """Every benchmark: its module (with main(argv)) and what it measures."""
 

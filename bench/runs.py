@@ -63,6 +63,7 @@ RESULTS: dict[str, tuple[str, ...]] = {
     "time_vs_error": ("bench/results/time_vs_error*.csv", "docs/img/pareto_*.png"),
     "test_times": ("bench/results/test_times.csv",),
     "wave_certificates": ("bench/results/wave_certificates.csv",),
+    "wave_aliasing": ("bench/results/wave_aliasing.csv",),
 }
 """Every benchmark's result files (glob patterns under the checkout), by its name in
 `bench.__main__.BENCHES`; none for one that writes a document section alone."""

@@ -95,6 +95,7 @@ SMALL: dict[str, Small] = {
     "test_times": Small((("--runs", "quiet,loaded", "--venv", sys.prefix,
                           "--pytest-args", "tests/test_certify.py"),)),
     "wave_certificates": Small((("--arms", "two-link"),)),
+    "wave_aliasing": Small((("--tasks", "free-time-05:31415926", "--intervals", "10"),)),
 }
 """Every benchmark's small mode, by its name in `bench.__main__.BENCHES`."""
 
