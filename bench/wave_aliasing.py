@@ -42,13 +42,12 @@ def phase_advance(robot, interp) -> np.ndarray:
     breaks = interp.dq.breaks
     widths = np.diff(breaks)
     s = np.linspace(0.0, 1.0, SAMPLES)
+    t = (breaks[:-1, None] + widths[:, None] * s[None, :]).ravel()
+    rates = np.abs(interp.dq(t)).reshape(widths.size, SAMPLES, -1).max(axis=1)  # (N, n)
     advance = np.zeros(widths.size)
     for j, link in enumerate(robot.links):
-        if link.wave is None or link.wave.amplitude == 0.0:
-            continue
-        t = (breaks[:-1, None] + widths[:, None] * s[None, :]).ravel()
-        rate = np.abs(interp.dq(t)[:, j]).reshape(widths.size, SAMPLES).max(axis=1)
-        advance = np.maximum(advance, link.wave.frequency * widths * rate)
+        if link.wave is not None and link.wave.amplitude != 0.0:
+            advance = np.maximum(advance, link.wave.frequency * widths * rates[:, j])
     return advance
 
 
