@@ -40,11 +40,13 @@ postgres-server:
 	  fi; \
 	fi
 
+# Each test module runs whole on one of the two workers (--dist loadscope): what a module
+# builds once (NLPs, compiled derivatives, servers) is then built once, not once per worker.
 test: $(STAMP) postgres-server
-	$(PY) -m pytest -n 2 $(PYTEST_ARGS)
+	$(PY) -m pytest -n 2 --dist loadscope $(PYTEST_ARGS)
 
 test-slow: $(STAMP) postgres-server
-	$(PY) -m pytest -n 2 -m slow $(PYTEST_ARGS)
+	$(PY) -m pytest -n 2 --dist loadscope -m slow $(PYTEST_ARGS)
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
