@@ -4,6 +4,7 @@ idle, and refuses bad states at their field."""
 
 from __future__ import annotations
 
+import threading
 import time
 
 import numpy as np
@@ -62,6 +63,36 @@ def test_a_session_answers_a_pushed_state_with_the_rest_of_the_motion(api, plann
     assert np.asarray(update["gains"]).shape == (N, 1, 4)
     assert api.get(f"/v1/sessions/{session['id']}").json()["updates"] == 1
     assert api.delete(f"/v1/sessions/{session['id']}").status_code == 204
+
+
+def test_two_sessions_of_one_plan_updated_at_once_both_answer(api, planned):
+    """The server's threads run both updates against one cached NLP and its integrators
+    (which used to end the server with a segmentation fault): each answers, verified,
+    exactly what a third session's same first update answers alone."""
+    plan = planned["plan"]
+    k = 5
+    body = {"t": plan["t"][k], "q": plan["q"][k], "mode": "converged", "verify": True,
+            "dq": [plan["dq"][k][0] + 0.05, plan["dq"][k][1]]}
+
+    def first_update(session: dict, into: list) -> None:
+        try:
+            into.append(api.post(f"/v1/sessions/{session['id']}/updates", json=body))
+        finally:
+            api.delete(f"/v1/sessions/{session['id']}")
+    together: list = []
+    threads = [threading.Thread(target=first_update, args=(_open(api, planned), together))
+               for _ in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(120)
+    alone: list = []
+    first_update(_open(api, planned), alone)
+    assert alone[0].status_code == 200 and alone[0].json()["within"], alone[0].json()
+    assert len(together) == 2
+    for answer in together:
+        assert answer.status_code == 200, answer.json()
+        assert answer.json()["states"] == alone[0].json()["states"]
 
 
 @pytest.mark.parametrize(("body", "loc", "msg"), [

@@ -5,6 +5,7 @@ by field."""
 from __future__ import annotations
 
 import copy
+import threading
 
 import numpy as np
 import pytest
@@ -12,8 +13,11 @@ import pytest
 from planner.errors import InputError
 from planner.examples import example
 from planner.ocp import plan
+from planner.ocp.instance import instance
+from planner.ocp.mesh import Mesh
 from planner.ocp.replan import ACCEPTED_VIOLATION, FINAL_STRETCH, HELD, Replan, Replanner
 from planner.ocp.result import Plan
+from planner.ocp.solve import BUSY, Budget, solve
 from planner.scene import Scene, State
 from planner.simulate import simulate
 
@@ -97,6 +101,52 @@ def test_real_time_updates_along_a_pushed_motion_stay_near_the_constraints(plann
         assert replan.violation <= ACCEPTED_VIOLATION
         violations.append(replan.violation)
     assert max(violations[1:]) <= 1e-6, violations
+
+
+def _pushed_updates(replanner: Replanner, earlier: Plan, push: float) -> list[np.ndarray]:
+    """Real-time updates along the plan, the first from a state pushed by `push` [rad/s]
+    (verified: every interval re-integrated); each update's planned angles."""
+    q_p, dq_p = earlier.states.polynomials()
+    out = []
+    for k, at in enumerate(np.linspace(0.1, 0.5, 5) * earlier.duration):
+        dq = np.asarray(dq_p([at]))[0] + (np.array([push, 0.0]) if k == 0 else 0.0)
+        replan = replanner.update(float(at), np.asarray(q_p([at]))[0].tolist(), dq.tolist(),
+                                  verify=True)
+        out.append(np.asarray(replan.interp.q(replan.interp.q.breaks)))
+    return out
+
+
+def test_replanners_of_one_structure_updating_in_two_threads_at_once_answer_as_alone(planned):
+    """A server's replanning sessions on plans of one structure share its cached NLP and
+    integrators from threads of their own (two at once used to end the process with a
+    segmentation fault): each answers exactly what it answers alone."""
+    scene, earlier = planned
+    pushes = (0.05, -0.04)
+    alone = [_pushed_updates(Replanner(scene, earlier), earlier, push) for push in pushes]
+    together: dict[float, list[np.ndarray]] = {}
+    threads = [threading.Thread(target=lambda push=push: together.__setitem__(
+        push, _pushed_updates(Replanner(scene, earlier), earlier, push))) for push in pushes]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(600)
+    for push, own in zip(pushes, alone, strict=True):
+        assert len(together[push]) == len(own)
+        for mine, theirs in zip(together[push], own, strict=True):
+            np.testing.assert_array_equal(mine, theirs)
+
+
+def test_a_solve_whose_solver_another_thread_holds_past_its_budget_ends_at_its_wall_time(
+        planned):
+    scene, earlier = planned
+    inst = instance(scene, scene.robot, Mesh.uniform(scene.transcription.intervals),
+                    earlier.duration)
+    budget = Budget.of(50, 0.2)
+    with inst.problem.lock:  # held elsewhere for longer than the solve may wait
+        solution = solve(inst, np.zeros(inst.problem.layout.size), budget, None, 0)
+    assert (solution.status, solution.success, solution.iterations, solution.message) == (
+        "Maximum_WallTime_Exceeded", False, 0, BUSY)
+    assert budget.used == 0 and budget.solved is not None
 
 
 def test_a_rest_too_short_for_the_goal_keeps_the_last_plan(planned):

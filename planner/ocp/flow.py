@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import io
 import sys
+import threading
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -88,16 +89,23 @@ class Flow:
             return quiet(self.bdf, x0=x0, p=p, u=u)
 
 
+_INTEGRATING = threading.Lock()
+"""Held for every call of `quiet`: an integrator keeps the state of a call in itself
+(`planner.exclusive`), and the cached ones are shared by the process's threads (a
+server's replanning sessions); `contextlib.redirect_stdout` swaps the process's one
+`sys.stdout`, which two captures at once would leave pointing into one's buffer."""
+
+
 def quiet(integrate: ca.Function, **args: np.ndarray) -> np.ndarray:
     """xf of one call. A CasADi Function whose call fails prints its name and every input
     ("Function flow (0x...) Input 0 (x0): [...]") to Python's stdout or stderr before it
     raises: a diverging replay would fill a worker's log or a command line's output with
     them. What a call prints is captured; a failed call's becomes a note of its
     RuntimeError, anything a successful call (or another thread meanwhile) printed is
-    passed on unchanged."""
+    passed on unchanged. Calls run one at a time in a process (`_INTEGRATING`)."""
     out, err = io.StringIO(), io.StringIO()
     try:
-        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        with _INTEGRATING, contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
             xf = integrate(**args)["xf"]
     except RuntimeError as exc:
         exc.add_note(out.getvalue() + err.getvalue())

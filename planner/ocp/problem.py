@@ -11,6 +11,7 @@ solver is the key's (`planner.ocp.solvers`).
 
 from __future__ import annotations
 
+import threading
 import time
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
@@ -35,7 +36,10 @@ __all__ = ["Problem", "ProblemKey", "build", "cached_problem", "problem", "stage
 
 @dataclass
 class Problem:
-    """A built NLP with the maps between its vectors and the scene's quantities."""
+    """A built NLP with the maps between its vectors and the scene's quantities. Its
+    solvers and iteration monitor keep the state of a solve in themselves, and the cached
+    problem is shared by every thread of the process: `lock` is held for a solve's whole
+    call (`planner.ocp.solve.solve`)."""
 
     key: ProblemKey
     layout: Layout
@@ -51,6 +55,7 @@ class Problem:
     options: dict = field(repr=False)
     compiled: bool = False  # its derivative kernels run compiled (planner.compiled)
     _warm: ca.Function | None = field(repr=False, default=None)
+    lock: threading.Lock = field(repr=False, compare=False, default_factory=threading.Lock)
 
     @property
     def n_params(self) -> int:

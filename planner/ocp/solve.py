@@ -18,6 +18,9 @@ from planner.ocp.solvers import SOLVERS
 _STOP_STATUS = {"cancelled": "User_Requested_Stop", "max_iter": "Maximum_Iterations_Exceeded",
                 "max_wall_time": "Maximum_WallTime_Exceeded", "stalled": "Stalled"}
 """Why the iteration monitor stopped a solve, as a status."""
+BUSY = ("the wall-time limit was reached while another solve of the same problem held its "
+        "solver in this process")
+"""The message of a solve that could not have its problem's solver in time."""
 _MESSAGES = {"User_Requested_Stop": "the solve was cancelled",
              "Maximum_Iterations_Exceeded": "the iteration limit was reached",
              "Maximum_WallTime_Exceeded": "the wall-time limit was reached",
@@ -163,7 +166,28 @@ def solve(inst: Instance, x0: np.ndarray, budget: Budget, handler: Handler | Non
           stall: bool = False) -> Solution:
     """Solve from x0 (with multipliers (lam_x, lam_g): the warm-start solver); adds its
     iterations to `budget.used`; stall: stop it (status "Stalled") when it stalls
-    (`planner.ocp.monitor`). Never raises for a solver failure."""
+    (`planner.ocp.monitor`). Never raises for a solver failure. The problem's solvers
+    serve one thread at a time (`Problem.lock`): a solve whose problem another thread
+    holds (two replanning sessions of one structure in a server) waits for it, and one
+    that cannot have it before its solves must end (`budget.solves_until`) ends
+    Maximum_WallTime_Exceeded without iterating."""
+    prob = inst.problem
+    started = time.perf_counter()
+    if not prob.lock.acquire(timeout=max(budget.solves_until - started, 0.0)):
+        budget.solved = Clock.now()
+        return Solution(np.asarray(x0, float), None, None, math.nan,
+                        "Maximum_WallTime_Exceeded", False, BUSY, 0,
+                        time.perf_counter() - started)
+    try:
+        return _solve_held(inst, x0, budget, handler, mesh_pass, multipliers, stall)
+    finally:
+        prob.lock.release()
+
+
+def _solve_held(inst: Instance, x0: np.ndarray, budget: Budget, handler: Handler | None,
+                mesh_pass: int, multipliers: tuple[np.ndarray, np.ndarray] | None,
+                stall: bool) -> Solution:
+    """`solve`, with the problem's lock held."""
     prob = inst.problem
     solver = prob.solver if multipliers is None else prob.warm_solver()
     monitor = prob.monitor

@@ -1,0 +1,57 @@
+"""Re-integrations from several threads at once, as a server's replanning sessions make
+them: each answers what it answers alone, a failure keeps its own dump of CasADi's inputs,
+and the process's streams are its own afterwards (`planner.ocp.flow.quiet`)."""
+
+from __future__ import annotations
+
+import sys
+import threading
+
+import numpy as np
+from test_diverging import ROBOT, inputs
+
+from planner.model import Structure
+from planner.ocp.flow import flow
+
+
+def _in_threads(work, count: int = 3) -> None:
+    threads = [threading.Thread(target=work) for _ in range(count)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(60)
+
+
+def test_one_interval_flows_in_three_threads_at_once_answer_as_alone():
+    """The unmapped integrator (one interval, a replay's fallback) keeps a call's state
+    in itself: three threads calling it at once without `quiet`'s lock end the process."""
+    f = flow(Structure.of(ROBOT), 0, 4, 1)
+    alone = f(*inputs(1, 0.1, 0.2))
+    answers: list[np.ndarray] = []
+
+    def integrate() -> None:
+        answers.extend(f(*inputs(1, 0.1, 0.2)) for _ in range(100))
+    _in_threads(integrate)
+    assert len(answers) == 300
+    assert all(np.array_equal(a, alone) for a in answers)
+
+
+def test_flows_diverging_in_three_threads_at_once_keep_their_dumps_and_the_streams(capfd):
+    """As a server's replanning sessions re-integrate in threads of their own: each failure
+    keeps its own dump, nothing is printed, and sys.stdout and sys.stderr are the
+    process's own afterwards."""
+    before = sys.stdout, sys.stderr
+    f = flow(Structure.of(ROBOT), 0, 4, 3)
+    notes: list[list[str]] = []
+
+    def diverge() -> None:
+        for _ in range(5):
+            try:
+                f(*inputs(3, 1e150, 1e200))
+            except RuntimeError as exc:
+                notes.append([n for e in (exc, exc.__context__) if e is not None
+                              for n in getattr(e, "__notes__", [])])
+    _in_threads(diverge)
+    assert (sys.stdout, sys.stderr) == before
+    assert capfd.readouterr() == ("", "")
+    assert len(notes) == 15 and all(any("Input 0 (x0)" in n for n in ns) for ns in notes)
