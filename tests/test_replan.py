@@ -149,6 +149,14 @@ def test_a_solve_whose_solver_another_thread_holds_past_its_budget_ends_at_its_w
     assert budget.used == 0 and budget.solved is not None
 
 
+def test_an_update_may_wait_as_long_as_a_float_allows(planned):
+    """A wall time beyond what a lock's wait takes (threading.TIMEOUT_MAX) is no error."""
+    scene, earlier = planned
+    replan = Replanner(scene, earlier).update(0.0, earlier.q[0], earlier.dq[0],
+                                              mode="converged", wall_time=1e300)
+    assert replan.success and not replan.fallback
+
+
 def test_a_rest_too_short_for_the_goal_keeps_the_last_plan(planned):
     scene, earlier = planned
     request = scene.model_dump()

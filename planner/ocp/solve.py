@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -173,7 +174,8 @@ def solve(inst: Instance, x0: np.ndarray, budget: Budget, handler: Handler | Non
     Maximum_WallTime_Exceeded without iterating."""
     prob = inst.problem
     started = time.perf_counter()
-    if not prob.lock.acquire(timeout=max(budget.solves_until - started, 0.0)):
+    wait = min(max(budget.solves_until - started, 0.0), threading.TIMEOUT_MAX)
+    if not prob.lock.acquire(timeout=wait):
         budget.solved = Clock.now()
         return Solution(np.asarray(x0, float), None, None, math.nan,
                         "Maximum_WallTime_Exceeded", False, BUSY, 0,
