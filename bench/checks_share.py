@@ -13,7 +13,9 @@ its wall time and CPU time (the process and its waited-for children, the compani
 among them), its solves' time (`solver.solve_time`) and its checks after the last solve
 (`solver.checks_time`, `solver.checks_cpu_time`: that solve's interval errors and
 open-loop replay, the verification with the feedback, closed-loop replays and
-robustness, and assembling the plan), and their share of the plan.
+robustness, and assembling the plan), and their share of the plan; of the checks, the
+time this process spent re-integrating in CVODES (every `planner.ocp.flow.quiet` call
+after the last solve ended).
 """
 
 from __future__ import annotations
@@ -40,8 +42,18 @@ import json, os, resource, sys, tempfile, time
 os.environ["UNDERTOW_CORE_DIR"] = tempfile.mkdtemp(prefix="undertow-cores-")
 sys.path.insert(0, {root!r})
 from planner import compiled
-from planner.ocp import plan
+from planner.ocp import flow, plan, replays
 from planner.scene import Scene
+calls = []
+def timed(call):
+    def wrapped(*args, **kwargs):
+        started = time.perf_counter()
+        try:
+            return call(*args, **kwargs)
+        finally:
+            calls.append((started, time.perf_counter() - started))
+    return wrapped
+flow.quiet, replays.quiet = timed(flow.quiet), timed(replays.quiet)
 def cpu():
     child = resource.getrusage(resource.RUSAGE_CHILDREN)
     return time.process_time() + child.ru_utime + child.ru_stime
@@ -52,15 +64,21 @@ compiled.wait()
 rows = []
 for _ in range({repeats}):
     for name, scene in chosen:
+        calls.clear()
         started, used = time.perf_counter(), cpu()
         result = plan(scene)
-        wall, spent = time.perf_counter() - started, cpu() - used
+        ended = time.perf_counter()
+        wall, spent = ended - started, cpu() - used
         s = result.solver
+        since = None if s.checks_time is None else ended - s.checks_time
+        inside = [d for t, d in calls if since is not None and t >= since]
+        again = sum(inside) if inside else None
         rows.append({{"task": name, "verified": bool(s.success and result.verification.verified),
                       "intervals": len(result.t) - 1, "solves": len(result.mesh_passes),
                       "wall": wall, "cpu": spent, "solve": s.solve_time,
                       "checks": getattr(s, "checks_time", None),
-                      "checks_cpu": getattr(s, "checks_cpu_time", None)}})
+                      "checks_cpu": getattr(s, "checks_cpu_time", None),
+                      "reintegrations": again}})
 print("RESULT " + json.dumps({{"rows": rows}}))
 """
 VARIANTS = {"plain": "as the suite generates them",
@@ -73,7 +91,8 @@ SUMMARY = [("variant", "tasks"), ("version", "version"), ("plans", "plans"),
            ("checks", "median checks [s]"), ("share", "median checks / plan [%]"),
            ("p90", "90th percentile [%]"), ("worst", "worst [%]"),
            ("total", "all checks / all plans [%]"),
-           ("cpu_share", "median checks CPU / plan CPU [%]"), ("cpu_worst", "worst, CPU [%]")]
+           ("cpu_share", "median checks CPU / plan CPU [%]"), ("cpu_worst", "worst, CPU [%]"),
+           ("reint_share", "median re-integrations / plan [%]")]
 
 
 def columns(versions: Sequence[str]) -> list[tuple[str, str]]:
@@ -83,7 +102,8 @@ def columns(versions: Sequence[str]) -> list[tuple[str, str]]:
     for v in versions:
         out += [(f"wall {v}", f"{v}: plan [s]"), (f"checks {v}", "checks [s]"),
                 (f"share {v}", "checks / plan [%]"),
-                (f"cpu_share {v}", "checks CPU / plan CPU [%]")]
+                (f"cpu_share {v}", "checks CPU / plan CPU [%]"),
+                (f"reint_share {v}", "re-integrations / plan [%]")]
     return out
 
 
@@ -108,7 +128,8 @@ def measured(root: Path, chosen: list[tuple[str, dict]], repeats: int) -> list[d
     if "failure" in out:
         raise RuntimeError(f"{root}: {out['failure']}")
     return [{**row, "share": _ratio(row["checks"], row["wall"]),
-             "cpu_share": _ratio(row["checks_cpu"], row["cpu"])} for row in out["rows"]]
+             "cpu_share": _ratio(row["checks_cpu"], row["cpu"]),
+             "reint_share": _ratio(row["reintegrations"], row["wall"])} for row in out["rows"]]
 
 
 def _ratio(part: float | None, whole: float) -> float | None:
@@ -121,6 +142,7 @@ def summary(variant: str, version: str, rows: Sequence[dict]) -> dict:
     shares = [r["share"] for r in rows if r["share"] is not None]
     cpu = [r["cpu_share"] for r in rows if r["cpu_share"] is not None]
     checks = [r["checks"] for r in rows if r["checks"] is not None]
+    again = [r["reint_share"] for r in rows if r.get("reint_share") is not None]
     return {"variant": variant, "version": version, "plans": len(rows),
             "verified": sum(r["verified"] for r in rows),
             "wall": harness.median(r["wall"] for r in rows), "checks": harness.median(checks),
@@ -128,7 +150,8 @@ def summary(variant: str, version: str, rows: Sequence[dict]) -> dict:
             "p90": float(np.percentile(shares, 90)) if shares else None,
             "worst": max(shares, default=None),
             "total": _ratio(sum(checks), sum(r["wall"] for r in rows)) if checks else None,
-            "cpu_share": harness.median(cpu), "cpu_worst": max(cpu, default=None)}
+            "cpu_share": harness.median(cpu), "cpu_worst": max(cpu, default=None),
+            "reint_share": harness.median(again) if again else None}
 
 
 def run(before: str | None, count: int, seed: int, repeats: int,
@@ -158,8 +181,8 @@ def _side_by_side(rows: Sequence[dict]) -> list[dict]:
         row = out.setdefault((r["task"], r["variant"]), {
             "task": r["task"], "variant": r["variant"], "intervals": r["intervals"],
             "solves": r["solves"]})
-        row.update({f"{k} {r['version']}": r[k] for k in ("wall", "checks", "share",
-                                                           "cpu_share")})
+        row.update({f"{k} {r['version']}": r.get(k) for k in ("wall", "checks", "share",
+                                                               "cpu_share", "reint_share")})
     return [out[k] for k in sorted(out)]
 
 
@@ -177,7 +200,11 @@ def _text(before: str | None, count: int, seed: int, repeats: int, variants: Seq
         "and its closed-loop replays (and the robustness replays, with an uncertainty), "
         "and assembling the plan; CPU times count the process and its companion (each "
         "process has core tokens of its own, so every plan whose continuation applies "
-        "forks one)."
+        "forks one). Re-integrations: what the plan's process spent in CVODES after the "
+        "last solve ended (that solve's interval errors, the open-loop, closed-loop and "
+        "robustness replays: every call of `planner.ocp.flow.quiet` then), as a share of "
+        "the plan's wall time; none where that process made none (the companion's plan, "
+        "checked in the companion's process)."
         + (f" {before}: the planner of that commit, in the same run." if before else ""),
         harness.table(table, SUMMARY),
         harness.table(tasks_table, columns([c for c in ("now", before) if c]))])
