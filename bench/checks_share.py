@@ -15,7 +15,7 @@ among them), its solves' time (`solver.solve_time`) and its checks after the las
 open-loop replay, the verification with the feedback, closed-loop replays and
 robustness, and assembling the plan), and their share of the plan; of the checks, the
 time this process spent re-integrating in CVODES (every `planner.ocp.flow.quiet` call
-after the last solve ended).
+after the last solve ended; none for a version without it).
 """
 
 from __future__ import annotations
@@ -41,8 +41,9 @@ _RUN = """
 import json, os, resource, sys, tempfile, time
 os.environ["UNDERTOW_CORE_DIR"] = tempfile.mkdtemp(prefix="undertow-cores-")
 sys.path.insert(0, {root!r})
+import importlib
 from planner import compiled
-from planner.ocp import flow, plan, replays
+from planner.ocp import plan
 from planner.scene import Scene
 calls = []
 def timed(call):
@@ -53,7 +54,13 @@ def timed(call):
         finally:
             calls.append((started, time.perf_counter() - started))
     return wrapped
-flow.quiet, replays.quiet = timed(flow.quiet), timed(replays.quiet)
+for name in ("planner.ocp.flow", "planner.ocp.replays"):  # an older version may lack either
+    try:
+        module = importlib.import_module(name)
+    except ImportError:
+        continue
+    if hasattr(module, "quiet"):
+        module.quiet = timed(module.quiet)
 def cpu():
     child = resource.getrusage(resource.RUSAGE_CHILDREN)
     return time.process_time() + child.ru_utime + child.ru_stime
@@ -70,13 +77,13 @@ for _ in range({repeats}):
         ended = time.perf_counter()
         wall, spent = ended - started, cpu() - used
         s = result.solver
-        since = None if s.checks_time is None else ended - s.checks_time
-        inside = [d for t, d in calls if since is not None and t >= since]
+        checks = getattr(s, "checks_time", None)
+        inside = [d for t, d in calls if checks is not None and t >= ended - checks]
         again = sum(inside) if inside else None
         rows.append({{"task": name, "verified": bool(s.success and result.verification.verified),
                       "intervals": len(result.t) - 1, "solves": len(result.mesh_passes),
                       "wall": wall, "cpu": spent, "solve": s.solve_time,
-                      "checks": getattr(s, "checks_time", None),
+                      "checks": checks,
                       "checks_cpu": getattr(s, "checks_cpu_time", None),
                       "reintegrations": again}})
 print("RESULT " + json.dumps({{"rows": rows}}))
@@ -142,7 +149,7 @@ def summary(variant: str, version: str, rows: Sequence[dict]) -> dict:
     shares = [r["share"] for r in rows if r["share"] is not None]
     cpu = [r["cpu_share"] for r in rows if r["cpu_share"] is not None]
     checks = [r["checks"] for r in rows if r["checks"] is not None]
-    again = [r["reint_share"] for r in rows if r.get("reint_share") is not None]
+    again = [r["reint_share"] for r in rows if r["reint_share"] is not None]
     return {"variant": variant, "version": version, "plans": len(rows),
             "verified": sum(r["verified"] for r in rows),
             "wall": harness.median(r["wall"] for r in rows), "checks": harness.median(checks),
@@ -181,8 +188,8 @@ def _side_by_side(rows: Sequence[dict]) -> list[dict]:
         row = out.setdefault((r["task"], r["variant"]), {
             "task": r["task"], "variant": r["variant"], "intervals": r["intervals"],
             "solves": r["solves"]})
-        row.update({f"{k} {r['version']}": r.get(k) for k in ("wall", "checks", "share",
-                                                               "cpu_share", "reint_share")})
+        row.update({f"{k} {r['version']}": r[k] for k in ("wall", "checks", "share",
+                                                           "cpu_share", "reint_share")})
     return [out[k] for k in sorted(out)]
 
 

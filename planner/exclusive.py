@@ -3,7 +3,9 @@
 An integrator or an nlpsol keeps the state of a call in the Function object itself: two
 threads calling one cached instance at once corrupt it (four simulations of one arm at
 once ended the process with a segmentation fault). Plain SX and MX functions are safe
-to share and are not wrapped.
+to share and are not wrapped. The planner's own NLPs and re-integrations hold locks of
+their own, as one solve or check spans several calls: `Problem.lock`
+(`planner.ocp.solve.solve`) and the lock of `planner.ocp.flow.quiet`.
 """
 
 from __future__ import annotations
