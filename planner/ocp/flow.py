@@ -5,8 +5,14 @@ On interval k, in normalised time s = (t - t_k) / h_k in [0, 1], the arm follows
 h = B sat(tau_k(s) + u), tau_k the plan's torque polynomial, u a constant torque offset
 [N m] (0 for the plan itself, a feedback correction otherwise) and sat the actuators'
 saturation at the task's torque limit L, min(max(., -L), L) (L = inf: none). The
-integrator is mapped over intervals, each started from its own state: one call
-re-integrates every interval of a plan. CVODES integrates by Adams-Moulton with
+intervals of one call are stacked into one ODE of 2n B states (B intervals), each started
+from its own state: one CVODES run re-integrates them all, and each of its steps
+evaluates the dynamics of every interval in one call. What CVODES costs per call of the
+right-hand side (CasADi times each call by reading the process's CPU clock, a system
+call) and per run is then paid once for B intervals. The tolerance of B stacked
+intervals is TOL / sqrt(B): CVODES tests the root mean square of the weighted local errors
+over all its states, so a step that passes holds every interval's own weighted error
+within what it would meet integrated alone. CVODES integrates by Adams-Moulton with
 functional iteration, as `planner.simulate` does by default: the arms are not stiff, and
 on plans of the seed arm the interval check and the replays take a quarter to a half of
 BDF's time (`python -m bench verification`). Where Adams fails, BDF with Newton
@@ -74,7 +80,8 @@ def _compiled_dae(s: Structure, degree: int) -> ca.Function | None:
 @dataclass(frozen=True)
 class Flow:
     """CVODES over B intervals, by Adams and by BDF: each a Function (x0 (2n x B), p, u) ->
-    xf (2n x outputs B) (see `flow`); for one interval the integrator itself, unmapped."""
+    xf (2n x outputs B) (see `flow`): the B intervals stacked into one ODE (`_stacked`);
+    for one interval the integrator itself."""
 
     adams: ca.Function
     bdf: ca.Function
@@ -117,12 +124,12 @@ def quiet(integrate: ca.Function, **args: np.ndarray) -> np.ndarray:
 
 def flow(s: Structure, degree: int, outputs: int, batch: int, tol: float = TOL,
          compiled: bool = False) -> Flow:
-    """The flow of `batch` intervals at once. Per interval: x0 (2n) -> xf (2n x outputs) at
-    s = 1/outputs, 2/outputs, ..., 1 with p = [robot parameters, torque coefficients
-    (degree + 1 by na, power-major), h, torque limits (na; inf: none)] and u the torque
-    offset, na x outputs (one per output interval). compiled: the right-hand side compiled
-    to C (about twice as fast) once it is on disk, interpreted while it is built in the
-    background."""
+    """The flow of `batch` intervals at once, stacked into one ODE (see above). Per
+    interval: x0 (2n) -> xf (2n x outputs) at s = 1/outputs, 2/outputs, ..., 1 with
+    p = [robot parameters, torque coefficients (degree + 1 by na, power-major), h, torque
+    limits (na; inf: none)] and u the torque offset, na x outputs (one per output
+    interval). compiled: the right-hand side compiled to C (about twice as fast) once it
+    is on disk, interpreted while it is built in the background."""
     return _flow(s, degree, outputs, batch, tol, ready(s, degree, compiled))
 
 
@@ -135,8 +142,50 @@ def ready(s: Structure, degree: int, compiled: bool) -> bool:
 @lru_cache(maxsize=64)
 def _flow(s: Structure, degree: int, outputs: int, batch: int, tol: float,
           compiled: bool) -> Flow:
-    one = [integrator(s, degree, outputs, tol, compiled, method) for method in ("adams", "bdf")]
-    return Flow(*(f if batch == 1 else f.map(batch) for f in one))
+    if batch == 1:
+        return Flow(*(integrator(s, degree, outputs, tol, compiled, method)
+                      for method in ("adams", "bdf")))
+    return Flow(*(_stacked(s, degree, outputs, batch, tol, compiled, method)
+                  for method in ("adams", "bdf")))
+
+
+def _stacked(s: Structure, degree: int, outputs: int, batch: int, tol: float,
+             compiled: bool, method: Method) -> ca.Function:
+    """CVODES by `method` over `batch` intervals stacked into one ODE, at the tolerance
+    tol / sqrt(batch), as a Function of the shapes `flow` gives: (x0 (2n x B),
+    p (n_p x B), u (na x outputs B)) -> xf (2n x outputs B)."""
+    dae = _dynamics(s, degree, compiled)
+    n2, n_p, na = 2 * s.n, dae.size1_in(3), dae.size1_in(4)
+    t, x = ca.MX.sym("s"), ca.MX.sym("x", n2 * batch)
+    p, u = ca.MX.sym("p", n_p * batch), ca.MX.sym("u", na * batch)
+    rates = dae.map(batch)(t, ca.reshape(x, n2, batch), ca.MX(0, 1),
+                           ca.reshape(p, n_p, batch), ca.reshape(u, na, batch))[0]
+    none = ca.MX(0, 1)
+    stack = ca.Function("flow_stack", [t, x, none, p, u],
+                        [ca.reshape(rates, n2 * batch, 1), none, none, none],
+                        ca.dyn_in(), ca.dyn_out())
+    grid = list(np.linspace(0.0, 1.0, outputs + 1)[1:])
+    whole = ca.integrator("flow", "cvodes", stack, 0.0, grid,
+                          {"abstol": tol / np.sqrt(batch), "reltol": tol / np.sqrt(batch),
+                           "show_eval_warnings": False, "disable_internal_warnings": True,
+                           **METHODS[method]})
+    # column b outputs + j (interval b, output j) <-> column j batch + b of the stack's
+    by_output = [b * outputs + j for j in range(outputs) for b in range(batch)]
+    by_interval = [j * batch + b for b in range(batch) for j in range(outputs)]
+    x0, ps = ca.MX.sym("x0", n2, batch), ca.MX.sym("p", n_p, batch)
+    us = ca.MX.sym("u", na, outputs * batch)
+    xf = whole(x0=ca.reshape(x0, n2 * batch, 1), p=ca.reshape(ps, n_p * batch, 1),
+               u=ca.reshape(us[:, by_output], na * batch, outputs))["xf"]
+    return ca.Function("flow", [x0, ps, us], [ca.reshape(xf, n2, outputs * batch)[:, by_interval]],
+                       ["x0", "p", "u"], ["xf"])
+
+
+def _dynamics(s: Structure, degree: int, compiled: bool) -> ca.Function:
+    """`_dae`, compiled where asked (which `flow` does only once it is `ready`)."""
+    dae = _compiled_dae(s, degree) if compiled else _dae(s, degree)
+    if dae is None:
+        raise RuntimeError("the compiled flow is not loaded yet")
+    return dae
 
 
 @lru_cache(maxsize=64)
@@ -144,11 +193,8 @@ def integrator(s: Structure, degree: int, outputs: int, tol: float,
                compiled: bool, method: Method) -> ca.Function:
     """CVODES by `method` over one interval, unmapped (see `flow`; compiled only once
     `ready`)."""
-    dae = _compiled_dae(s, degree) if compiled else _dae(s, degree)
-    if dae is None:  # `flow` asks for the compiled one only once it is loaded
-        raise RuntimeError("the compiled flow is not loaded yet")
     grid = list(np.linspace(0.0, 1.0, outputs + 1)[1:])
-    return ca.integrator("flow", "cvodes", dae, 0.0, grid,
+    return ca.integrator("flow", "cvodes", _dynamics(s, degree, compiled), 0.0, grid,
                          {"abstol": tol, "reltol": tol, "show_eval_warnings": False,
                           "disable_internal_warnings": True, **METHODS[method]})
 
