@@ -25,10 +25,9 @@ SAMPLES = 4  # comparison points per interval, at s = 1/4, 1/2, 3/4, 1
 
 
 CHUNK = 25
-"""Intervals integrated per CVODES call (stacked, `planner.ocp.flow`): as fast as one call
-for every interval of the seed arm's plans on 100 intervals, and a deadline is watched
-between calls. The same with a deadline or without, so that a plan's errors do not
-depend on whether it had one."""
+"""Intervals integrated per CVODES call (stacked, `planner.ocp.flow`); a deadline is
+watched between calls. The same with a deadline or without, so that a plan's errors do
+not depend on whether it had one."""
 
 
 def interval_errors(robot: Robot, interp: Interpolant, compiled: bool = False,
