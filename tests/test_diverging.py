@@ -37,7 +37,7 @@ def test_a_diverging_flow_raises_without_printing_its_inputs(capfd, batch):
     out, err = capfd.readouterr()
     assert (out, err) == ("", "")
     if batch == 1:
-        return  # the unmapped integrator prints nothing; the mapped one prints its inputs
+        return  # the integrator itself prints nothing; the stacked flow prints its inputs
     # kept with the exception (Adams' failure is the context of BDF's), not shown
     chain = [failed.value, failed.value.__context__]
     assert any("Input 0 (x0)" in note for exc in chain if exc is not None
