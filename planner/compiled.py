@@ -7,9 +7,10 @@ folder never load a partial one. $UNDERTOW_CACHE_DIR names the folder (default
 by its builder (`_Builder`: one process of its own at the lowest priority, `python -m
 planner.compiled`, which builds what the process asks of it one library after the other
 and finishes after the process has gone), and goes on with the interpreted functions
-meanwhile. With $UNDERTOW_BUILDS=off no background build
-starts (libraries already on disk are still loaded), and a cache folder that cannot be
-made leaves every caller interpreted.
+meanwhile. A forked child (a plan's companion) asks the builder of the process it was
+forked from (`_ParentsBuilder`) rather than starting one of its own. With
+$UNDERTOW_BUILDS=off no background build starts (libraries already on disk are still
+loaded), and a cache folder that cannot be made leaves every caller interpreted.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import fcntl
 import hashlib
 import json
 import os
+import select
 import shutil
 import subprocess
 import sys
@@ -96,18 +98,61 @@ class _Builder:
             build.end(1)
 
 
+class _ParentsBuilder:
+    """The builder of the process this one was forked from, as a forked child (a plan's
+    companion) asks it: each request is one write of a line shorter than PIPE_BUF down the
+    same pipe, which the pipe keeps whole beside the parent's own. Its reports go to the
+    parent, so the child's builds stay pending here (`library` finds them on disk once
+    built). Without it every companion would start a builder of its own, and each would
+    outlive its companion while it waited its turn at the folder's lock: one more process
+    for every plan."""
+
+    def __init__(self, fd: int) -> None:
+        self.fd = os.dup(fd)  # the child's own, whatever becomes of the parent's objects
+        self._open = True
+
+    def alive(self) -> bool:
+        return self._open
+
+    def ask(self, request: dict[str, Any], build: _Build) -> bool:
+        """Send a build's request; False where it is too long for one write or the
+        builder has gone."""
+        line = (json.dumps(request) + "\n").encode()
+        if len(line) > select.PIPE_BUF:
+            return False
+        try:
+            os.write(self.fd, line)
+        except OSError:
+            self._open = False
+            return False
+        return True
+
+
 _CODEGEN = threading.Lock()  # one compilation at a time per process, and guards the names below
 _LOADED: dict[Path, dict[str, ca.Function]] = {}  # libraries loaded by this process
 _BUILDING: dict[Path, _Build] = {}  # background builds this process asked for
-_BUILDER: _Builder | None = None  # the process's builder, started with its first build
+_BUILDER: _Builder | _ParentsBuilder | None = None  # the process's builder, started with its
+# first build, or the one of the process it was forked from
 
 
 def _forked() -> None:
-    """In a forked child (a plan's companion): the parent's builder and locks stay the
-    parent's; the child starts a builder of its own for what it asks (a library the parent
-    built meanwhile is not built again)."""
+    """In a forked child (a plan's companion): new locks; the builds the parent asked for
+    stay asked (its builder builds them; here they stay pending, so a `wait` in the child
+    waits out its timeout), and the child asks the parent's builder for what else it needs
+    (`_ParentsBuilder`), starting one of its own only where the parent had none running."""
     global _CODEGEN, _BUILDING, _BUILDER
-    _CODEGEN, _BUILDING, _BUILDER = threading.Lock(), {}, None
+    _CODEGEN, _BUILDING, _BUILDER = threading.Lock(), dict(_BUILDING), _inherited(_BUILDER)
+
+
+def _inherited(builder: _Builder | _ParentsBuilder | None) -> _ParentsBuilder | None:
+    """The parent's builder as a forked child asks it; None where the parent had none
+    running (not asked of the process: its exit status is the parent's to collect)."""
+    if isinstance(builder, _ParentsBuilder):
+        return _ParentsBuilder(builder.fd) if builder.alive() else None
+    if builder is None or builder.process.returncode is not None \
+            or builder.process.stdin is None:
+        return None
+    return _ParentsBuilder(builder.process.stdin.fileno())
 
 
 os.register_at_fork(after_in_child=_forked)
@@ -265,11 +310,15 @@ def main() -> None:
     and say so on stdout (library, status: 0 built or found built, 1 failed). It runs at
     the lowest priority (nice 19), on the time solves leave idle, and each build after the
     folder's other background builds (BUILD_LOCK); a library another process built
-    meanwhile is not built again. It ends when its stdin does, after the last request."""
+    meanwhile is not built again; a line that is not a request is passed over. It ends
+    when its stdin does, after the last request."""
     os.nice(19)
     told = True
     for line in sys.stdin:
-        request = json.loads(line)
+        try:
+            request = json.loads(line)
+        except ValueError:
+            continue
         status = _build_asked(request)
         if told:
             try:

@@ -147,6 +147,38 @@ def test_a_process_runs_one_builder_at_a_time(cache):
         assert float(loaded[f"{name}_f"](2.0)) == pytest.approx(2 * np.sin(2) + k)
 
 
+def test_a_forked_child_asks_the_builder_of_its_parent(cache):
+    """A plan's companion is a forked child: what it asks for is built by the builder of
+    the process it was forked from, and it starts none of its own (each would outlive its
+    companion while it waited its turn: one more process for every plan)."""
+    import os
+    import time
+
+    import casadi as ca
+
+    x = ca.SX.sym("x")
+    assert compiled.library("parent", [ca.Function("parent_f", [x], [x + 1])],
+                            background=True) is None
+    pid = os.fork()
+    if pid == 0:  # the child: ask, and say whether it started a builder of its own
+        try:
+            compiled.library("child", [ca.Function("child_f", [x], [x + 2])], background=True)
+            time.sleep(1.0)
+            os._exit(3 if _builder_processes() else 0)
+        finally:
+            os._exit(1)
+    _, status = os.waitpid(pid, 0)
+    assert os.waitstatus_to_exitcode(status) == 0
+    assert compiled.wait(120) == []
+    deadline = time.monotonic() + 120
+    while not (cache / "child.so").exists():
+        assert time.monotonic() < deadline, sorted(p.name for p in cache.iterdir())
+        time.sleep(0.2)
+    assert _builder_processes() == 1
+    loaded = compiled.library("child", [ca.Function("child_f", [x], [x + 2])])
+    assert loaded is not None and float(loaded["child_f"](2.0)) == 4.0
+
+
 def test_the_builder_finishes_what_it_was_asked_after_the_process_has_gone(cache):
     """A command-line plan exits at once; the libraries its plan asked for are built all
     the same, for the next one."""
