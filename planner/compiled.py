@@ -20,6 +20,7 @@ import fcntl
 import hashlib
 import json
 import os
+import queue
 import select
 import shutil
 import subprocess
@@ -62,6 +63,9 @@ class _Builder:
         self.process = subprocess.Popen(
             [sys.executable, "-m", "planner.compiled"], stdin=subprocess.PIPE,
             stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        assert self.process.stdin is not None
+        self.fd = self.process.stdin.fileno()
+        os.set_blocking(self.fd, False)  # an asker never waits for the builder (`_send`)
         self._pending: dict[str, _Build] = {}
         self._lock = threading.Lock()
         threading.Thread(target=self._listen, name="compiled-builder", daemon=True).start()
@@ -69,19 +73,16 @@ class _Builder:
     def alive(self) -> bool:
         return self.process.poll() is None
 
-    def ask(self, request: dict[str, Any], build: _Build) -> bool:
-        """Send a build's request; False where the builder has gone."""
+    def ask(self, request: dict[str, Any], build: _Build) -> None:
+        """Send a build's request (`_send`'s errors where it could not)."""
         with self._lock:
             self._pending[request["library"]] = build
         try:
-            assert self.process.stdin is not None
-            self.process.stdin.write(json.dumps(request) + "\n")
-            self.process.stdin.flush()
-        except (OSError, ValueError):
+            _send(self.fd, request)
+        except OSError:
             with self._lock:
                 self._pending.pop(request["library"], None)
-            return False
-        return True
+            raise
 
     def _listen(self) -> None:
         """End each build the builder reports; when it has gone, those it left as failed."""
@@ -114,18 +115,26 @@ class _ParentsBuilder:
     def alive(self) -> bool:
         return self._open
 
-    def ask(self, request: dict[str, Any], build: _Build) -> bool:
-        """Send a build's request; False where it is too long for one write or the
-        builder has gone."""
-        line = (json.dumps(request) + "\n").encode()
-        if len(line) > select.PIPE_BUF:
-            return False
+    def ask(self, request: dict[str, Any], build: _Build) -> None:
+        """Send a build's request (`_send`'s errors where it could not)."""
         try:
-            os.write(self.fd, line)
+            _send(self.fd, request)
+        except BlockingIOError:
+            raise
         except OSError:
             self._open = False
-            return False
-        return True
+            raise
+
+
+def _send(fd: int, request: dict[str, Any]) -> None:
+    """Write a build's request to a builder's stdin (non-blocking) as one line in one write,
+    which a pipe keeps whole beside other writers' lines (shorter than PIPE_BUF). Raises
+    BlockingIOError where the pipe is full, so that a plan never waits for a builder, and
+    OSError where the builder has gone."""
+    line = (json.dumps(request) + "\n").encode()
+    if len(line) > select.PIPE_BUF:
+        raise OSError(f"a build request of {len(line)} bytes, more than one write keeps whole")
+    os.write(fd, line)
 
 
 _CODEGEN = threading.Lock()  # one compilation at a time per process, and guards the names below
@@ -257,20 +266,19 @@ def _start(folder: Path, name: str, functions: Sequence[ca.Function], flags: str
     if started is not None and started.status != 0:
         return
     work = Path(tempfile.mkdtemp(prefix=f"{name}.", dir=folder))
-    files = []
     for function in functions:
-        files.append(str(work / f"{function.name()}.casadi"))
-        function.save(files[-1])
+        function.save(str(work / f"{function.name()}.casadi"))
     request = {"library": str(path), "folder": str(folder), "name": name, "flags": flags,
-               "work": str(work), "files": files}
+               "work": str(work), "functions": [f.name() for f in functions]}
     _BUILDING[path] = build = _Build()
     try:
         if _BUILDER is None or not _BUILDER.alive():
             _BUILDER = _Builder()
-        asked = _BUILDER.ask(request, build)
+        _BUILDER.ask(request, build)
+    except BlockingIOError:  # the builder has not read its earlier requests: ask again later
+        del _BUILDING[path]
+        shutil.rmtree(work, ignore_errors=True)
     except OSError:
-        asked = False
-    if not asked:
         shutil.rmtree(work, ignore_errors=True)
         build.end(1)
 
@@ -306,7 +314,8 @@ service meeting many structures at once runs one compiler beside its solves, not
 
 def main() -> None:
     """The builder process: for each request on stdin (a JSON line: library, folder, name,
-    flags, work, files), build the library of the saved functions, remove their folder
+    flags, work, functions: the names of the functions saved in the folder work), build the
+    library of the saved functions, remove their folder
     and say so on stdout (library, status: 0 built or found built, 1 failed). It runs at
     the lowest priority (nice 19), on the time solves leave idle, and each build after the
     folder's other background builds (BUILD_LOCK); a library another process built
@@ -314,7 +323,7 @@ def main() -> None:
     when its stdin does, after the last request."""
     os.nice(19)
     told = True
-    for line in sys.stdin:
+    for line in iter(_stdin_lines().get, None):
         try:
             request = json.loads(line)
         except ValueError:
@@ -327,6 +336,20 @@ def main() -> None:
                 told = False
 
 
+def _stdin_lines() -> queue.Queue[str | None]:
+    """The lines of stdin as a thread reads them, None after the last: the pipe is drained
+    while a build runs, so that those asking never find it full."""
+    lines: queue.Queue[str | None] = queue.Queue()
+
+    def read() -> None:
+        for line in sys.stdin:
+            lines.put(line)
+        lines.put(None)
+
+    threading.Thread(target=read, name="requests", daemon=True).start()
+    return lines
+
+
 def _build_asked(request: dict[str, Any]) -> int:
     """Build one requested library: 0 when it is on disk then, 1 when the build failed."""
     folder = Path(request["folder"])
@@ -335,7 +358,8 @@ def _build_asked(request: dict[str, Any]) -> int:
             fcntl.flock(lock, fcntl.LOCK_EX)
             if not (folder / f"{request['name']}.so").exists():
                 _build(folder, request["name"],
-                       [ca.Function.load(f) for f in request["files"]], request["flags"])
+                       [ca.Function.load(str(Path(request["work"]) / f"{f}.casadi"))
+                        for f in request["functions"]], request["flags"])
         return 0
     except (OSError, RuntimeError, subprocess.SubprocessError):
         return 1

@@ -179,6 +179,34 @@ def test_a_forked_child_asks_the_builder_of_its_parent(cache):
     assert loaded is not None and float(loaded["child_f"](2.0)) == 4.0
 
 
+def test_asking_never_waits_for_a_builder_that_does_not_read(cache):
+    """A plan asks for libraries while its builder is busy; were the requests written
+    waiting, a builder that does not read (here stopped) would hold the plan once its pipe
+    is full. A request that finds the pipe full is asked again at a later call."""
+    import os
+    import signal
+    import threading
+
+    import casadi as ca
+
+    x = ca.SX.sym("x")
+    assert compiled.library("first", [ca.Function("first_f", [x], [x])], background=True) is None
+    builder = compiled._BUILDER
+    assert isinstance(builder, compiled._Builder)
+    os.kill(builder.process.pid, signal.SIGSTOP)
+    try:
+        asked = threading.Thread(target=lambda: [
+            compiled.library(f"many{k}", [ca.Function(f"many{k}_f", [x], [x + k])],
+                             background=True) for k in range(600)], daemon=True)
+        asked.start()
+        asked.join(120)  # written waiting, the calls stop at the full pipe for good
+        assert not asked.is_alive()
+        unasked = 600 - sum(f"many{k}" in compiled.started() for k in range(600))
+        assert unasked > 0  # the pipe was full: those were not recorded as asked
+    finally:
+        os.kill(builder.process.pid, signal.SIGKILL)
+
+
 def test_the_builder_finishes_what_it_was_asked_after_the_process_has_gone(cache):
     """A command-line plan exits at once; the libraries its plan asked for are built all
     the same, for the next one."""
