@@ -73,6 +73,19 @@ def hard_median(rows: Rows) -> str:
     return f"{_median_never(_ours(rows)):.3g} s"
 
 
+def never_met(rows: Rows) -> str:
+    """The median, 90th percentile and worst time to a verified plan of the configuration
+    that starts with only the examples' kernels compiled (unverified counted as never)."""
+    mine = [r for r in rows if r["config"] == "structures never met"]
+    if not mine:
+        return "–"
+    every = sorted(r["time_to_verified"] if r["verified"] else math.inf for r in mine)
+    p90 = every[max(math.ceil(0.9 * len(every)) - 1, 0)]
+    verified = sum(1 for r in mine if r["verified"])
+    return (f"{_median_never(mine):.3g} s, 90th percentile {p90:.3g} s, worst {every[-1]:.3g}"
+            f" s ({verified} of {len(mine)} verified)")
+
+
 def co_design(*seeds: Rows) -> str:
     return _share([r for rows in seeds for r in _ours(rows) if r["category"] == "co-design"])
 
@@ -160,6 +173,9 @@ FIGURES = (
     Figure("Hard suite, three seeds: plans verified", "", "suite", HARD, hard_verified),
     Figure("Hard suite, its seed: median time to a verified plan (unverified: never)", "",
            "suite", HARD[:1], hard_median),
+    Figure("Hard suite, its seed, on a service that has built only the examples' kernels "
+           "(every other structure met for the first time): time to a verified plan",
+           "2 s median", "suite", HARD[:1], never_met),
     Figure("Wave co-design with a coupling margin (hard suite, three seeds): verified",
            "90 %", "suite", HARD, co_design),
     Figure("Seed arm across a singularity, g = 0: median Ipopt iterations (hard suite)",
