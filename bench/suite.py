@@ -75,6 +75,7 @@ from planner.scene import DurationRange, Scene
 from testbed.suites import hard as hard_suite
 from testbed.suites.ordinary import COUNT, SEED, tasks
 
+NEVER_MET = "structures never met"
 CONFIGS = {
     "undertow": "default settings",
     "refinement off": "transcription.refinement.enabled false",
@@ -84,10 +85,10 @@ CONFIGS = {
                      "first_hessian_perturbation 1e-8",
     "one BLAS thread": "OPENBLAS_NUM_THREADS 1: the solver's OpenBLAS on one thread (the "
                        "planner's: OpenBLAS' own count, a thread per core)",
-    "structures never met": "default settings in a cache folder of its own that holds only "
-                            "the built-in examples' compiled kernels, as a service has them "
-                            "when it starts: a structure's first plans run interpreted while "
-                            "its kernels are built in the background",
+    NEVER_MET: "default settings in a cache folder of its own that holds only "
+               "the built-in examples' compiled kernels, as a service has them when it "
+               "starts: a structure's first plans run interpreted while its kernels are "
+               "built in the background",
     "before": f"the planner of {BEFORE}, before plans were refined and checked interval by "
               "interval (verified: the whole-horizon replay within 1e-3 rad)",
     "Opti script": "plain CasADi Opti, Legendre 3, 50 intervals, Ipopt defaults",
@@ -97,7 +98,6 @@ CONFIGS = {
                      "piecewise-constant torque, CasADi's fatrop",
     "opty": "opty midpoint, 50 intervals, torque linear between nodes, Ipopt (L-BFGS)",
 }
-NEVER_MET = "structures never met"
 ROCKIT = {"rockit": ("collocation", "ipopt"), "rockit fatrop": ("multiple shooting", "fatrop")}
 PEERS = ("Opti script", *ROCKIT)  # run in this project's environment
 OPTY_METHOD = "midpoint"
