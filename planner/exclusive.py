@@ -5,7 +5,7 @@ threads calling one cached instance at once corrupt it (four simulations of one 
 once ended the process with a segmentation fault). Plain SX and MX functions are safe
 to share and are not wrapped. The planner's own NLPs and re-integrations hold locks of
 their own, as one solve or check spans several calls: `Problem.lock`
-(`planner.ocp.solve.solve`) and the lock of `planner.ocp.flow.quiet`.
+(`planner.ocp.solve.solve`) and the integrators' locks of `planner.ocp.flow.quiet`.
 """
 
 from __future__ import annotations

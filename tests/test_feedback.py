@@ -15,7 +15,7 @@ from planner.model import Structure
 from planner.ocp import flow as flow_module
 from planner.ocp import plan
 from planner.ocp.accuracy import SAMPLES, interval_errors
-from planner.ocp.feedback import PERTURBATION, growth_factor, linearise, replay
+from planner.ocp.feedback import PERTURBATION, REPLAY_TOL, growth_factor, linearise, replay
 from planner.ocp.flow import Flow, flow, inputs
 from planner.scene import Scene
 from testbed.suites.ordinary import tasks
@@ -131,7 +131,10 @@ def test_the_feedback_holds_a_perturbed_start_near_the_plan_where_open_loop_depa
     assert gains.shape == (len(result.t) - 1, len(sc.robot.active), 2 * sc.robot.n)
 
 
-def test_replays_from_several_starts_equal_each_alone(seed_arm):
+def test_replays_from_several_starts_agree_with_each_alone(seed_arm):
+    """Lanes stacked into one ODE (at REPLAY_TOL / sqrt(3)) against each lane alone (at
+    REPLAY_TOL): the same errors within five times the tolerance; the verification's
+    closed-loop error is the first of its own two lanes."""
     sc, result, interp = seed_arm
     K = np.asarray(result.feedback.gains)
     start = np.concatenate([result.q[0], result.dq[0]])
@@ -139,8 +142,10 @@ def test_replays_from_several_starts_equal_each_alone(seed_arm):
     together = replay(sc.robot, interp, starts, K)
     alone = [replay(sc.robot, interp, x[None, :], K)[0] for x in starts]
     assert [status for _, status in together] == ["completed"] * 3
-    assert np.allclose([e for e, _ in together], [e for e, _ in alone], rtol=1e-9, atol=0.0)
-    assert together[0][0] == result.verification.closed_loop_error
+    assert np.allclose([e for e, _ in together], [e for e, _ in alone], rtol=0.0,
+                       atol=5 * REPLAY_TOL)
+    assert replay(sc.robot, interp, starts[:2], K)[0][0] == \
+        result.verification.closed_loop_error
 
 
 def test_a_start_that_diverges_leaves_the_other_replays_whole(seed_arm):
@@ -149,7 +154,8 @@ def test_a_start_that_diverges_leaves_the_other_replays_whole(seed_arm):
     start = np.concatenate([result.q[0], result.dq[0]])
     wild = start + np.concatenate([np.zeros(sc.robot.n), np.full(sc.robot.n, 1e4)])
     (planned, status), (error, why) = replay(sc.robot, interp, np.stack([start, wild]), K)
-    assert status == "completed" and planned == result.verification.closed_loop_error
+    assert status == "completed" and planned == replay(sc.robot, interp, start[None, :], K)[0][0]
+    assert planned == pytest.approx(result.verification.closed_loop_error, abs=5 * REPLAY_TOL)
     assert error is None and why.startswith(("CVODES failed between t = 0 s",
                                              "the state became non-finite between t = 0 s"))
 

@@ -10,8 +10,9 @@ import threading
 import numpy as np
 from test_diverging import ROBOT, inputs
 
+from planner.captured import captured
 from planner.model import Structure
-from planner.ocp.flow import flow
+from planner.ocp.flow import flow, lock_of
 
 
 def _in_threads(work, count: int = 3) -> None:
@@ -55,3 +56,45 @@ def test_flows_diverging_in_three_threads_at_once_keep_their_dumps_and_the_strea
     assert (sys.stdout, sys.stderr) == before
     assert capfd.readouterr() == ("", "")
     assert len(notes) == 15 and all(any("Input 0 (x0)" in n for n in ns) for ns in notes)
+
+
+def test_a_capture_keeps_its_own_thread_s_output_and_lets_the_others_through(capsys):
+    """While one thread captures, another prints as it would without the capture, and the
+    streams are the process's own once the capture ends (`planner.captured`)."""
+    before = sys.stdout, sys.stderr
+    inside, printed = threading.Event(), threading.Event()
+    kept: list[str] = []
+
+    def capture() -> None:
+        with captured() as (out, err):
+            print("from the capturing thread")
+            print("and to its stderr", file=sys.stderr)
+            inside.set()
+            printed.wait(10)
+        kept.extend([out.getvalue(), err.getvalue()])
+
+    thread = threading.Thread(target=capture)
+    thread.start()
+    inside.wait(10)
+    print("from another thread meanwhile")
+    printed.set()
+    thread.join(10)
+    assert kept == ["from the capturing thread\n", "and to its stderr\n"]
+    assert capsys.readouterr() == ("from another thread meanwhile\n", "")
+    assert (sys.stdout, sys.stderr) == before
+
+
+def test_integrations_of_different_integrators_do_not_wait_for_each_other():
+    """One lock per integrator (`lock_of`): a call of one integrator goes on while another
+    integrator's lock is held, and the same integrator's waits."""
+    s = Structure.of(ROBOT)
+    one, other = flow(s, 0, 4, 1), flow(s, 0, 4, 1, tol=1e-8)
+    assert lock_of(one.adams) is lock_of(one.adams) is not lock_of(other.adams)
+    with lock_of(one.adams):
+        done = threading.Event()
+
+        def integrate() -> None:
+            other(*inputs(1, 0.1, 0.2))
+            done.set()
+        threading.Thread(target=integrate).start()
+        assert done.wait(30)

@@ -21,10 +21,9 @@ iteration takes over.
 
 from __future__ import annotations
 
-import contextlib
-import io
 import sys
 import threading
+import weakref
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -32,6 +31,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from planner.captured import captured
 from planner.compiled import library, source_digest
 from planner.dynamics import functions
 from planner.model import Robot, Structure, parameters
@@ -96,24 +96,32 @@ class Flow:
             return quiet(self.bdf, x0=x0, p=p, u=u)
 
 
-_INTEGRATING = threading.Lock()
-"""Held for every call of `quiet`: an integrator keeps the state of a call in itself
-(`planner.exclusive`), and the cached ones are shared by the process's threads (a
-server's replanning sessions); `contextlib.redirect_stdout` swaps the process's one
-`sys.stdout`, which two captures at once would leave pointing into one's buffer."""
+_LOCKS: weakref.WeakKeyDictionary[ca.Function, threading.Lock] = weakref.WeakKeyDictionary()
+_LOCKING = threading.Lock()  # guards _LOCKS
 
 
-def quiet(integrate: ca.Function, **args: np.ndarray) -> np.ndarray:
-    """xf of one call. A CasADi Function whose call fails prints its name and every input
-    ("Function flow (0x...) Input 0 (x0): [...]") to Python's stdout or stderr before it
-    raises: a diverging replay would fill a worker's log or a command line's output with
-    them. What a call prints is captured; a failed call's becomes a note of its
-    RuntimeError, anything a successful call (or another thread meanwhile) printed is
-    passed on unchanged. Calls run one at a time in a process (`_INTEGRATING`)."""
-    out, err = io.StringIO(), io.StringIO()
+def lock_of(integrator: ca.Function) -> threading.Lock:
+    """The lock held by every call that runs `integrator`: an integrator keeps the state
+    of a call in itself (`planner.exclusive`), and the cached ones are shared by the
+    process's threads (a server's replanning sessions, a plan's checks), directly or
+    inside the Functions that map them."""
+    with _LOCKING:
+        return _LOCKS.setdefault(integrator, threading.Lock())
+
+
+def quiet(function: ca.Function, *, runs: ca.Function | None = None,
+          **args: np.ndarray) -> np.ndarray:
+    """xf of one call of `function`, which runs the integrator `runs` (by default it is
+    one). A CasADi Function whose call fails prints its name and every input ("Function
+    flow (0x...) Input 0 (x0): [...]") to Python's stdout or stderr before it raises: a
+    diverging replay would fill a worker's log or a command line's output with them. What
+    the call prints is captured (`planner.captured`: other threads print on meanwhile); a
+    failed call's becomes a note of its RuntimeError, anything a successful call printed
+    is passed on unchanged. Calls that run one integrator run one at a time (`lock_of`);
+    calls of different integrators run at once, in threads of their own."""
     try:
-        with _INTEGRATING, contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-            xf = integrate(**args)["xf"]
+        with lock_of(function if runs is None else runs), captured() as (out, err):
+            xf = function(**args)["xf"]
     except RuntimeError as exc:
         exc.add_note(out.getvalue() + err.getvalue())
         raise
@@ -137,6 +145,15 @@ def ready(s: Structure, degree: int, compiled: bool) -> bool:
     """Whether the right-hand side runs compiled: asked for, and its library loaded (it is
     built in the background meanwhile)."""
     return compiled and _compiled_dae(s, degree) is not None
+
+
+def stepper(s: Structure, degree: int, outputs: int, batch: int, tol: float, compiled: bool,
+            method: Method) -> ca.Function:
+    """CVODES by `method` over `batch` intervals at once, (x0 (2n x B), p (n_p x B),
+    u (na x outputs B)) -> xf (2n x outputs B) as in `flow`: the integrator itself for one,
+    the intervals stacked into one ODE for more (compiled only once `ready`)."""
+    flows = _flow(s, degree, outputs, batch, tol, compiled)
+    return flows.adams if method == "adams" else flows.bdf
 
 
 @lru_cache(maxsize=64)

@@ -6,9 +6,11 @@ flow of one interval: on interval k, with gains K_k (na, 2n), the feedback adds 
 offset u_k = -K_k (x(t_k) - x_plan(t_k)), held over the interval; without gains, the
 torque alone. It is compared with the plan at REPLAY_SAMPLES points per interval.
 
-Every lane of a call runs in one CasADi call per CHUNK intervals (the integrator mapped
-over the lanes, accumulated over the intervals), so that Python steps in between only
-to watch the deadline. Where a chunk fails (CVODES stops, or a state is not finite), it
+Every lane of a call runs in one CasADi call per CHUNK intervals, so that Python steps
+in between only to watch the deadline: on each interval, the lanes' states are stacked
+into one ODE that one CVODES run integrates (`planner.ocp.flow.stepper`, at the tolerance
+divided by the square root of the lanes, which holds each lane within its own: one run's
+start-up and steps serve every lane), accumulated over the intervals. Where a chunk fails (CVODES stops, or a state is not finite), it
 and the rest of the horizon are replayed lane by lane and interval by interval, by
 Adams and by BDF where Adams fails, as each replay stands on its own: one that diverges
 leaves the others whole, and says where it failed.
@@ -24,7 +26,7 @@ import casadi as ca
 import numpy as np
 
 from planner.model import Structure
-from planner.ocp.flow import Flow, flow, integrator, quiet, ready
+from planner.ocp.flow import Flow, flow, quiet, ready, stepper
 from planner.ocp.transcription import Interpolant
 
 REPLAY_SAMPLES = 4  # comparison points per interval
@@ -120,16 +122,17 @@ def _chunk(s: Structure, degree: int, intervals: int, count: int, tol: float,
     a state is not finite."""
     cols = slice(first, first + intervals)
     n2, na = 2 * s.n, len(s.active_idx)
-    params = np.hstack([lane.params[:, cols] for lane in lanes])
-    planned = np.tile(ref.planned[cols].T, count)
-    gains = np.hstack([np.zeros((na, n2 * intervals)) if lane.K is None
-                       else np.hstack(list(lane.K[cols])) for lane in lanes])
-    run = _mapped(s, degree, intervals, count, tol, compiled)
+    params = np.stack([lane.params[:, cols] for lane in lanes], axis=2)  # (n_p, k, lane)
+    gains = np.stack([np.zeros((intervals, na, n2)) if lane.K is None else lane.K[cols]
+                      for lane in lanes], axis=1)  # (k, lane, na, 2n)
+    step = stepper(s, degree, REPLAY_SAMPLES, count, tol, compiled, "adams")
     try:
-        out = quiet(run, x0=x, p=params, planned=planned, K=gains)
+        out = quiet(_mapped(s, degree, intervals, count, tol, compiled), runs=step, x0=x,
+                    p=params.reshape(params.shape[0], -1), planned=ref.planned[cols].T,
+                    K=gains.transpose(2, 0, 1, 3).reshape(na, -1))
     except RuntimeError:
         return None
-    states = out.T.reshape(count, intervals, REPLAY_SAMPLES, n2)
+    states = out.T.reshape(intervals, count, REPLAY_SAMPLES, n2).transpose(1, 0, 2, 3)
     return states if np.all(np.isfinite(states)) else None
 
 
@@ -150,23 +153,25 @@ def _commanded(ref: Reference, lanes: list[Lane], starts: np.ndarray,
 @lru_cache(maxsize=64)
 def _mapped(s: Structure, degree: int, intervals: int, count: int, tol: float,
             compiled: bool) -> ca.Function:
-    """(x0 (2n x count), p (n_p x intervals count), planned (2n x intervals count),
-    K (na x 2n intervals count)) -> xf (2n x REPLAY_SAMPLES intervals count): `count`
-    lanes over `intervals` intervals, each with its feedback (Adams)."""
-    step = integrator(s, degree, REPLAY_SAMPLES, tol, compiled, "adams")
+    """(x0 (2n x count), p (n_p x intervals count), planned (2n x intervals),
+    K (na x 2n count intervals)) -> xf (2n x REPLAY_SAMPLES count intervals), the columns
+    of p, K and xf interval by interval and lane by lane within it: `count` lanes over
+    `intervals` intervals, each with its feedback, all lanes of an interval in one CVODES
+    run by Adams (`planner.ocp.flow.stepper`: the lanes stacked into one ODE)."""
+    step = stepper(s, degree, REPLAY_SAMPLES, count, tol, compiled, "adams")
     n2, na = 2 * s.n, len(s.active_idx)
-    x, planned = ca.MX.sym("x", n2), ca.MX.sym("planned", n2)
-    p, K = ca.MX.sym("p", step.size1_in("p")), ca.MX.sym("K", na, n2)
-    u = -ca.mtimes(K, x - planned)
-    xf = step(x0=x, p=p, u=ca.repmat(u, 1, REPLAY_SAMPLES))["xf"]
-    one = ca.Function("replay_interval", [x, p, planned, K], [xf[:, -1], xf])
-    along = one.mapaccum("replay_intervals", intervals)
-    x0 = ca.MX.sym("x0", n2)
-    ps, plans = ca.MX.sym("p", p.numel(), intervals), ca.MX.sym("planned", n2, intervals)
-    gains = ca.MX.sym("K", na, n2 * intervals)
-    lane = ca.Function("replay_lane", [x0, ps, plans, gains],
+    x, planned = ca.MX.sym("x", n2, count), ca.MX.sym("planned", n2)
+    p, K = ca.MX.sym("p", step.size1_in("p"), count), ca.MX.sym("K", na, n2 * count)
+    offsets = [ca.repmat(-ca.mtimes(K[:, b * n2:(b + 1) * n2], x[:, b] - planned),
+                         1, REPLAY_SAMPLES) for b in range(count)]
+    xf = step(x0=x, p=p, u=ca.horzcat(*offsets))["xf"]
+    ends = xf[:, [(b + 1) * REPLAY_SAMPLES - 1 for b in range(count)]]
+    along = ca.Function("replay_interval", [x, p, planned, K], [ends, xf]).mapaccum(
+        "replay_intervals", intervals)
+    x0, ps = ca.MX.sym("x0", n2, count), ca.MX.sym("p", p.size1(), count * intervals)
+    plans, gains = ca.MX.sym("planned", n2, intervals), ca.MX.sym("K", na, n2 * count * intervals)
+    return ca.Function("replay_lanes", [x0, ps, plans, gains],
                        [along(x0, ps, plans, gains)[1]], ["x0", "p", "planned", "K"], ["xf"])
-    return lane.map(count)
 
 
 def _one_lane(integrate: Flow, ref: Reference, lane: Lane, x: np.ndarray, first: int,

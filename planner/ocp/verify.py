@@ -19,6 +19,7 @@
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from time import perf_counter
 
@@ -236,19 +237,23 @@ def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.nd
     (`planner.ocp.margin_proof`). Also the plan's feedback (None where the linearisation
     failed). Past `deadline` (time.perf_counter() seconds), the optional checks, the
     closed-loop replays, are skipped (`Verification.skipped`); a replay on a perturbed model
-    stopped there counts as one that did not stay within the bound."""
+    stopped there counts as one that did not stay within the bound. The open-loop replay,
+    CVODES for the most part (CasADi lets go of Python's lock meanwhile), runs in a thread
+    of its own beside the other checks."""
     tolerance, compiled = settings.resimulation_tolerance, settings.jit
-    kept = limits(robot, interp, t_dense, task.torque_limit, task.position_bounds,
-                  task.velocity_bounds)
-    sigma, det = coupling_along(robot, interp.q(t_dense))
-    if proof is None:
-        proof = prove(robot, interp, task.coupling_margin, deadline)
-    asked = requirements(robot, interp, t_dense, task, sigma, proof, tolerance)
-    crossings, waveless = singular_crossings(robot, interp, t_dense, sigma, det)
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="checks") as pool:
+        replaying = pool.submit(open_loop, robot, interp, compiled, deadline)
+        kept = limits(robot, interp, t_dense, task.torque_limit, task.position_bounds,
+                      task.velocity_bounds)
+        sigma, det = coupling_along(robot, interp.q(t_dense))
+        if proof is None:
+            proof = prove(robot, interp, task.coupling_margin, deadline)
+        asked = requirements(robot, interp, t_dense, task, sigma, proof, tolerance)
+        crossings, waveless = singular_crossings(robot, interp, t_dense, sigma, det)
+        fb, measured = _feedback(robot, interp, task.torque_limit, compiled, deadline)
+        robust, robust_ok = _robust(robot, interp, fb, task, settings, deadline)
+        replayed = replaying.result()
     local = float(errors.max())
-    replayed = open_loop(robot, interp, compiled, deadline)
-    fb, measured = _feedback(robot, interp, task.torque_limit, compiled, deadline)
-    robust, robust_ok = _robust(robot, interp, fb, task, settings, deadline)
     accurate = errors_status == "completed" and local <= tolerance
     return Verification(
         local_error=local if np.isfinite(local) else None,
