@@ -5,6 +5,7 @@ companion process that solves the continuation beside the plan's own starts."""
 from __future__ import annotations
 
 import os
+import signal
 import threading
 import time
 from pathlib import Path
@@ -168,11 +169,59 @@ def test_a_companion_stops_once_the_process_that_forked_it_is_gone(
     assert guard(None) is False  # type: ignore[arg-type]
 
 
-def test_a_deferred_companion_runs_at_the_lowest_priority():
+def _state(pid: int) -> str:
+    """The process's state letter (R, S, T, Z, ...), "gone" when it has none."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (FileNotFoundError, ProcessLookupError):
+        return "gone"
+
+
+def _paused(companion: portfolio.Companion) -> None:
+    """Defer the companion until it is paused: right after the fork it may not yet have
+    said that it dies with this process (then it only runs at the lowest priority)."""
+    wait_until(lambda: companion.defer() or companion.paused, 10.0)
+
+
+def test_a_deferred_companion_is_paused_until_it_is_waited_for():
+    companion = portfolio.Companion(lambda guard: time.sleep(30))
+    try:
+        _paused(companion)
+        assert portfolio.PAUSABLE and _state(companion.pid) == "T"
+        companion.wait(time.perf_counter() + 0.1)
+        assert _state(companion.pid) in {"S", "R"}
+    finally:
+        companion.stop()
+
+
+def test_a_paused_companion_dies_with_the_process_that_forked_it():
+    """kill -9 of a plan's process while its companion is paused leaves no companion
+    behind, stopped for ever."""
+    read, write = os.pipe()
+    middle = os.fork()
+    if middle == 0:  # the plan's process
+        try:
+            companion = portfolio.Companion(lambda guard: time.sleep(60))
+            _paused(companion)
+            os.write(write, str(companion.pid).encode())
+            time.sleep(60)
+        finally:
+            os._exit(0)
+    pid = int(os.read(read, 32))
+    assert _state(pid) == "T"
+    os.kill(middle, signal.SIGKILL)
+    os.waitpid(middle, 0)
+    wait_until(lambda: _state(pid) in {"gone", "Z"}, 10.0)
+
+
+def test_a_companion_that_cannot_be_paused_runs_at_the_lowest_priority(
+        monkeypatch: pytest.MonkeyPatch):
+    monkeypatch.setattr(portfolio, "PAUSABLE", False)
     companion = portfolio.Companion(lambda guard: time.sleep(30))
     try:
         companion.defer()
         assert os.getpriority(os.PRIO_PROCESS, companion.pid) == portfolio.LOWEST
+        assert _state(companion.pid) != "T"
     finally:
         companion.stop()
 
@@ -195,6 +244,7 @@ def test_a_stopped_companion_is_reaped_by_a_thread_not_by_the_plan(
 
 def test_a_companion_gets_its_priority_back_before_it_is_killed(
         monkeypatch: pytest.MonkeyPatch):
+    monkeypatch.setattr(portfolio, "PAUSABLE", False)
     companion = portfolio.Companion(lambda guard: time.sleep(30))
     companion.defer()
     at_kill = []

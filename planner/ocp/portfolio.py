@@ -5,13 +5,15 @@ where the machine has two cores or more). With two, the process that plans forks
 companion that solves the continuation start (`planner.ocp.continuation`) while it goes
 through its own starts; the first verified plan wins and the other process stops. The
 companion is forked, so it needs no start-up and shares the NLPs already built; it stops
-by itself when the process that forked it is gone, and is killed when the plan ends (and
-reaped by a thread, so that the plan does not wait for its memory to be released).
+by itself when the process that forked it is gone (on Linux the kernel kills it then),
+is paused while the plan's own checks run, and is killed when the plan ends (and reaped
+by a thread, so that the plan does not wait for its memory to be released).
 """
 
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import math
 import os
 import pickle
@@ -26,7 +28,7 @@ from planner.ocp.result import Plan, Progress
 
 ENVIRONMENT = "UNDERTOW_SOLVER_PROCESSES"
 LOWEST = 19
-"""The niceness of a deferred companion (`Companion.defer`)."""
+"""The niceness of a deferred companion where it cannot be paused (`Companion.defer`)."""
 
 
 def solver_processes() -> int:
@@ -48,20 +50,53 @@ def orphan_guard() -> Handler:
     return handler
 
 
+def _prctl() -> Callable[..., int] | None:
+    """Linux's prctl(2), None where the C library has none."""
+    try:
+        return ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):
+        return None
+
+
+PAUSABLE = _prctl() is not None
+"""Whether a companion can be paused (`Companion.defer`): only where it dies with the
+process that forked it (prctl's PR_SET_PDEATHSIG), so that a paused one never outlives
+a plan's process killed meanwhile."""
+_PR_SET_PDEATHSIG = 1
+
+
+def _die_with(parent: int) -> None:
+    """Have the kernel kill this process once the thread that forked it ends; exit at
+    once where it cannot, or where `parent` is gone already."""
+    prctl = _prctl()
+    if prctl is None or prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0) != 0 \
+            or os.getppid() != parent:
+        os._exit(1)
+
+
 class Companion:
     """A forked process running `run` (which returns a Plan); its plan comes back through
     a pipe."""
 
     def __init__(self, run: Callable[[Handler], Plan]):
         read, write = os.pipe()
+        armed, arming = os.pipe()  # a byte once it dies with this process
+        parent = os.getpid()
         pid = os.fork()
         if pid == 0:  # the companion
             os.close(read)
+            os.close(armed)
+            if PAUSABLE:
+                _die_with(parent)
+                os.write(arming, b"!")
+            os.close(arming)
             _serve(run, write)
         os.close(write)
-        self.pid, self._fd = pid, read
+        os.close(arming)
+        self.pid, self._fd, self._armed = pid, read, armed
         self.plan: Plan | None = None
         self.finished = False
+        self.paused = self._dying = False
 
     def ready(self, timeout: float = 0.0) -> bool:
         """Whether its plan has come (waiting up to `timeout` [s] for it); reads it."""
@@ -74,17 +109,34 @@ class Companion:
         return self.ready() and self.plan is not None and _verified(self.plan)
 
     def wait(self, deadline: float) -> Plan | None:
-        """Its plan, waiting for it until `deadline` (time.perf_counter() seconds)."""
+        """Its plan, waiting for it until `deadline` (time.perf_counter() seconds); a
+        paused companion goes on first."""
+        if self.paused:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(self.pid, signal.SIGCONT)
+            self.paused = False
         self.ready(deadline - time.perf_counter())
         return self.plan
 
     def defer(self) -> None:
-        """Let the companion run only on time that other work leaves over (the lowest
-        priority, nice 19): once the plan's own solve has settled, its checks need the
-        core far more than a companion whose plan is then rarely taken, which still runs
-        at full speed while the plan's own process waits for it."""
+        """Once the plan's own solve has settled, its checks need the cores far more than
+        a companion whose plan is then rarely taken: pause the companion until `wait`
+        (SIGSTOP) where it is `PAUSABLE`, so that the checks have both cores; elsewhere let
+        it run only on time other work leaves over (the lowest priority, nice 19)."""
+        if PAUSABLE and self._dies_with_us():
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(self.pid, signal.SIGSTOP)
+                self.paused = True
+            return
         with contextlib.suppress(ProcessLookupError, PermissionError):
             os.setpriority(os.PRIO_PROCESS, self.pid, LOWEST)
+
+    def _dies_with_us(self) -> bool:
+        """Whether the companion has said that it dies with this process (it does so at
+        once after the fork; not waited for)."""
+        if not self._dying and select.select([self._armed], [], [], 0.0)[0]:
+            self._dying = os.read(self._armed, 1) == b"!"
+        return self._dying
 
     def stop(self) -> None:
         """End the companion (if still running) and release its pipe. A deferred companion
@@ -98,8 +150,9 @@ class Companion:
             os.kill(self.pid, signal.SIGKILL)
         threading.Thread(target=_reap, args=(self.pid,), name=f"reap-{self.pid}",
                          daemon=True).start()
-        with contextlib.suppress(OSError):
-            os.close(self._fd)
+        for fd in (self._fd, self._armed):
+            with contextlib.suppress(OSError):
+                os.close(fd)
 
     def _read(self) -> None:
         chunks = []

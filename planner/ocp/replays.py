@@ -10,10 +10,11 @@ Every lane of a call runs in one CasADi call per CHUNK intervals, so that Python
 in between only to watch the deadline: on each interval, the lanes' states are stacked
 into one ODE that one CVODES run integrates (`planner.ocp.flow.stepper`, at the tolerance
 divided by the square root of the lanes, which holds each lane within its own: one run's
-start-up and steps serve every lane), accumulated over the intervals. Where a chunk fails (CVODES stops, or a state is not finite), it
-and the rest of the horizon are replayed lane by lane and interval by interval, by
-Adams and by BDF where Adams fails, as each replay stands on its own: one that diverges
-leaves the others whole, and says where it failed.
+start-up and steps serve every lane), accumulated over the intervals. Where a chunk
+fails (CVODES stops, or a state is not finite), it and the rest of the horizon are
+replayed lane by lane and interval by interval, by Adams and by BDF where Adams fails, as
+each replay stands on its own: one that diverges leaves the others whole, and says where
+it failed.
 """
 
 from __future__ import annotations
