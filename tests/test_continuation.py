@@ -187,9 +187,10 @@ def test_a_deferred_companion_is_paused_until_it_is_waited_for():
     companion = portfolio.Companion(lambda guard: time.sleep(30))
     try:
         _paused(companion)
-        assert portfolio.PAUSABLE and _state(companion.pid) == "T"
+        assert portfolio.PAUSABLE
+        wait_until(lambda: _state(companion.pid) == "T", 10.0)  # once the signal lands
         companion.wait(time.perf_counter() + 0.1)
-        assert _state(companion.pid) in {"S", "R"}
+        wait_until(lambda: _state(companion.pid) in {"S", "R"}, 10.0)
     finally:
         companion.stop()
 
@@ -208,7 +209,7 @@ def test_a_paused_companion_dies_with_the_process_that_forked_it():
         finally:
             os._exit(0)
     pid = int(os.read(read, 32))
-    assert _state(pid) == "T"
+    wait_until(lambda: _state(pid) == "T", 10.0)
     os.kill(middle, signal.SIGKILL)
     os.waitpid(middle, 0)
     wait_until(lambda: _state(pid) in {"gone", "Z"}, 10.0)

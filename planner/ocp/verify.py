@@ -253,12 +253,9 @@ def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.nd
         fb, measured = _feedback(robot, interp, task.torque_limit, compiled, deadline)
         robust, robust_ok = _robust(robot, interp, fb, task, settings, deadline)
         replayed = replaying.result()
-    local = float(errors.max())
-    accurate = errors_status == "completed" and local <= tolerance
+    accurate = errors_status == "completed" and float(errors.max()) <= tolerance
     return Verification(
-        local_error=local if np.isfinite(local) else None,
-        interval_errors=[float(e) if np.isfinite(e) else None for e in errors],
-        local_status=errors_status,
+        **_intervals(errors, errors_status),
         verified=converged and accurate and not kept.violations and not asked.violations
         and robust_ok,
         converged=converged, tolerance=tolerance,
@@ -270,12 +267,25 @@ def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.nd
         tip_error=asked.tip_error, duration_excess=asked.duration_excess,
         margin_shortfall=asked.margin_shortfall,
         margin_certificate=asked.margin_certificate, tracking_error=asked.tracking_error,
-        task_violations=asked.violations,
-        min_sigma=_minimum(sigma), waveless_min_sigma=_minimum(waveless),
-        waveless_singular_crossings=crossings,
-        sigma_min=_samples(sigma), waveless_sigma_min=_samples(waveless),
+        task_violations=asked.violations, **_coupling(sigma, waveless, crossings),
         robustness=robust, **measured,
     ), fb
+
+
+def _intervals(errors: np.ndarray, status: str) -> dict:
+    """The Verification's fields of the interval errors (N,) [rad] and their status."""
+    local = float(errors.max())
+    return {"local_error": local if np.isfinite(local) else None,
+            "interval_errors": [float(e) if np.isfinite(e) else None for e in errors],
+            "local_status": status}
+
+
+def _coupling(sigma: np.ndarray, waveless: np.ndarray, crossings: list[Crossing]) -> dict:
+    """The Verification's fields of the coupling along the plan: sigma_min of M_pa (K,)
+    [kg m^2] with the robot's waves and without, and the waveless singular crossings."""
+    return {"min_sigma": _minimum(sigma), "waveless_min_sigma": _minimum(waveless),
+            "waveless_singular_crossings": crossings, "sigma_min": _samples(sigma),
+            "waveless_sigma_min": _samples(waveless)}
 
 
 def _robust(robot: Robot, interp: Interpolant, fb: Feedback | None, task: Task,
