@@ -232,11 +232,11 @@ def test_stages_compiled_earlier_load_without_symbolic_work(cache, monkeypatch):
     the cache folder: no stage function is built, and every kernel, sparsity and row bound
     is the symbolic stages' own."""
     from planner.ocp import stages as stages_module
-    from planner.ocp.problem import ProblemKey, _stage_key
+    from planner.ocp.problem import ProblemKey
 
     scene = Scene.model_validate({**_scene(0.33).model_dump(exclude_unset=True),
                                   "transcription": {"method": "legendre", "intervals": 8}})
-    key = _stage_key(ProblemKey.of(scene))
+    key = ProblemKey.of(scene).stage_key()
     plain = stages_module.stages(key)
     assert stages_module.compiled_kernels(key, plain, wait=True) is not None
     stages_module.stages.cache_clear()

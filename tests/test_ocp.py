@@ -122,6 +122,21 @@ def test_a_compiled_nlp_is_named_by_the_code_that_built_it(monkeypatch):
     assert key.digest() != before
 
 
+def test_keys_that_differ_in_the_solver_s_settings_share_their_stages():
+    """Another tolerance or another solver changes how the NLP is solved, not its
+    functions: one stage key, one compiled library, one symbolic build; the NLPs (their
+    solvers' options) stay apart."""
+    plain = ProblemKey.of(scene(N=10))
+    other = ProblemKey.of(scene(N=12, solver={"tol": 1e-6}))
+    assert other.tol != plain.tol and other.stage_key() == plain.stage_key()
+    assert other.digest() == plain.digest()
+    assert stages(other.stage_key()) is stages(plain.stage_key())
+    assert other.stage_key() != ProblemKey.of(scene(N=10, tip_target=None,
+                                                    torque_limit=5.0)).stage_key()
+    built = problem(other)
+    assert built.key == other and built.options["ipopt"]["tol"] == 1e-6
+
+
 def test_the_code_that_builds_an_nlp_is_in_its_digest():
     builders = (ProblemKey, terms_of, parameters, stage_function, stages, boundary_cost, build,
                 assemble, Layout, Model, methods.create, functions)

@@ -119,6 +119,13 @@ class ProblemKey:
         out += (("wave", 2 * len(self.structure.active_idx)),) if self.codesign else ()
         return out + ((("idle", 1),) if self.idle else ())
 
+    def stage_key(self) -> ProblemKey:
+        """What the key's stages depend on (`planner.ocp.stages`): the key without its
+        number of intervals and without the solver's settings (its tolerance, iteration
+        limit and name), which change how the NLP is solved, not its functions; `idle` (one
+        variable more) and `jit` (whether to compile) stay."""
+        return replace(self, intervals=0, tol=0.0, max_iter=0, solver="")
+
     def fingerprint(self) -> str:
         """A stable hash of the whole key (its number of intervals too) and of the code that
         builds its NLP: two problems with the same fingerprint have the same variables and
@@ -126,10 +133,11 @@ class ProblemKey:
         return hashlib.sha256((repr(self) + formulation_hash()).encode()).hexdigest()[:20]
 
     def digest(self) -> str:
-        """A stable hash of the key (but its number of intervals) and of the code that builds
-        its NLP: names compiled stages in the disk cache, so code compiled from other
+        """A stable hash of the key's `stage_key` and of the code that builds its NLP: names
+        compiled stages in the disk cache, so that keys that differ only in their number of
+        intervals or their solver's settings share them, and code compiled from other
         sources is never loaded."""
-        text = repr(replace(self, intervals=0)) + formulation_hash()
+        text = repr(self.stage_key()) + formulation_hash()
         return hashlib.sha256(text.encode()).hexdigest()[:20]
 
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import threading
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from functools import lru_cache
 
 import casadi as ca
@@ -77,15 +77,10 @@ class Problem:
         return self._warm
 
 
-def _stage_key(key: ProblemKey) -> ProblemKey:
-    """The key without its number of intervals: what the stages depend on."""
-    return replace(key, intervals=0)
-
-
 def build(key: ProblemKey, compiled: bool = False) -> Problem:
     """Build the NLP of a key and its solver (compiled: with compiled kernels)."""
     start = time.perf_counter()
-    parts = stages(_stage_key(key), compiled)
+    parts = stages(key.stage_key(), compiled)
     tr = key.transcription()
     layout = Layout(*parts.parts, key.global_variables(), key.intervals)
     assembly = assemble(parts.kernels, parts.derivatives, parts.link, layout,
@@ -117,7 +112,7 @@ def problem(key: ProblemKey, wait: bool = False) -> Problem:
     """The NLP of a structure, built once and reused (cache keyed by `ProblemKey`). A key
     with `jit` gets compiled kernels once they are on disk; the first requests of its
     structure run interpreted while they are built in the background, unless wait."""
-    return cached_problem(key, compiled_ready(_stage_key(key), wait))
+    return cached_problem(key, compiled_ready(key.stage_key(), wait))
 
 
 @lru_cache(maxsize=256)

@@ -4,8 +4,6 @@ terminal's, each of a kind of `planner.ocp.stage_function.ROW_KINDS`, "dynamics"
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 
 from planner.ocp.problem import Problem, stages
@@ -15,7 +13,7 @@ def row_kinds(problem: Problem) -> tuple[np.ndarray, int]:
     """The kind of every row of the problem (lbg.size,) and the number of rows of one
     stage; "constraint" throughout (and 0 rows a stage) where the stages' kinds are not
     known."""
-    parts = stages(replace(problem.key, intervals=0), problem.compiled)
+    parts = stages(problem.key.stage_key(), problem.compiled)
     (stage, terminal), (stage_kinds, terminal_kinds) = parts.bounds, parts.kinds
     counts = [c for _, _, c in stage], [c for _, _, c in terminal]
     per_stage = np.repeat(np.array(stage_kinds or ["constraint"] * len(stage), object),
