@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import os
 import sys
 import threading
 from collections.abc import Iterator
@@ -65,3 +66,16 @@ def captured() -> Iterator[tuple[io.StringIO, io.StringIO]]:
 def _restored(stream: TextIO | _Router) -> TextIO:
     """The stream a router replaced; a stream someone set meanwhile, unchanged."""
     return stream.stream if isinstance(stream, _Router) else stream
+
+
+def _forked() -> None:
+    """In a forked child, which has only the thread that forked: no capture is running
+    (a guard another thread held stays held in a child), so the streams are the ones the
+    routers replaced."""
+    global _GUARD
+    _GUARD = threading.Lock()
+    _BUFFERS.clear()
+    sys.stdout, sys.stderr = _restored(sys.stdout), _restored(sys.stderr)
+
+
+os.register_at_fork(after_in_child=_forked)

@@ -4,8 +4,11 @@ and the process's streams are its own afterwards (`planner.ocp.flow.quiet`)."""
 
 from __future__ import annotations
 
+import os
+import signal
 import sys
 import threading
+import time
 
 import numpy as np
 from test_diverging import ROBOT, inputs
@@ -98,3 +101,39 @@ def test_integrations_of_different_integrators_do_not_wait_for_each_other():
             done.set()
         threading.Thread(target=integrate).start()
         assert done.wait(30)
+
+
+def test_a_forked_child_integrates_while_another_thread_of_its_parent_holds_the_integrator():
+    """A plan's companion is forked while a server's other threads may be integrating: the
+    locks and the capture another thread held at the fork are not held in the child, whose
+    streams are the process's own."""
+    f = flow(Structure.of(ROBOT), 0, 4, 1)
+    held, release = threading.Event(), threading.Event()
+    streams = sys.stdout, sys.stderr
+
+    def hold() -> None:
+        with lock_of(f.adams), captured():
+            held.set()
+            release.wait(30)
+    thread = threading.Thread(target=hold)
+    thread.start()
+    held.wait(10)
+    try:
+        child = os.fork()
+        if child == 0:
+            code = 1
+            try:
+                f(*inputs(1, 0.1, 0.2))
+                code = 0 if (sys.stdout, sys.stderr) == streams else 2
+            finally:
+                os._exit(code)
+        deadline = time.monotonic() + 30
+        while (done := os.waitpid(child, os.WNOHANG))[0] == 0 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        if done[0] == 0:
+            os.kill(child, signal.SIGKILL)
+            os.waitpid(child, 0)
+        assert done[0] == child and os.waitstatus_to_exitcode(done[1]) == 0
+    finally:
+        release.set()
+        thread.join(10)

@@ -21,6 +21,7 @@ iteration takes over.
 
 from __future__ import annotations
 
+import os
 import sys
 import threading
 import weakref
@@ -107,6 +108,17 @@ def lock_of(integrator: ca.Function) -> threading.Lock:
     inside the Functions that map them."""
     with _LOCKING:
         return _LOCKS.setdefault(integrator, threading.Lock())
+
+
+def _forked() -> None:
+    """In a forked child, which has only the thread that forked: every integrator's lock
+    anew, as one another thread held at the fork would stay held there."""
+    global _LOCKING
+    _LOCKING = threading.Lock()
+    _LOCKS.clear()
+
+
+os.register_at_fork(after_in_child=_forked)
 
 
 def quiet(function: ca.Function, *, runs: ca.Function | None = None,
