@@ -183,7 +183,9 @@ def _paused(companion: portfolio.Companion) -> None:
     wait_until(lambda: companion.defer() or companion.paused, 10.0)
 
 
-def test_a_deferred_companion_is_paused_until_it_is_waited_for():
+def test_a_deferred_companion_is_paused_until_it_is_waited_for(
+        monkeypatch: pytest.MonkeyPatch):
+    monkeypatch.setattr(portfolio, "PAUSE", 60.0)
     companion = portfolio.Companion(lambda guard: time.sleep(30))
     try:
         _paused(companion)
@@ -195,9 +197,25 @@ def test_a_deferred_companion_is_paused_until_it_is_waited_for():
         companion.stop()
 
 
-def test_a_paused_companion_dies_with_the_process_that_forked_it():
+def test_a_deferred_companion_goes_on_by_itself_after_its_pause(
+        monkeypatch: pytest.MonkeyPatch):
+    """Checks that take long (a hard plan's) leave the companion to go on beside them, at
+    the lowest priority."""
+    monkeypatch.setattr(portfolio, "PAUSE", 0.3)
+    companion = portfolio.Companion(lambda guard: time.sleep(30))
+    try:
+        _paused(companion)
+        wait_until(lambda: not companion.paused and _state(companion.pid) in {"S", "R"}, 10.0)
+        assert os.getpriority(os.PRIO_PROCESS, companion.pid) == portfolio.LOWEST
+    finally:
+        companion.stop()
+
+
+def test_a_paused_companion_dies_with_the_process_that_forked_it(
+        monkeypatch: pytest.MonkeyPatch):
     """kill -9 of a plan's process while its companion is paused leaves no companion
     behind, stopped for ever."""
+    monkeypatch.setattr(portfolio, "PAUSE", 60.0)
     read, write = os.pipe()
     middle = os.fork()
     if middle == 0:  # the plan's process

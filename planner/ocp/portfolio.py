@@ -28,7 +28,13 @@ from planner.ocp.result import Plan, Progress
 
 ENVIRONMENT = "UNDERTOW_SOLVER_PROCESSES"
 LOWEST = 19
-"""The niceness of a deferred companion where it cannot be paused (`Companion.defer`)."""
+"""The niceness of a deferred companion (`Companion.defer`) once its pause is over, or
+where it cannot be paused."""
+PAUSE = 0.5
+"""[s] The longest a deferred companion is paused. A plan's checks take tens of
+milliseconds; where they take longer (a hard plan, whose own checks may yet fail and leave
+the companion's plan to be taken), the companion goes on beside them at the lowest
+priority."""
 
 
 def solver_processes() -> int:
@@ -97,6 +103,7 @@ class Companion:
         self.plan: Plan | None = None
         self.finished = False
         self.paused = self._dying = False
+        self._pause: threading.Timer | None = None
 
     def ready(self, timeout: float = 0.0) -> bool:
         """Whether its plan has come (waiting up to `timeout` [s] for it); reads it."""
@@ -111,25 +118,32 @@ class Companion:
     def wait(self, deadline: float) -> Plan | None:
         """Its plan, waiting for it until `deadline` (time.perf_counter() seconds); a
         paused companion goes on first."""
-        if self.paused:
-            with contextlib.suppress(ProcessLookupError):
-                os.kill(self.pid, signal.SIGCONT)
-            self.paused = False
+        self._go_on()
         self.ready(deadline - time.perf_counter())
         return self.plan
 
     def defer(self) -> None:
         """Once the plan's own solve has settled, its checks need the cores far more than
-        a companion whose plan is then rarely taken: pause the companion until `wait`
-        (SIGSTOP) where it is `PAUSABLE`, so that the checks have both cores; elsewhere let
-        it run only on time other work leaves over (the lowest priority, nice 19)."""
-        if PAUSABLE and self._dies_with_us():
+        a companion whose plan is then rarely taken: let it run only on time other work
+        leaves over (the lowest priority, nice 19) and, where it is `PAUSABLE`, pause it
+        (SIGSTOP) for at most PAUSE seconds or until `wait`, so that the checks have both
+        cores."""
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.setpriority(os.PRIO_PROCESS, self.pid, LOWEST)
+        if PAUSABLE and not self.paused and self._dies_with_us():
             with contextlib.suppress(ProcessLookupError):
                 os.kill(self.pid, signal.SIGSTOP)
                 self.paused = True
-            return
-        with contextlib.suppress(ProcessLookupError, PermissionError):
-            os.setpriority(os.PRIO_PROCESS, self.pid, LOWEST)
+                self._pause = threading.Timer(PAUSE, self._go_on)
+                self._pause.daemon = True
+                self._pause.start()
+
+    def _go_on(self) -> None:
+        """End the companion's pause (SIGCONT), if it is paused."""
+        if self.paused:
+            self.paused = False
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(self.pid, signal.SIGCONT)
 
     def _dies_with_us(self) -> bool:
         """Whether the companion has said that it dies with this process (it does so at
@@ -144,6 +158,8 @@ class Companion:
         still needs the core to release its memory, which at the lowest priority on a
         busy machine would take long. That release is not waited for: a thread of its
         own reaps the companion."""
+        if self._pause is not None:
+            self._pause.cancel()
         with contextlib.suppress(ProcessLookupError, PermissionError):
             os.setpriority(os.PRIO_PROCESS, self.pid, os.getpriority(os.PRIO_PROCESS, 0))
         with contextlib.suppress(ProcessLookupError):
