@@ -64,7 +64,8 @@ def _prctl() -> Callable[..., int] | None:
         return None
 
 
-PAUSABLE = _prctl() is not None
+_PRCTL = _prctl()
+PAUSABLE = _PRCTL is not None
 """Whether a companion can be paused (`Companion.defer`): only where it dies with the
 process that forked it (prctl's PR_SET_PDEATHSIG), so that a paused one never outlives
 a plan's process killed meanwhile."""
@@ -74,8 +75,7 @@ _PR_SET_PDEATHSIG = 1
 def _die_with(parent: int) -> None:
     """Have the kernel kill this process once the thread that forked it ends; exit at
     once where it cannot, or where `parent` is gone already."""
-    prctl = _prctl()
-    if prctl is None or prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0) != 0 \
+    if _PRCTL is None or _PRCTL(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0) != 0 \
             or os.getppid() != parent:
         os._exit(1)
 

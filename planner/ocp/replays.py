@@ -126,11 +126,10 @@ def _chunk(s: Structure, degree: int, intervals: int, count: int, tol: float,
     params = np.stack([lane.params[:, cols] for lane in lanes], axis=2)  # (n_p, k, lane)
     gains = np.stack([np.zeros((intervals, na, n2)) if lane.K is None else lane.K[cols]
                       for lane in lanes], axis=1)  # (k, lane, na, 2n)
-    step = stepper(s, degree, REPLAY_SAMPLES, count, tol, compiled, "adams")
+    run, step = _mapped(s, degree, intervals, count, tol, compiled)
     try:
-        out = quiet(_mapped(s, degree, intervals, count, tol, compiled), runs=step, x0=x,
-                    p=params.reshape(params.shape[0], -1), planned=ref.planned[cols].T,
-                    K=gains.transpose(2, 0, 1, 3).reshape(na, -1))
+        out = quiet(run, runs=step, x0=x, p=params.reshape(params.shape[0], -1),
+                    planned=ref.planned[cols].T, K=gains.transpose(2, 0, 1, 3).reshape(na, -1))
     except RuntimeError:
         return None
     states = out.T.reshape(intervals, count, REPLAY_SAMPLES, n2).transpose(1, 0, 2, 3)
@@ -153,12 +152,13 @@ def _commanded(ref: Reference, lanes: list[Lane], starts: np.ndarray,
 
 @lru_cache(maxsize=64)
 def _mapped(s: Structure, degree: int, intervals: int, count: int, tol: float,
-            compiled: bool) -> ca.Function:
+            compiled: bool) -> tuple[ca.Function, ca.Function]:
     """(x0 (2n x count), p (n_p x intervals count), planned (2n x intervals),
     K (na x 2n count intervals)) -> xf (2n x REPLAY_SAMPLES count intervals), the columns
     of p, K and xf interval by interval and lane by lane within it: `count` lanes over
     `intervals` intervals, each with its feedback, all lanes of an interval in one CVODES
-    run by Adams (`planner.ocp.flow.stepper`: the lanes stacked into one ODE)."""
+    run by Adams (`planner.ocp.flow.stepper`: the lanes stacked into one ODE); and that
+    integrator, whose lock its calls hold (`planner.ocp.flow.quiet`)."""
     step = stepper(s, degree, REPLAY_SAMPLES, count, tol, compiled, "adams")
     n2, na = 2 * s.n, len(s.active_idx)
     x, planned = ca.MX.sym("x", n2, count), ca.MX.sym("planned", n2)
@@ -172,7 +172,8 @@ def _mapped(s: Structure, degree: int, intervals: int, count: int, tol: float,
     x0, ps = ca.MX.sym("x0", n2, count), ca.MX.sym("p", p.size1(), count * intervals)
     plans, gains = ca.MX.sym("planned", n2, intervals), ca.MX.sym("K", na, n2 * count * intervals)
     return ca.Function("replay_lanes", [x0, ps, plans, gains],
-                       [along(x0, ps, plans, gains)[1]], ["x0", "p", "planned", "K"], ["xf"])
+                       [along(x0, ps, plans, gains)[1]], ["x0", "p", "planned", "K"],
+                       ["xf"]), step
 
 
 def _one_lane(integrate: Flow, ref: Reference, lane: Lane, x: np.ndarray, first: int,
