@@ -21,7 +21,7 @@ import casadi as ca
 import numpy as np
 from scipy.optimize.elementwise import find_root
 
-from planner import budget
+from planner import budget, buffered
 from planner.dynamics import derive, vector
 from planner.model import Robot, Structure, parameters
 
@@ -79,7 +79,7 @@ def evaluate(s: Structure, configurations, p, deadline: float | None = None) -> 
     out = np.empty((K, rows, cols))
     for part in budget.chunks(K, size, deadline, "the evaluation of Mpa", "configuration"):
         args = [_pad(Q[part], size).T, P if P.ndim == 1 else _pad(P[part], size).T]
-        flat = np.array(f(*args))  # (rows, cols * size): the outputs side by side
+        (flat,) = buffered.call(f, *args)  # (rows, cols * size): the outputs side by side
         stacked = flat.reshape(rows, cols, size, order="F").transpose(2, 0, 1)
         out[part] = stacked[:part.stop - part.start]
     return out

@@ -26,7 +26,7 @@ from time import perf_counter
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from planner import coupling_block
+from planner import buffered, coupling_block
 from planner.dynamics import functions
 from planner.model import Robot, Structure, parameters
 from planner.ocp.feedback import (
@@ -81,9 +81,9 @@ def defect(robot: Robot, interp: Interpolant) -> float:
     h = np.diff(breaks)
     t = (breaks[:-1, None] + h[:, None] * (_GAUSS_S[None, :] + 1) / 2).ravel()
     ddq = interp.dq(t, derivative=1)
-    res = functions(s)["residual"].map(len(t))(interp.q(t).T, interp.dq(t).T, ddq.T,
-                                               interp.tau(t).T, parameters(robot, s))
-    norms = np.linalg.norm(np.array(res), axis=0).reshape(len(h), -1)
+    (res,) = buffered.call(functions(s)["residual"].map(len(t)), interp.q(t).T,
+                           interp.dq(t).T, ddq.T, interp.tau(t).T, parameters(robot, s))
+    norms = np.linalg.norm(res, axis=0).reshape(len(h), -1)
     return float(np.sum(norms * (_GAUSS_W[None, :] / 2) * h[:, None]))
 
 
