@@ -13,9 +13,11 @@ problem per task anyway; opty derives and compiles it). A plan counts as verifie
 when its solver succeeded and every interval, re-integrated from the plan's own state with
 the torque its transcription delivers, lands on the plan within
 solver.resimulation_tolerance (1e-3 rad); every peer's plans are checked by the same code.
-Before a planner configuration's first task is timed, the compiled kernels of every
-task's structure are built (`planner.prebuild`, each task planned for one iteration), as a
-service has them once it has met a structure; their build time is printed, not counted.
+Before a planner configuration's first task is timed, every task is planned once and the
+compiled kernels its plan met are built (`planner.prebuild`: the builds its companion asked
+for too), as a service has them once it has planned the task; their build time is
+printed, not counted. (A plan of one iteration a task, as the service prebuilds its
+examples, misses the kernels of the companion's continuation, which then ran interpreted.)
 The configuration "structures never met" builds only what a service builds when it starts
 (the built-in examples' kernels), in a cache folder of its own, so that each task's
 structure is new to it unless an earlier task or an example had it, as on a service that
@@ -253,16 +255,16 @@ def _limit_excess(scene: Scene, result) -> float | None:
 
 def build_ahead(suite: str, count: int, seed: int, categories: tuple[str, ...],
                  changes: dict) -> None:
-    """The compiled kernels of every task's structure built before any task is timed, as a
-    service has them once it has met a structure (`planner.prebuild`); their build time is
-    printed, not counted in any task's."""
+    """The compiled kernels every task's plan meets built before any task is timed, as a
+    service has them once it has planned the task (`planner.prebuild`, each task planned
+    once in full); their build time is printed, not counted in any task's."""
     from planner import compiled, prebuild
 
     scenes = []
     for _, scene in suite_tasks(suite, count, seed, tuple(categories)):
         with contextlib.suppress(ValidationError):
-            scenes.append(prebuild.one_iteration(Scene.model_validate(
-                _merged(scene.model_dump(mode="json"), changes))))
+            scenes.append(Scene.model_validate(_merged(scene.model_dump(mode="json"),
+                                                       changes)))
     started = time.perf_counter()
     built = prebuild.build([s for s in scenes if s.solver.jit], wait=BUILD_WAIT)
     print(f"compiled kernels: {len(built)} libraries built ahead in "

@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import hashlib
+import itertools
 import json
 import os
 import queue
@@ -84,6 +85,14 @@ class _Builder:
                 self._pending.pop(request["library"], None)
             raise
 
+    def barrier(self) -> _Build:
+        """A request the builder answers once it has ended every request sent before it:
+        this process's and those its forked children sent down the same pipe, which it
+        reads in order."""
+        build = _Build()
+        self.ask({"library": f"barrier-{next(_BARRIERS)}", "barrier": True}, build)
+        return build
+
     def _listen(self) -> None:
         """End each build the builder reports; when it has gone, those it left as failed."""
         assert self.process.stdout is not None
@@ -137,6 +146,7 @@ def _send(fd: int, request: dict[str, Any]) -> None:
     os.write(fd, line)
 
 
+_BARRIERS = itertools.count()
 _CODEGEN = threading.Lock()  # one compilation at a time per process, and guards the names below
 _LOADED: dict[Path, dict[str, ca.Function]] = {}  # libraries loaded by this process
 _BUILDING: dict[Path, _Build] = {}  # background builds this process asked for
@@ -296,13 +306,18 @@ def started() -> list[str]:
 
 
 def wait(timeout: float = 600.0) -> list[str]:
-    """Wait until the background builds this process asked for have ended, for at most
-    `timeout` seconds; the names of those not ended then (none when all ended)."""
+    """Wait until the background builds this process asked for have ended, and those its
+    forked children (plans' companions) asked its builder for before the wait, for at most
+    `timeout` seconds; the names of this process's builds not ended then (none when all
+    ended)."""
     deadline = time.monotonic() + timeout
     with _CODEGEN:
-        asked = list(_BUILDING.values())
+        asked, builder = list(_BUILDING.values()), _BUILDER
     for build in asked:
         build.wait(max(deadline - time.monotonic(), 0.0))
+    if isinstance(builder, _Builder) and builder.alive():
+        with contextlib.suppress(OSError):  # a full pipe or a builder gone: nothing to wait for
+            builder.barrier().wait(max(deadline - time.monotonic(), 0.0))
     return building()
 
 
@@ -316,7 +331,8 @@ def main() -> None:
     """The builder process: for each request on stdin (a JSON line: library, folder, name,
     flags, work, functions: the names of the functions saved in the folder work), build the
     library of the saved functions, remove their folder
-    and say so on stdout (library, status: 0 built or found built, 1 failed). It runs at
+    and say so on stdout (library, status: 0 built or found built, 1 failed); a barrier
+    request (library, barrier) is said at once, after every request before it. It runs at
     the lowest priority (nice 19), on the time solves leave idle, and each build after the
     folder's other background builds (BUILD_LOCK); a library another process built
     meanwhile is not built again; a line that is not a request is passed over. It ends
@@ -328,7 +344,7 @@ def main() -> None:
             request = json.loads(line)
         except ValueError:
             continue
-        status = _build_asked(request)
+        status = 0 if request.get("barrier") else _build_asked(request)
         if told:
             try:
                 print(json.dumps({"library": request["library"], "status": status}), flush=True)
