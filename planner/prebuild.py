@@ -3,8 +3,10 @@ their first requests run compiled too (`python -m planner.prebuild`; the service
 at the lowest priority when it starts, and an image can run it at build time).
 
 Each example is planned for one iteration with its own settings, which starts the
-background builds of exactly the libraries its plans load (the NLP's kernels, the
-verification's flow and the linearisation's Jacobians), and the builds are waited for.
+background builds of the libraries its first solve loads (the NLP's kernels, the
+verification's flow and the linearisation's Jacobians), and the builds are waited for; a
+strategy that only a longer plan reaches (a companion's continuation) has its kernels
+built when a plan first runs it.
 """
 
 from __future__ import annotations
