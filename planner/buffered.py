@@ -4,44 +4,32 @@ conversions to and from DM of a plain call, which for a function mapped over tho
 columns cost more than its evaluation.
 
     call(f, *args) -> list of arrays, one per output of f, each of its shape
-    call_named(f, output, **args) -> the array of one output
 """
 
 from __future__ import annotations
-
-from collections.abc import Sequence
 
 import casadi as ca
 import numpy as np
 
 
-def call(f: ca.Function, *args: np.ndarray | float | None,
-         outputs: Sequence[int] | None = None) -> list[np.ndarray]:
-    """f's outputs (those of `outputs`, by index; default all) as dense arrays of their
-    shapes (structural zeros as 0.0) at dense inputs, each with as many entries as f's
-    input (read column-major, as CasADi does); an input given as None is zero, and an
-    output not asked for is not computed. Raises ValueError for a wrong number or size of
-    inputs, RuntimeError where the evaluation fails."""
+def call(f: ca.Function, *args: np.ndarray | float) -> list[np.ndarray]:
+    """f's outputs as dense arrays of their shapes (structural zeros as 0.0) at dense
+    inputs, each with as many entries as f's input (read column-major, as CasADi does).
+    Raises ValueError for a wrong number or size of inputs, RuntimeError where the
+    evaluation fails."""
     if len(args) != f.n_in():
         raise ValueError(f"{f.name()} takes {f.n_in()} inputs, not {len(args)}")
     buffer, trigger = f.buffer()
-    inputs = {k: _flat(f, k, a) for k, a in enumerate(args) if a is not None}
-    for k, flat in inputs.items():  # the arrays stay referenced through the call
+    inputs = [_flat(f, k, a) for k, a in enumerate(args)]  # referenced through the call
+    for k, flat in enumerate(inputs):
         buffer.set_arg(k, flat.data)  # type: ignore[call-arg]  # its size goes with it
-    asked = range(f.n_out()) if outputs is None else outputs
-    results = {k: np.empty(f.nnz_out(k)) for k in asked}
-    for k, out in results.items():
+    outputs = [np.empty(f.nnz_out(k)) for k in range(f.n_out())]
+    for k, out in enumerate(outputs):
         buffer.set_res(k, out.data)  # type: ignore[call-arg]
     trigger()
     if buffer.ret() != 0:
         raise RuntimeError(f"the evaluation of {f.name()} failed")
-    return [_dense(f.sparsity_out(k), out) for k, out in results.items()]
-
-
-def call_named(f: ca.Function, output: str, **args: np.ndarray | float) -> np.ndarray:
-    """One output of f, by name, at inputs given by name (those left out are zero)."""
-    inputs = [args.get(f.name_in(k)) for k in range(f.n_in())]
-    return call(f, *inputs, outputs=[f.index_out(output)])[0]
+    return [_dense(f.sparsity_out(k), out) for k, out in enumerate(outputs)]
 
 
 def _flat(f: ca.Function, k: int, value: np.ndarray | float) -> np.ndarray:

@@ -7,7 +7,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from planner.buffered import call, call_named
+from planner.buffered import call
 
 
 def _function() -> ca.Function:
@@ -43,14 +43,6 @@ def test_wrong_inputs_are_refused_with_what_was_expected():
         call(f, np.zeros((2, 3)))
     with pytest.raises(ValueError, match=r"^input 0 of f takes 6 dense entries, not 4$"):
         call(f, np.zeros((2, 2)), 1.0)
-
-
-def test_inputs_left_out_are_zero_and_outputs_not_asked_for_are_not_computed():
-    f = _function()
-    x = np.arange(6.0).reshape(2, 3)
-    (only,) = call(f, x, None, outputs=[2])
-    assert only.shape == (1, 1) and only[0, 0] == 15.0
-    assert np.array_equal(call_named(f, "o1", i0=x), np.array(f(x, 0.0)[1]))
 
 
 def test_a_column_is_repeated_across_a_mapped_function_s_columns():
