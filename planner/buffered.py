@@ -41,11 +41,11 @@ def _flat(f: ca.Function, k: int, value: np.ndarray | float) -> np.ndarray:
     matrix = array.reshape(-1, 1) if array.ndim < 2 else array
     if matrix.shape[0] == rows and matrix.shape[1] and cols % matrix.shape[1] == 0:
         matrix = np.tile(matrix, (1, cols // matrix.shape[1]))
-    flat = np.ravel(matrix, order="F")
+    flat = np.ravel(matrix, order="F")  # contiguous: a view where it can be, else a copy
     if not f.sparsity_in(k).is_dense() or flat.size != f.nnz_in(k):
         raise ValueError(f"input {k} of {f.name()} takes {f.nnz_in(k)} dense entries, "
                          f"not {array.size}")
-    return np.ascontiguousarray(flat)
+    return flat
 
 
 def _dense(sparsity: ca.Sparsity, nonzeros: np.ndarray) -> np.ndarray:
