@@ -40,7 +40,7 @@ from planner.ocp.feedback import (
 from planner.ocp.interpolant import PiecewisePolynomial
 from planner.ocp.margin_proof import MarginProof, prove
 from planner.ocp.robustness import robustness
-from planner.ocp.task_checks import requirements
+from planner.ocp.task_checks import Requirements, requirements
 from planner.ocp.transcription import Interpolant
 from planner.ocp.verification import Crossing, Feedback, Robustness, Verification
 from planner.scene import Bounds, SolverSettings, Task
@@ -199,27 +199,34 @@ SKIPPED_REPLAYS = ("closed-loop replays: not run, the plan's wall-time budget "
 
 
 def _feedback(robot: Robot, interp: Interpolant, torque_limit: list[float] | float | None,
-              compiled: bool, deadline: float | None = None) -> tuple[Feedback | None, dict]:
-    """The plan's LQR feedback and what it and the open-loop sensitivity measure; past the
-    deadline (time.perf_counter() seconds), without the closed-loop replays."""
+              compiled: bool) -> tuple[Feedback | None, dict]:
+    """The plan's LQR feedback (None where the linearisation or the Riccati recursion
+    fails) and the open-loop sensitivity's growth factor."""
     lin = linearise(robot, interp, compiled)
     if lin is None:
         return None, {}
     growth = growth_factor(lin)
     fb = gains(lin, np.diff(interp.q.breaks), torque_scale(interp, torque_limit))
-    if fb is None:
-        return None, {"growth_factor": growth}
+    return fb, {"growth_factor": growth}
+
+
+def _closed_loop(robot: Robot, interp: Interpolant, fb: Feedback,
+                 torque_limit: list[float] | float | None, compiled: bool,
+                 deadline: float | None = None) -> dict:
+    """What the closed-loop replays with the feedback `fb` measure, from the planned start
+    and from it perturbed; past the deadline (time.perf_counter() seconds), that they were
+    skipped."""
     if deadline is not None and perf_counter() > deadline:
-        return fb, {"growth_factor": growth, "skipped": [SKIPPED_REPLAYS]}
-    K = np.asarray(fb.gains)
+        return {"skipped": [SKIPPED_REPLAYS]}
     breaks = interp.q.breaks
     start = np.concatenate([interp.q(breaks[:1])[0], interp.dq(breaks[:1])[0]])
     (closed, _), (perturbed, _) = replay(robot, interp,
-                                         np.stack([start, start + PERTURBATION]), K,
-                                         compiled=compiled, deadline=deadline,
+                                         np.stack([start, start + PERTURBATION]),
+                                         np.asarray(fb.gains), compiled=compiled,
+                                         deadline=deadline,
                                          limit=_limit_array(torque_limit, len(robot.active)))
-    return fb, {"growth_factor": growth, "closed_loop_error": closed,
-                "perturbed_closed_loop_error": perturbed, "perturbation": PERTURBATION}
+    return {"closed_loop_error": closed, "perturbed_closed_loop_error": perturbed,
+            "perturbation": PERTURBATION}
 
 
 def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.ndarray,
@@ -235,14 +242,17 @@ def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.nd
     the plan on every model of task.uncertainty (`planner.ocp.robustness`). The coupling
     margin's `proof` on whole intervals is made here unless the solve made it
     (`planner.ocp.margin_proof`). Also the plan's feedback (None where the linearisation
-    failed). Past `deadline` (time.perf_counter() seconds), the optional checks, the
-    closed-loop replays, are skipped (`Verification.skipped`); a replay on a perturbed model
-    stopped there counts as one that did not stay within the bound. The open-loop replay,
-    CVODES for the most part (CasADi lets go of Python's lock meanwhile), runs in a thread
-    of its own beside the other checks."""
+    failed). Past `deadline` (time.perf_counter() seconds), the closed-loop replays are
+    skipped (`Verification.skipped`); a replay on a perturbed model stopped there counts
+    as one that did not stay within the bound. The open-loop replay and, once the gains
+    are known, the closed-loop replays (CVODES, which lets go of Python's lock) run in
+    threads of their own beside the other checks."""
     tolerance, compiled = settings.resimulation_tolerance, settings.jit
-    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="checks") as pool:
+    with ThreadPoolExecutor(max_workers=2, thread_name_prefix="checks") as pool:
         replaying = pool.submit(open_loop, robot, interp, compiled, deadline)
+        fb, measured = _feedback(robot, interp, task.torque_limit, compiled)
+        closing = None if fb is None else pool.submit(
+            _closed_loop, robot, interp, fb, task.torque_limit, compiled, deadline)
         kept = limits(robot, interp, t_dense, task.torque_limit, task.position_bounds,
                       task.velocity_bounds)
         sigma, det = coupling_along(robot, interp.q(t_dense))
@@ -250,8 +260,9 @@ def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.nd
             proof = prove(robot, interp, task.coupling_margin, deadline)
         asked = requirements(robot, interp, t_dense, task, sigma, proof, tolerance)
         crossings, waveless = singular_crossings(robot, interp, t_dense, sigma, det)
-        fb, measured = _feedback(robot, interp, task.torque_limit, compiled, deadline)
+        flaw = defect(robot, interp)
         robust, robust_ok = _robust(robot, interp, fb, task, settings, deadline)
+        measured.update({} if closing is None else closing.result())
         replayed = replaying.result()
     accurate = errors_status == "completed" and float(errors.max()) <= tolerance
     return Verification(
@@ -260,16 +271,20 @@ def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.nd
         and robust_ok,
         converged=converged, tolerance=tolerance,
         resimulation_error=replayed[0], resimulation_status=replayed[1],
-        defect=defect(robot, interp),
-        torque_excess=kept.torque, position_excess=kept.position,
-        velocity_excess=kept.velocity, limit_violations=kept.violations,
-        initial_error=asked.initial_error, final_error=asked.final_error,
-        tip_error=asked.tip_error, duration_excess=asked.duration_excess,
-        margin_shortfall=asked.margin_shortfall,
-        margin_certificate=asked.margin_certificate, tracking_error=asked.tracking_error,
-        task_violations=asked.violations, **_coupling(sigma, waveless, crossings),
+        defect=flaw, **_task(kept, asked), **_coupling(sigma, waveless, crossings),
         robustness=robust, **measured,
     ), fb
+
+
+def _task(kept: Limits, asked: Requirements) -> dict:
+    """The Verification's fields of the task's limits and other requirements."""
+    return {"torque_excess": kept.torque, "position_excess": kept.position,
+            "velocity_excess": kept.velocity, "limit_violations": kept.violations,
+            "initial_error": asked.initial_error, "final_error": asked.final_error,
+            "tip_error": asked.tip_error, "duration_excess": asked.duration_excess,
+            "margin_shortfall": asked.margin_shortfall,
+            "margin_certificate": asked.margin_certificate,
+            "tracking_error": asked.tracking_error, "task_violations": asked.violations}
 
 
 def _intervals(errors: np.ndarray, status: str) -> dict:
