@@ -53,6 +53,7 @@ from planner.ocp.guess import Guess, interpolant_guess, plan_interpolant
 from planner.ocp.instance import Instance, initial_point, instance
 from planner.ocp.mesh import Mesh
 from planner.ocp.outcome import interpolant
+from planner.ocp.replays import planned_state
 from planner.ocp.result import Plan
 from planner.ocp.solve import Budget, Solution, solve
 from planner.ocp.transcription import Interpolant
@@ -137,8 +138,7 @@ class Replan:
         breaks = interp.tau.breaks
         k = int(np.clip(np.searchsorted(breaks, rest[0], side="right") - 1, 0,
                         len(breaks) - 2))
-        planned = np.concatenate([interp.q(rest)[0], interp.dq(rest)[0]])
-        return tau - self.gains[k] @ (np.asarray(x, float) - planned)
+        return tau - self.gains[k] @ (np.asarray(x, float) - planned_state(interp, rest[0]))
 
     def _interp(self) -> Interpolant:
         if self.interp is None:

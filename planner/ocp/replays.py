@@ -51,6 +51,12 @@ class Reference:
     degree: int
 
 
+def planned_state(interp: Interpolant, at: float) -> np.ndarray:
+    """The plan's state (q, dq) (2n,) at the time `at` [s]."""
+    t = np.array([at], dtype=float)
+    return np.concatenate([interp.q(t)[0], interp.dq(t)[0]])
+
+
 def reference(interp: Interpolant) -> Reference:
     """What replays of the plan `interp` follow."""
     breaks = interp.q.breaks

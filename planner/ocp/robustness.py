@@ -22,7 +22,7 @@ import numpy as np
 from planner.model import Robot, Structure
 from planner.ocp.feedback import REPLAY_TOL
 from planner.ocp.flow import inputs
-from planner.ocp.replays import Lane, reference, replays
+from planner.ocp.replays import Lane, planned_state, reference, replays
 from planner.ocp.transcription import Interpolant
 from planner.ocp.verification import Robustness
 from planner.scene import Uncertainty
@@ -67,8 +67,7 @@ def robustness(robot: Robot, interp: Interpolant, K: np.ndarray, uncertainty: Un
     [rad]: the largest worst tracking error it may have; a replay still running past
     `deadline` (time.perf_counter() seconds) stops (as one diverged)."""
     breaks = interp.q.breaks
-    start = np.concatenate([interp.q(breaks[:1])[0], interp.dq(breaks[:1])[0]])
-    goal = np.concatenate([interp.q(breaks[-1:])[0], interp.dq(breaks[-1:])[0]])
+    start, goal = planned_state(interp, breaks[0]), planned_state(interp, breaks[-1])
     corners = models(robot, uncertainty)
     lanes = []
     for _, model in corners:  # with the feedback, and the torque alone

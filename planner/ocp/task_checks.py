@@ -12,6 +12,7 @@ import numpy as np
 from planner.dynamics import Dynamics
 from planner.model import Robot
 from planner.ocp.margin_proof import MARGIN_RTOL, MarginProof
+from planner.ocp.replays import planned_state
 from planner.ocp.transcription import Interpolant
 from planner.ocp.verification import MarginCertificate
 from planner.scene import Task
@@ -55,8 +56,7 @@ def requirements(robot: Robot, interp: Interpolant, t: np.ndarray, task: Task,
     violations: list[str] = []
     breaks = interp.q.breaks
     T = float(breaks[-1] - breaks[0])
-    start = _state(interp, breaks[:1])
-    end = _state(interp, breaks[-1:])
+    start, end = planned_state(interp, breaks[0]), planned_state(interp, breaks[-1])
     initial = _departure(start, [*task.initial.q, *task.initial.dq], "initial", violations)
     final = _departure(end, [*task.final.q, *task.final.dq], "final", violations)
     tip = _tip(robot, end[:robot.n], task, violations)
@@ -66,11 +66,6 @@ def requirements(robot: Robot, interp: Interpolant, t: np.ndarray, task: Task,
     tracking = _tracking(robot, interp, t, T, task, tracking_tol, violations)
     return Requirements(initial if initial is not None else 0.0, final, tip, duration,
                         margin, certificate, tracking, violations)
-
-
-def _state(interp: Interpolant, at: np.ndarray) -> np.ndarray:
-    """(q, dq) (2n,) at the time `at` (1,) [s]."""
-    return np.concatenate([interp.q(at)[0], interp.dq(at)[0]])
 
 
 def _departure(state: np.ndarray, wanted: list[float | None], which: str,

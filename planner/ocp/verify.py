@@ -39,6 +39,7 @@ from planner.ocp.feedback import (
 )
 from planner.ocp.interpolant import PiecewisePolynomial
 from planner.ocp.margin_proof import MarginProof, prove
+from planner.ocp.replays import planned_state
 from planner.ocp.robustness import robustness
 from planner.ocp.task_checks import Requirements, requirements
 from planner.ocp.transcription import Interpolant
@@ -68,8 +69,7 @@ def open_loop(robot: Robot, interp: Interpolant, compiled: bool = False,
     """The whole-horizon replay of the delivered torque from the planned initial state:
     max |q_sim - q_plan| [rad] and "completed", or None and where CVODES failed or, past
     `deadline`, where it stopped."""
-    breaks = interp.q.breaks
-    start = np.concatenate([interp.q(breaks[:1])[0], interp.dq(breaks[:1])[0]])
+    start = planned_state(interp, interp.q.breaks[0])
     return replay(robot, interp, start[None, :], None, RESIM_TOL, compiled,
                   deadline=deadline)[0]
 
@@ -218,8 +218,7 @@ def _closed_loop(robot: Robot, interp: Interpolant, fb: Feedback,
     skipped."""
     if deadline is not None and perf_counter() > deadline:
         return {"skipped": [SKIPPED_REPLAYS]}
-    breaks = interp.q.breaks
-    start = np.concatenate([interp.q(breaks[:1])[0], interp.dq(breaks[:1])[0]])
+    start = planned_state(interp, interp.q.breaks[0])
     (closed, _), (perturbed, _) = replay(robot, interp,
                                          np.stack([start, start + PERTURBATION]),
                                          np.asarray(fb.gains), compiled=compiled,
