@@ -52,6 +52,8 @@ BENCHES = {
                            "solver worker: 5xx answers and dead workers"),
     "faults": ("bench.faults", "process and store faults against a live server: does an "
                                "accepted job get lost"),
+    "globals_cost": ("bench.globals_cost", "CPU per iteration on the hard suite's co-design "
+                                           "and free-time tasks, and at an earlier commit"),
     "initial_guess": ("bench.initial_guess", "interpolation against inverse-dynamics initial "
                                              "guesses on the underactuated scenes"),
     "ipopt_settings": ("bench.ipopt_settings", "MUMPS ordering and scaling and the barrier "

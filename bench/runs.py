@@ -33,6 +33,7 @@ RESULTS: dict[str, tuple[str, ...]] = {
     "moved_goals": ("bench/results/moved_goals.csv",),
     "faults": ("bench/results/faults.csv", "bench/results/faults_postgres.csv"),
     "fuzz": ("bench/results/fuzz.csv",),
+    "globals_cost": ("bench/results/globals_cost.csv",),
     "initial_guess": ("bench/results/initial_guess.csv",),
     "ipopt_settings": ("bench/results/ipopt_settings.csv", "bench/results/ipopt_inertia.csv"),
     "job_latency": ("bench/results/job_latency.csv",),

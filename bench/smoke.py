@@ -52,6 +52,8 @@ SMALL: dict[str, Small] = {
     "faults": Small((("--tries", "1", "--probes", "1"),
                      ("--postgres", "--tries", "1", "--probes", "1")), needs=("postgres",)),
     "fuzz": Small((("--max-examples", "1", "--phases", "fuzzing,stateful"),)),
+    "globals_cost": Small((("--categories", "free-time", "--count", "6", "--repeats", "1",
+                            "--before", "HEAD"),)),
     "initial_guess": Small((("--scenes", "under-2", "--grids", "3:10"),)),
     "ipopt_settings": Small((("--repeats", "1", "--scenes", "arm-2:10"),
                              ("--inertia", "--tasks", "free-time-41", "--cap", "20",

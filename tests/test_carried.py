@@ -120,3 +120,32 @@ def test_a_refined_solve_whose_carried_start_fails_is_solved_again_cold(monkeypa
     assert statuses[failed + 1] == (60, "Solve_Succeeded")
     assert result.solver.success and result.verification.verified
     assert len(result.t) == 61
+
+
+def test_the_globals_copies_end_equal_and_their_rows_multipliers_are_carried():
+    # A free duration (weighted in the objective, so that its optimum lies inside its
+    # bounds): every stage holds a copy of T, kept equal by copy rows ("continuity"). At
+    # the optimum the copies agree, and the copy rows' multipliers (the sensitivity of
+    # the cost to T accumulated up to each node) carried to the refined mesh land within
+    # 5 % of its optimum's.
+    data = _scene("legendre").model_dump(mode="json")
+    data["task"].update(torque_limit=None, duration={"min": 0.8, "max": 3.0},
+                        objective={"effort": 1.0, "time": 10.0, "smoothness": 0.0})
+    scene = Scene.model_validate(data)
+    coarse = instance(scene, scene.robot, Mesh.uniform(len(PIECES)), T)
+    solution = _solved(coarse, initial_point(coarse, hermite_guess(scene, scene.robot, T),
+                                             T, scene.robot))
+    copies = coarse.problem.layout.view(solution.x, "T")
+    assert copies.shape == (1, len(PIECES) + 1)
+    assert np.ptp(copies) < 1e-9 and 0.8 < copies[0, 0] < 3.0
+    kinds, _ = row_kinds(coarse.problem)
+    assert list(kinds[-len(PIECES):]) == ["continuity"] * len(PIECES)
+    interp = outcome_of(scene, coarse, scene.robot, T, solution, "coarse", 0.0).interp
+    fine = instance(scene, scene.robot, coarse.mesh.split(np.array(PIECES)), T)
+    x0 = initial_point(fine, interpolant_guess(interp, T), T, scene.robot)
+    point = carried(coarse, solution, fine, x0)
+    optimum = _solved(fine, x0)
+    rows = slice(optimum.lam_g.size - fine.mesh.intervals, None)
+    assert point is not None and point.lam_g.shape == optimum.lam_g.shape
+    assert np.linalg.norm(point.lam_g[rows] - optimum.lam_g[rows]) \
+        < 0.05 * np.linalg.norm(optimum.lam_g[rows])

@@ -161,13 +161,14 @@ def _random_x(layout, rng: np.random.Generator, robot: dict) -> np.ndarray:
         if kind == "global":
             continue
         x[idx] = rng.uniform(-1, 1, idx.shape) * scale[kind]
-    if "T" in layout:
-        layout.put(x, "T", rng.uniform(0.3, 1.0))
+    copies = layout.intervals + 1  # each a little apart, so that a stage reading another
+    if "T" in layout:  # stage's copy of the globals shows in its derivatives
+        layout.put(x, "T", rng.uniform(0.3, 1.0) + rng.uniform(0, 0.01, (1, copies)))
     if "wave" in layout:
-        n_waves = layout.blocks["wave"][1].size // 2
+        n_waves = layout.blocks["wave"][1].shape[0] // 2
         design = np.ravel([(rng.uniform(0.01, 0.08), rng.uniform(-np.pi, np.pi))
                            for _ in range(n_waves)])
-        layout.put(x, "wave", design[:, None])
+        layout.put(x, "wave", design[:, None] * rng.uniform(1, 1.01, (1, copies)))
     return x
 
 

@@ -1,10 +1,11 @@
 """An NLP from stage functions, with its derivatives assembled from per-stage blocks.
 
 A stage function maps the variables of one stage w_k, the `link` entries of the next
-stage, the global variables and the parameters to the stage's constraint rows and cost;
-the terminal function does the same for the final node. The NLP maps them over the N
-stages. Since a stage reads its successor only linearly, the Hessian of the Lagrangian is
-block diagonal over stages (with a border for the globals): its nonzeros are the
+stage, its copy of the global variables and the parameters to the stage's constraint
+rows and cost; the terminal function does the same for the final node. The NLP maps them
+over the N stages, and linear rows keep the globals' copies equal (`planner.ocp.layout`).
+Since a stage reads its successor only linearly, the Hessian of the Lagrangian is
+block diagonal over stages: its nonzeros are the
 per-stage Hessians, computed by one small SX function mapped over the stages and
 scattered into place by a fixed permutation; likewise the constraint Jacobian and the
 objective gradient. Building costs a fraction of a second for any N, and an iteration
@@ -69,31 +70,37 @@ class Assembly:
 
 
 def _columns(layout: Layout) -> tuple[int, int, int]:
-    """Start of the terminal's variables, of the globals, and the number of stages."""
-    N, nw = layout.intervals, layout.stage_size
-    return N * nw, N * nw + layout.terminal_size, N
+    """Start of the terminal's variables, of the globals' copies, and the number of stages."""
+    return layout.intervals * layout.stage_size, layout.globals_start, layout.intervals
 
 
 def _map_stages(link: int, layout: Layout, X: ca.MX, common: ca.MX, local: ca.MX):
-    """The stage and terminal inputs: W (nw x N), NXT (link x N), glob, locals."""
+    """The stage and terminal inputs: W (nw x N), NXT (link x N), the stages' copies of the
+    globals (ng x N), the terminal's variables and copy, and the locals."""
     N, nw = layout.intervals, layout.stage_size
     start_t, start_g, _ = _columns(layout)
     W = ca.reshape(X[:start_t], nw, N)
     terminal = X[start_t:start_g]
     nxt = ca.horzcat(W[:link, 1:], terminal[:link]) if N > 1 else terminal[:link]
-    glob = X[start_g:]
-    return W, nxt, terminal, glob, local[:, :N], local[:, N]
+    glob = ca.reshape(X[start_g:], layout.globals_size, N + 1)
+    return W, nxt, glob[:, :N], terminal, glob[:, N], local[:, :N], local[:, N]
+
+
+def copy_rows(layout: Layout, X: ca.MX) -> ca.MX:
+    """The rows g_k - g_{k+1} (ng N,) that keep the globals' copies equal, stage by stage."""
+    glob = ca.reshape(X[layout.globals_start:], layout.globals_size, layout.intervals + 1)
+    return ca.vec(glob[:, :-1] - glob[:, 1:])
 
 
 def nlp(kernels: Kernels | None, derivs: Derivatives | None, link: int, layout: Layout,
         X: ca.MX, common: ca.MX, local: ca.MX, boundary: ca.MX | None) -> tuple[ca.MX, ca.MX]:
-    """The objective and the constraints (stage rows stage by stage, then the terminal's):
-    with derivative kernels from their rows and cost functions (compiled with them), so
-    that an evaluation of the objective computes no row and neither is interpreted; else
-    from the stage functions."""
+    """The objective and the constraints (stage rows stage by stage, the terminal's, then
+    the globals' copy rows): with derivative kernels from their rows and cost functions
+    (compiled with them), so that an evaluation of the objective computes no row and
+    neither is interpreted; else from the stage functions."""
     N = layout.intervals
-    W, nxt, terminal, glob, loc, loc_t = _map_stages(link, layout, X, common, local)
-    stage_args, term_args = (W, nxt, glob, common, loc), (terminal, glob, common, loc_t)
+    W, nxt, glob, terminal, glob_t, loc, loc_t = _map_stages(link, layout, X, common, local)
+    stage_args, term_args = (W, nxt, glob, common, loc), (terminal, glob_t, common, loc_t)
     if derivs is None:
         assert kernels is not None  # stages without derivative kernels have their functions
         rows, costs = kernels.stage.map(N)(*stage_args)
@@ -103,7 +110,7 @@ def nlp(kernels: Kernels | None, derivs: Derivatives | None, link: int, layout: 
             derivs.stage.cost.map(N)(*stage_args)
         rows_t, cost_t = derivs.terminal.rows(*term_args), derivs.terminal.cost(*term_args)
     f = ca.sum2(costs) + cost_t + (boundary if boundary is not None else 0)
-    return f, ca.vertcat(ca.vec(rows), rows_t)
+    return f, ca.vertcat(ca.vec(rows), rows_t, copy_rows(layout, X))
 
 
 def _hessian_couples(kernels: Kernels) -> bool:
@@ -250,57 +257,92 @@ def _scatter(rows: np.ndarray, cols: np.ndarray,
     return sp, order.tolist()
 
 
-def _place(local: np.ndarray, nw: int, link: int, start_g: int, with_next: bool,
-           stages: np.ndarray) -> np.ndarray:
+def _place(local: np.ndarray, nw: int, link: int, with_next: bool, stages: np.ndarray,
+           copies: np.ndarray) -> np.ndarray:
     """Global columns of local indices into [w; nxt; glob] (or [w; glob]) for each stage in
-    `stages` (terminal: its start given as the stage's offset)."""
+    `stages` (the start of its variables; the terminal's for the terminal), whose copy of
+    the globals starts at `copies`."""
     glob_at = nw + (link if with_next else 0)
     out = np.where(local < nw, stages[:, None] + local[None, :], 0)
     if with_next:
         nxt = (local >= nw) & (local < glob_at)
         out = np.where(nxt[None, :], stages[:, None] + local[None, :], out)  # next stage follows
     glob = local >= glob_at
-    return np.where(glob[None, :], start_g + (local - glob_at)[None, :], out)
+    return np.where(glob[None, :], copies[:, None] + (local - glob_at)[None, :], out)
+
+
+@dataclass(frozen=True)
+class _Places:
+    """Where the stages' and the terminal's variables and copies of the globals start."""
+
+    nw: int
+    nt: int
+    link: int
+    stages: np.ndarray
+    copies: np.ndarray
+    terminal: np.ndarray
+    terminal_copy: np.ndarray
+
+    @classmethod
+    def of(cls, layout: Layout, link: int) -> _Places:
+        N, ng = layout.intervals, layout.globals_size
+        start_t, start_g, _ = _columns(layout)
+        return cls(layout.stage_size, layout.terminal_size, link,
+                   np.arange(N) * layout.stage_size, start_g + np.arange(N) * ng,
+                   np.array([start_t]), np.array([start_g + N * ng]))
+
+    def stage(self, local: np.ndarray, with_next: bool = False) -> np.ndarray:
+        """Columns (N, len(local)) of a stage's local indices into [w; nxt; glob] (with_next)
+        or [w; glob]."""
+        return _place(local, self.nw, self.link if with_next else 0, with_next, self.stages,
+                      self.copies)
+
+    def final(self, local: np.ndarray) -> np.ndarray:
+        """Columns (len(local),) of the terminal's local indices into [w; glob]."""
+        return _place(local, self.nt, 0, False, self.terminal, self.terminal_copy)[0]
+
+
+def _copy_jacobian(layout: Layout, first_row: int) -> tuple[np.ndarray, np.ndarray, ca.MX]:
+    """Rows, columns and values (+1, -1) of the copy rows' constant Jacobian."""
+    N, ng, start_g = layout.intervals, layout.globals_size, layout.globals_start
+    own = start_g + np.arange(N * ng)
+    rows = first_row + np.arange(N * ng)
+    values = np.concatenate([np.ones(N * ng), -np.ones(N * ng)])
+    return np.concatenate([rows, rows]), np.concatenate([own, own + ng]), ca.MX(ca.DM(values))
 
 
 def _assembled(derivs: Derivatives, link: int, layout: Layout, X: ca.MX, P: ca.MX,
                common: ca.MX, local: ca.MX, f: ca.MX, g: ca.MX, boundary: ca.MX | None) -> dict:
     """grad_f, jac_g and hess_lag functions for nlpsol, assembled from per-stage blocks."""
-    N, nw = layout.intervals, layout.stage_size
-    start_t, start_g, _ = _columns(layout)
-    nx = layout.size
-    W, nxt, terminal, glob, loc, loc_t = _map_stages(link, layout, X, common, local)
+    N, nx = layout.intervals, layout.size
+    W, nxt, glob, terminal, glob_t, loc, loc_t = _map_stages(link, layout, X, common, local)
     stage, term = derivs.stage, derivs.terminal
     stage_args = (W, nxt, glob, common, loc)
-    term_args = (terminal, glob, common, loc_t)
-    starts = np.arange(N) * nw
-    n_rows = stage.rows.size1_out(0)
+    term_args = (terminal, glob_t, common, loc_t)
+    places = _Places.of(layout, link)
+    n_rows, n_term = stage.rows.size1_out(0), term.rows.size1_out(0)
 
-    # constraint Jacobian: every row belongs to one stage, its entries are unique
+    # constraint Jacobian: every row belongs to one stage (or copy row), its entries unique
     r, c = (np.array(v, dtype=int) for v in stage.jac_sp.get_triplet())
-    rows = (r[None, :] + n_rows * np.arange(N)[:, None]).ravel()
-    cols = _place(c, nw, link, start_g, True, starts).ravel()
     rt, ct = (np.array(v, dtype=int) for v in term.jac_sp.get_triplet())
-    rows = np.concatenate([rows, N * n_rows + rt])
-    cols = np.concatenate([cols, _place(ct, layout.terminal_size, 0, start_g, False,
-                                        np.array([start_t]))[0]])
-    nz = ca.vertcat(ca.vec(stage.jac.map(N)(*stage_args)), term.jac(*term_args))
+    rc, cc, copies = _copy_jacobian(layout, N * n_rows + n_term)
+    rows = np.concatenate([(r[None, :] + n_rows * np.arange(N)[:, None]).ravel(),
+                           N * n_rows + rt, rc])
+    cols = np.concatenate([places.stage(c, True).ravel(), places.final(ct), cc])
+    nz = ca.vertcat(ca.vec(stage.jac.map(N)(*stage_args)), term.jac(*term_args), copies)
     sp, order = _scatter(rows, cols, (g.numel(), nx))
     jac = ca.MX(sp, nz[order])
 
-    # objective gradient and Lagrangian Hessian: global-global entries summed over stages
+    # objective gradient and Lagrangian Hessian (the copy rows are linear: no curvature)
     lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", g.numel())
     lam_stages = ca.reshape(lam_g[:N * n_rows], n_rows, N)
-    lam_t = lam_g[N * n_rows:]
-    grad = _summed(stage.grad.map(N)(*stage_args), term.grad(*term_args),
-                   stage.grad_rows, np.zeros_like(stage.grad_rows), term.grad_rows,
-                   np.zeros_like(term.grad_rows), nw, layout.terminal_size, start_t, start_g,
-                   (nx, 1), vector=True)
-    hr, hc = (np.array(v, dtype=int) for v in stage.hess_sp.get_triplet())
-    tr, tc = (np.array(v, dtype=int) for v in term.hess_sp.get_triplet())
-    hess = _summed(stage.hess.map(N)(*stage_args, lam_f, lam_stages),
-                   term.hess(*term_args, lam_f, lam_t), hr, hc, tr, tc, nw,
-                   layout.terminal_size, start_t, start_g, (nx, nx))
+    lam_t = lam_g[N * n_rows:N * n_rows + n_term]
+    grad = _stacked(stage.grad.map(N)(*stage_args), term.grad(*term_args), places,
+                    (stage.grad_rows, None), (term.grad_rows, None), (nx, 1))
+    hess = _stacked(stage.hess.map(N)(*stage_args, lam_f, lam_stages),
+                    term.hess(*term_args, lam_f, lam_t), places,
+                    (np.array(v, dtype=int) for v in stage.hess_sp.get_triplet()),
+                    (np.array(v, dtype=int) for v in term.hess_sp.get_triplet()), (nx, nx))
     if boundary is not None:
         grad = grad + ca.gradient(boundary, X)
         hess = hess + lam_f * ca.triu(ca.hessian(boundary, X)[0])
@@ -313,39 +355,14 @@ def _assembled(derivs: Derivatives, link: int, layout: Layout, X: ca.MX, P: ca.M
     }
 
 
-def _summed(stage_nz: ca.MX, term_nz: ca.MX, sr: np.ndarray, sc: np.ndarray, tr: np.ndarray,
-            tc: np.ndarray, nw: int, nt: int, start_t: int, start_g: int,
-            shape: tuple[int, int], vector: bool = False) -> ca.MX:
-    """A matrix from per-stage nonzeros (one column per stage) and the terminal's, with
-    local indices (rows sr/tr, columns sc/tc) into [w; glob]: entries within a stage's
-    own variables are unique, entries between two globals are summed over all stages."""
-    N = stage_nz.size2() if stage_nz.size1() else 0
-    starts = np.arange(N) * nw
-    s_glob = (sr >= nw) & (sc >= nw) if not vector else sr >= nw
-    t_glob = (tr >= nt) & (tc >= nt) if not vector else tr >= nt
-    # unique entries: every stage's, then the terminal's
-    s_idx, t_idx = np.flatnonzero(~s_glob), np.flatnonzero(~t_glob)
-    rows = [_place(sr[s_idx], nw, 0, start_g, False, starts).ravel(),
-            _place(tr[t_idx], nt, 0, start_g, False, np.array([start_t]))[0]]
-    if vector:
-        cols = [np.zeros(rows[0].size, dtype=int), np.zeros(rows[1].size, dtype=int)]
-    else:
-        cols = [_place(sc[s_idx], nw, 0, start_g, False, starts).ravel(),
-                _place(tc[t_idx], nt, 0, start_g, False, np.array([start_t]))[0]]
-    values = [ca.vec(stage_nz[s_idx.tolist(), :]) if s_idx.size else ca.MX(0, 1),
-              term_nz[t_idx.tolist()] if t_idx.size else ca.MX(0, 1)]
-    # global entries: sum the stages' and add the terminal's at the same place
-    g_keys: dict[tuple[int, int], ca.MX] = {}
-    for k in np.flatnonzero(s_glob):
-        key = (start_g + sr[k] - nw, 0 if vector else start_g + sc[k] - nw)
-        g_keys[key] = g_keys.get(key, 0) + ca.sum2(stage_nz[int(k), :])
-    for k in np.flatnonzero(t_glob):
-        key = (start_g + tr[k] - nt, 0 if vector else start_g + tc[k] - nt)
-        g_keys[key] = g_keys.get(key, 0) + term_nz[int(k)]
-    if g_keys:
-        keys = list(g_keys)
-        rows.append(np.array([k[0] for k in keys], dtype=int))
-        cols.append(np.array([k[1] for k in keys], dtype=int))
-        values.append(ca.vertcat(*g_keys.values()))
+def _stacked(stage_nz: ca.MX, term_nz: ca.MX, places: _Places, stage_at, term_at,
+             shape: tuple[int, int]) -> ca.MX:
+    """A matrix from per-stage nonzeros (one column per stage) and the terminal's, at local
+    (rows, columns) into [w; glob] (columns None: a column vector); every entry is one
+    stage's alone, as each reads its own copy of the globals."""
+    (sr, sc), (tr, tc) = stage_at, term_at
+    rows = [places.stage(sr).ravel(), places.final(tr)]
+    cols = [np.zeros(rows[0].size, dtype=int), np.zeros(rows[1].size, dtype=int)] \
+        if sc is None else [places.stage(sc).ravel(), places.final(tc)]
     sp, order = _scatter(np.concatenate(rows), np.concatenate(cols), shape)
-    return ca.MX(sp, ca.vertcat(*values)[order])
+    return ca.MX(sp, ca.vertcat(ca.vec(stage_nz), term_nz)[order])

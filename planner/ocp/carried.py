@@ -9,9 +9,10 @@ ends the stage, a function of time: they are interpolated linearly over the coar
 times. A stage's other rows (collocation and dynamics equations at its points, path
 constraints) and the bounds of its variables carry a share of the interval's integral:
 the multipliers of a coarse interval's are scaled by the width of each fine interval
-inside it over its own. The terminal's rows and variables and the global variables are
-the same on both meshes: their multipliers are copied (docs/planner.md, "Meshes and
-refinement").
+inside it over its own. The rows that keep the globals' copies equal link a stage to the
+next too, and are interpolated likewise. The terminal's rows and variables and the first
+copy of the globals (the one with bounds) are the same on both meshes: their multipliers
+are copied (docs/planner.md, "Meshes and refinement").
 """
 
 from __future__ import annotations
@@ -57,7 +58,7 @@ def carried(coarse: Instance, solution: Solution, fine: Instance,
     ratio = fine.mesh.widths / coarse.mesh.widths[within]  # (N_fine,)
     lam_g = _rows(solution.lam_g, coarse, fine, within, ratio, _linking(coarse, per_stage),
                   per_stage)
-    lam_x = _bounds(solution.lam_x, coarse, fine, within, ratio)
+    lam_x = _bounds(solution.lam_x, coarse, fine.mesh.intervals, within, ratio)
     return Point(np.asarray(x0, float), lam_x, lam_g)
 
 
@@ -85,21 +86,30 @@ def _linking(inst: Instance, per_stage: int) -> np.ndarray:
 def _rows(lam: np.ndarray, coarse: Instance, fine: Instance, within: np.ndarray,
           ratio: np.ndarray, linking: np.ndarray, per_stage: int) -> np.ndarray:
     """The fine solve's row multipliers (n_g_fine,): rows that link a stage to the next
-    interpolated over the times of the nodes that end their stages, the other stage rows
-    scaled by `ratio`, the terminal's copied."""
-    N = coarse.mesh.intervals
+    (and the globals' copy rows) interpolated over the times of the nodes that end their
+    stages, the other stage rows scaled by `ratio`, the terminal's copied."""
+    N, ng = coarse.mesh.intervals, coarse.problem.layout.globals_size
+    terminal = lam.size - N * (per_stage + ng)
     stages = lam[:N * per_stage].reshape(N, per_stage)
+    copies = lam[lam.size - N * ng:].reshape(N, ng)
     out = stages[within] * ratio[:, None]
     ends, fine_ends = coarse.mesh.breaks[1:], fine.mesh.breaks[1:]
     for row in np.flatnonzero(linking):
         out[:, row] = np.interp(fine_ends, ends, stages[:, row])
-    return np.concatenate([out.ravel(), lam[N * per_stage:]])
+    fine_copies = np.array([np.interp(fine_ends, ends, column) for column in copies.T]).T
+    return np.concatenate([out.ravel(), lam[N * per_stage:N * per_stage + terminal],
+                           fine_copies.reshape(-1)])
 
 
-def _bounds(lam: np.ndarray, coarse: Instance, fine: Instance, within: np.ndarray,
+def _bounds(lam: np.ndarray, coarse: Instance, fine_intervals: int, within: np.ndarray,
             ratio: np.ndarray) -> np.ndarray:
     """The fine solve's bound multipliers (n_x_fine,): a stage's variables' scaled by
-    `ratio`, the terminal's and the globals' copied."""
-    N, nw = coarse.mesh.intervals, coarse.problem.layout.stage_size
+    `ratio`, the terminal's and the first copy of the globals' copied (the other copies
+    have no bounds)."""
+    layout = coarse.problem.layout
+    N, nw, ng = coarse.mesh.intervals, layout.stage_size, layout.globals_size
     stages = lam[:N * nw].reshape(N, nw)
-    return np.concatenate([(stages[within] * ratio[:, None]).ravel(), lam[N * nw:]])
+    copies = np.zeros((fine_intervals + 1) * ng)
+    copies[:ng] = lam[layout.globals_start:layout.globals_start + ng]
+    return np.concatenate([(stages[within] * ratio[:, None]).ravel(),
+                           lam[N * nw:layout.globals_start], copies])

@@ -29,6 +29,7 @@ from planner.feasibility import Issue
 from planner.ocp.attempt import Attempt
 from planner.ocp.evidence import Infeasibility, InfeasibleField, ViolatedRows
 from planner.ocp.outcome import Outcome
+from planner.ocp.problem import Problem
 from planner.ocp.result import DenseTrajectory, Plan, SolverReport, waves_of
 from planner.ocp.row_kinds import row_kinds
 from planner.ocp.shortest import Probe
@@ -99,11 +100,21 @@ def violated(outcome: Outcome) -> list[ViolatedRows]:
         if rows.size == 0:
             continue
         worst = int(rows[np.argmax(violation[rows])])
-        k = worst // stage_rows if stage_rows else N
-        at = float(outcome.inst.mesh.breaks[min(k, N)] * outcome.T)
+        at = float(outcome.inst.mesh.breaks[_node(problem, worst, stage_rows, N)] * outcome.T)
         out.append(ViolatedRows(kind=str(kind), rows=int(rows.size),
                                 largest=float(violation[worst]), time=at))
     return sorted(out, key=lambda v: -v.largest)
+
+
+def _node(problem: Problem, row: int, stage_rows: int, N: int) -> int:
+    """The mesh node a row belongs to: its stage's start; the final node for the
+    terminal's rows (and every row where a stage's rows are not known); the node between
+    the two copies of the globals that a copy row keeps equal."""
+    ng = problem.layout.globals_size
+    copies_at = problem.lbg.size - N * ng
+    if ng and row >= copies_at:
+        return (row - copies_at) // ng + 1
+    return min(row // stage_rows, N) if stage_rows else N
 
 
 def durations(scene: Scene) -> list[float]:

@@ -122,16 +122,17 @@ def _bounds(scene: Scene, prob: Problem, robot: Robot, mesh: Mesh) -> tuple[np.n
         bound[q[:, 0]], bound[dq[:, 0]] = task.initial.q, task.initial.dq
         _set_rows(bound, q[:, -1:], task.final.q)
         _set_rows(bound, dq[:, -1:], task.final.dq)
-    if prob.key.free_time:
+    if prob.key.free_time:  # the first copy of a global is bounded (planner.ocp.layout)
         assert isinstance(task.duration, DurationRange)  # what makes the key's time free
-        lay.put(lbx, "T", task.duration.min)
-        lay.put(ubx, "T", task.duration.max)
+        first = lay.blocks["T"][1][:, 0]
+        lbx[first], ubx[first] = task.duration.min, task.duration.max
     if prob.key.codesign:
         assert task.co_design is not None  # what makes the key co-design
         amax = [min(task.co_design.amplitude_max, 0.95 * robot.links[j].length)
                 for j in robot.active]
-        lay.put(lbx, "wave", np.array([v for _ in amax for v in (0.0, -2 * np.pi)])[:, None])
-        lay.put(ubx, "wave", np.array([v for a in amax for v in (a, 2 * np.pi)])[:, None])
+        first = lay.blocks["wave"][1][:, 0]
+        lbx[first] = [v for _ in amax for v in (0.0, -2 * np.pi)]
+        ubx[first] = [v for a in amax for v in (a, 2 * np.pi)]
     return lbx, ubx
 
 

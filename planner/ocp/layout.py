@@ -2,13 +2,21 @@
 
 The variables of interval k (a stage, the same parts for every k) come first, interval
 after interval, then those of the final node (the terminal), then the global variables
-(a free duration, co-designed waves, the idle variable of `ProblemKey.idle`):
+(a free duration, co-designed waves, the idle variable of `ProblemKey.idle`), one copy
+g_k for each stage and one for the terminal:
 
-    x = [w_0, w_1, ..., w_{N-1}, w_N (terminal), globals]
+    x = [w_0, w_1, ..., w_{N-1}, w_N (terminal), g_0, g_1, ..., g_N]
+
+Stage k reads its own copy and rows g_k = g_{k+1} (`planner.ocp.assembly`) keep the copies
+equal, so that no variable is read by every stage: the KKT matrix stays banded over the
+stages, where one shared copy would border it with dense rows and columns that cost the
+sparse factorization several times a banded one's (docs/planner.md, "Global variables").
+Only the first copy carries a global's bounds.
 
 A part is a named matrix of `rows` x len(positions) variables holding one quantity (q, dq,
 ddq or tau) at fixed fractions of the interval. A named block gathers the part of that name
-across all stages (and the terminal), in time order: e.g. "q" is the node angles, n x (N + 1).
+across all stages (and the terminal), in time order: e.g. "q" is the node angles, n x (N + 1);
+a global's block is its copies, size x (N + 1).
 """
 
 from __future__ import annotations
@@ -48,7 +56,7 @@ def _offsets(parts: tuple[Part, ...]) -> dict[str, int]:
 
 @dataclass(frozen=True)
 class Layout:
-    """The variables of N stages, a terminal and globals (name, size)."""
+    """The variables of N stages, a terminal and N + 1 copies of the globals (name, size)."""
 
     stage: tuple[Part, ...]
     terminal: tuple[Part, ...]
@@ -65,11 +73,17 @@ class Layout:
 
     @property
     def globals_size(self) -> int:
+        """The variables of one copy of the globals."""
         return sum(size for _, size in self.globals)
 
     @property
+    def globals_start(self) -> int:
+        """Where the globals' copies start in x."""
+        return self.intervals * self.stage_size + self.terminal_size
+
+    @property
     def size(self) -> int:
-        return self.intervals * self.stage_size + self.terminal_size + self.globals_size
+        return self.globals_start + (self.intervals + 1) * self.globals_size
 
     @cached_property
     def blocks(self) -> dict[str, tuple[str, np.ndarray]]:
@@ -85,9 +99,10 @@ class Layout:
         for part, start in zip(self.terminal, _offsets(self.terminal).values(), strict=True):
             local = base + start + np.arange(part.size).reshape(len(part.positions), part.rows).T
             out.setdefault(part.name, (part.kind, []))[1].append(local)
-        base += self.terminal_size
+        base, copies = self.globals_start, (N + 1) * self.globals_size
         for name, size in self.globals:
-            out[name] = ("global", [base + np.arange(size)[:, None]])
+            out[name] = ("global", [base + np.arange(size)[:, None]
+                                    + np.arange(0, copies, self.globals_size)[None, :]])
             base += size
         return {name: (kind, np.hstack(cols)) for name, (kind, cols) in out.items()}
 

@@ -86,7 +86,8 @@ def build(key: ProblemKey, compiled: bool = False) -> Problem:
     assembly = assemble(parts.kernels, parts.derivatives, parts.link, layout,
                         parts.params.n_common, parts.params.n_local,
                         boundary_cost(key, layout, parts.params, terms_of(key)))
-    lbg, ubg = _row_bounds(parts.bounds[0], key.intervals, parts.bounds[1])
+    lbg, ubg = _row_bounds(parts.bounds[0], key.intervals, parts.bounds[1],
+                           key.intervals * layout.globals_size)
     n_params = parts.params.n_common + parts.params.n_local * (key.intervals + 1)
     monitor = IterationMonitor(layout.size, lbg.size, n_params)
     kind = SOLVERS[key.solver]
@@ -99,13 +100,16 @@ def build(key: ProblemKey, compiled: bool = False) -> Problem:
                    compiled)
 
 
-def _row_bounds(stage: RowGroups, N: int, terminal: RowGroups) -> tuple[np.ndarray, np.ndarray]:
-    """The lower and upper bounds of all rows: N stages', then the terminal's."""
+def _row_bounds(stage: RowGroups, N: int, terminal: RowGroups,
+                copies: int) -> tuple[np.ndarray, np.ndarray]:
+    """The lower and upper bounds of all rows: N stages', the terminal's, then the `copies`
+    rows that keep the globals' copies equal (zero)."""
     def expand(groups: RowGroups, side: int) -> np.ndarray:
         return np.concatenate([np.full(size, g[side]) for *g, size in groups] or [np.zeros(0)])
 
-    return (np.concatenate([np.tile(expand(stage, 0), N), expand(terminal, 0)]),
-            np.concatenate([np.tile(expand(stage, 1), N), expand(terminal, 1)]))
+    lower, upper = (np.concatenate([np.tile(expand(stage, side), N), expand(terminal, side),
+                                    np.zeros(copies)]) for side in (0, 1))
+    return lower, upper
 
 
 def problem(key: ProblemKey, wait: bool = False) -> Problem:

@@ -1,6 +1,6 @@
 """What each constraint row of an NLP is: its stages' rows, stage after stage, then the
 terminal's, each of a kind of `planner.ocp.stage_function.ROW_KINDS`, "dynamics" or
-"continuity"."""
+"continuity", then the rows that keep the globals' copies equal ("continuity" too)."""
 
 from __future__ import annotations
 
@@ -20,7 +20,9 @@ def row_kinds(problem: Problem) -> tuple[np.ndarray, int]:
                           counts[0])
     final = np.repeat(np.array(terminal_kinds or ["constraint"] * len(terminal), object),
                       counts[1])
-    kinds = np.concatenate([np.tile(per_stage, problem.key.intervals), final])
+    copies = problem.key.intervals * problem.layout.globals_size
+    kinds = np.concatenate([np.tile(per_stage, problem.key.intervals), final,
+                            np.full(copies, "continuity", object)])
     if kinds.size != problem.lbg.size:
         return np.full(problem.lbg.size, "constraint", object), 0
     return kinds, int(per_stage.size)
