@@ -10,8 +10,11 @@ from service_fixtures import client, two_link_scene
 
 from app.job_run import _verdict
 from planner import feasibility
-from planner.ocp.infeasibility import AGREEING, CHECKS_STATUS
+from planner.ocp.infeasibility import AGREEING, CHECKS_STATUS, _node
+from planner.ocp.instance import instance
+from planner.ocp.mesh import Mesh
 from planner.ocp.planner import plan
+from planner.ocp.row_kinds import row_kinds
 from planner.scene import Scene
 from planner.simulate import simulate
 from testbed.fake_solvers import fake_plan
@@ -370,3 +373,21 @@ def test_a_tip_just_beyond_the_reach_in_its_own_direction_is_refused_with_free_f
     within = (extent - 2.7e-3) * np.array([np.cos(theta), np.sin(theta)])
     assert fields(with_task(scene, tip_target={"x": float(within[0]),
                                                "y": float(within[1])})) == []
+
+
+def test_a_violated_row_is_placed_at_its_node():
+    # Evidence of an infeasible task names where a violated row is: a stage's rows at the
+    # node that starts the stage (the terminal has no rows here: the final state is
+    # bounds), and a copy row of a global (here the free duration) at the node between
+    # the two copies it keeps equal.
+    data = two_link_scene()
+    data["task"]["duration"] = {"min": 0.8, "max": 3.0}
+    scene = Scene.model_validate(data)
+    N = 12
+    problem = instance(scene, scene.robot, Mesh.uniform(N), 1.0).problem
+    _, per_stage = row_kinds(problem)
+    copies_at = problem.lbg.size - N
+    assert per_stage > 0 and copies_at == N * per_stage
+    assert [_node(problem, row, per_stage, N) for row in (0, 3 * per_stage + 1)] == [0, 3]
+    assert _node(problem, copies_at - 1, per_stage, N) == N - 1
+    assert [_node(problem, copies_at + k, per_stage, N) for k in (0, 4, N - 1)] == [1, 5, N]
