@@ -86,10 +86,10 @@ def _map_stages(link: int, layout: Layout, X: ca.MX, common: ca.MX, local: ca.MX
     return W, nxt, glob[:, :N], terminal, glob[:, N], local[:, :N], local[:, N]
 
 
-def copy_rows(layout: Layout, X: ca.MX) -> ca.MX:
-    """The rows g_k - g_{k+1} (ng N,) that keep the globals' copies equal, stage by stage."""
-    glob = ca.reshape(X[layout.globals_start:], layout.globals_size, layout.intervals + 1)
-    return ca.vec(glob[:, :-1] - glob[:, 1:])
+def _copy_rows(glob: ca.MX, glob_t: ca.MX) -> ca.MX:
+    """The rows g_k - g_{k+1} (ng N,) that keep the globals' copies equal, stage by stage,
+    from the stages' copies (ng x N) and the terminal's."""
+    return ca.vec(glob - ca.horzcat(glob[:, 1:], glob_t))
 
 
 def nlp(kernels: Kernels | None, derivs: Derivatives | None, link: int, layout: Layout,
@@ -110,7 +110,7 @@ def nlp(kernels: Kernels | None, derivs: Derivatives | None, link: int, layout: 
             derivs.stage.cost.map(N)(*stage_args)
         rows_t, cost_t = derivs.terminal.rows(*term_args), derivs.terminal.cost(*term_args)
     f = ca.sum2(costs) + cost_t + (boundary if boundary is not None else 0)
-    return f, ca.vertcat(ca.vec(rows), rows_t, copy_rows(layout, X))
+    return f, ca.vertcat(ca.vec(rows), rows_t, _copy_rows(glob, glob_t))
 
 
 def _hessian_couples(kernels: Kernels) -> bool:
@@ -304,11 +304,12 @@ class _Places:
 
 def _copy_jacobian(layout: Layout, first_row: int) -> tuple[np.ndarray, np.ndarray, ca.MX]:
     """Rows, columns and values (+1, -1) of the copy rows' constant Jacobian."""
-    N, ng, start_g = layout.intervals, layout.globals_size, layout.globals_start
-    own = start_g + np.arange(N * ng)
-    rows = first_row + np.arange(N * ng)
-    values = np.concatenate([np.ones(N * ng), -np.ones(N * ng)])
-    return np.concatenate([rows, rows]), np.concatenate([own, own + ng]), ca.MX(ca.DM(values))
+    count = layout.copy_rows
+    own = layout.globals_start + np.arange(count)
+    rows = first_row + np.arange(count)
+    values = np.concatenate([np.ones(count), -np.ones(count)])
+    return np.concatenate([rows, rows]), np.concatenate([own, own + layout.globals_size]), \
+        ca.MX(ca.DM(values))
 
 
 def _assembled(derivs: Derivatives, link: int, layout: Layout, X: ca.MX, P: ca.MX,

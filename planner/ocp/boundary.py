@@ -37,7 +37,7 @@ def boundary_cost(key: ProblemKey, layout: Layout, params: Parameters,
         return None
 
     def cost(X: ca.MX, common: ca.MX, local: ca.MX) -> ca.MX:
-        T = X[int(layout.blocks["T"][1][0, 0])] if key.free_time else common[params.common["T"]]
+        T = X[int(layout.first("T")[0])] if key.free_time else common[params.common["T"]]
         b = Boundaries(ca.reshape(X[np.concatenate(before).tolist()], -1, len(before)),
                        ca.reshape(X[np.concatenate(after).tolist()], -1, len(after)),
                        T * local[params.local["boundary"], :len(before)],

@@ -88,10 +88,10 @@ def _rows(lam: np.ndarray, coarse: Instance, fine: Instance, within: np.ndarray,
     """The fine solve's row multipliers (n_g_fine,): rows that link a stage to the next
     (and the globals' copy rows) interpolated over the times of the nodes that end their
     stages, the other stage rows scaled by `ratio`, the terminal's copied."""
-    N, ng = coarse.mesh.intervals, coarse.problem.layout.globals_size
-    terminal = lam.size - N * (per_stage + ng)
+    N, layout = coarse.mesh.intervals, coarse.problem.layout
+    terminal = lam.size - N * per_stage - layout.copy_rows
     stages = lam[:N * per_stage].reshape(N, per_stage)
-    copies = lam[lam.size - N * ng:].reshape(N, ng)
+    copies = lam[lam.size - layout.copy_rows:].reshape(N, layout.globals_size)
     out = stages[within] * ratio[:, None]
     ends, fine_ends = coarse.mesh.breaks[1:], fine.mesh.breaks[1:]
     for row in np.flatnonzero(linking):

@@ -43,7 +43,7 @@ def solved_robot(inst: Instance, robot: Robot, x: np.ndarray) -> Robot:
     """The robot with the co-designed waves of the solution x (unchanged otherwise)."""
     if not inst.problem.key.codesign:
         return robot
-    values = inst.problem.layout.view(x, "wave")[:, 0]
+    values = np.asarray(x)[inst.problem.layout.first("wave")]
     amp, phase = values[0::2], values[1::2]
     waves = {}
     for col, joint in enumerate(robot.active):

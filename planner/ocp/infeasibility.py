@@ -110,10 +110,9 @@ def _node(problem: Problem, row: int, stage_rows: int, N: int) -> int:
     """The mesh node a row belongs to: its stage's start; the final node for the
     terminal's rows (and every row where a stage's rows are not known); the node between
     the two copies of the globals that a copy row keeps equal."""
-    ng = problem.layout.globals_size
-    copies_at = problem.lbg.size - N * ng
-    if ng and row >= copies_at:
-        return (row - copies_at) // ng + 1
+    copies_at = problem.lbg.size - problem.layout.copy_rows
+    if row >= copies_at:
+        return (row - copies_at) // problem.layout.globals_size + 1
     return min(row // stage_rows, N) if stage_rows else N
 
 

@@ -124,15 +124,13 @@ def _bounds(scene: Scene, prob: Problem, robot: Robot, mesh: Mesh) -> tuple[np.n
         _set_rows(bound, dq[:, -1:], task.final.dq)
     if prob.key.free_time:  # the first copy of a global is bounded (planner.ocp.layout)
         assert isinstance(task.duration, DurationRange)  # what makes the key's time free
-        first = lay.blocks["T"][1][:, 0]
-        lbx[first], ubx[first] = task.duration.min, task.duration.max
+        lbx[lay.first("T")], ubx[lay.first("T")] = task.duration.min, task.duration.max
     if prob.key.codesign:
         assert task.co_design is not None  # what makes the key co-design
         amax = [min(task.co_design.amplitude_max, 0.95 * robot.links[j].length)
                 for j in robot.active]
-        first = lay.blocks["wave"][1][:, 0]
-        lbx[first] = [v for _ in amax for v in (0.0, -2 * np.pi)]
-        ubx[first] = [v for a in amax for v in (a, 2 * np.pi)]
+        lbx[lay.first("wave")] = [v for _ in amax for v in (0.0, -2 * np.pi)]
+        ubx[lay.first("wave")] = [v for a in amax for v in (a, 2 * np.pi)]
     return lbx, ubx
 
 

@@ -9,9 +9,9 @@ g_k for each stage and one for the terminal:
 
 Stage k reads its own copy and rows g_k = g_{k+1} (`planner.ocp.assembly`) keep the copies
 equal, so that no variable is read by every stage: the KKT matrix stays banded over the
-stages, where one shared copy would border it with dense rows and columns that cost the
-sparse factorization several times a banded one's (docs/planner.md, "Global variables").
-Only the first copy carries a global's bounds.
+stages, where one shared copy would border it with dense rows and columns that make the
+sparse factorization costlier (docs/planner.md, "Global variables"). Only the first copy
+carries a global's bounds (`first`).
 
 A part is a named matrix of `rows` x len(positions) variables holding one quantity (q, dq,
 ddq or tau) at fixed fractions of the interval. A named block gathers the part of that name
@@ -84,6 +84,17 @@ class Layout:
     @property
     def size(self) -> int:
         return self.globals_start + (self.intervals + 1) * self.globals_size
+
+    @property
+    def copy_rows(self) -> int:
+        """The rows g_k - g_{k+1} that keep the globals' copies equal, one per global
+        variable and stage (after the stages' and the terminal's rows)."""
+        return self.intervals * self.globals_size
+
+    def first(self, name: str) -> np.ndarray:
+        """The indices into x of the first copy of global `name` (size,): the copy that
+        carries its bounds and that stands for its value."""
+        return self.blocks[name][1][:, 0]
 
     @cached_property
     def blocks(self) -> dict[str, tuple[str, np.ndarray]]:

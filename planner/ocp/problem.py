@@ -86,8 +86,7 @@ def build(key: ProblemKey, compiled: bool = False) -> Problem:
     assembly = assemble(parts.kernels, parts.derivatives, parts.link, layout,
                         parts.params.n_common, parts.params.n_local,
                         boundary_cost(key, layout, parts.params, terms_of(key)))
-    lbg, ubg = _row_bounds(parts.bounds[0], key.intervals, parts.bounds[1],
-                           key.intervals * layout.globals_size)
+    lbg, ubg = _row_bounds(parts.bounds[0], key.intervals, parts.bounds[1], layout.copy_rows)
     n_params = parts.params.n_common + parts.params.n_local * (key.intervals + 1)
     monitor = IterationMonitor(layout.size, lbg.size, n_params)
     kind = SOLVERS[key.solver]

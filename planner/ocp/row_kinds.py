@@ -20,9 +20,8 @@ def row_kinds(problem: Problem) -> tuple[np.ndarray, int]:
                           counts[0])
     final = np.repeat(np.array(terminal_kinds or ["constraint"] * len(terminal), object),
                       counts[1])
-    copies = problem.key.intervals * problem.layout.globals_size
     kinds = np.concatenate([np.tile(per_stage, problem.key.intervals), final,
-                            np.full(copies, "continuity", object)])
+                            np.full(problem.layout.copy_rows, "continuity", object)])
     if kinds.size != problem.lbg.size:
         return np.full(problem.lbg.size, "constraint", object), 0
     return kinds, int(per_stage.size)
