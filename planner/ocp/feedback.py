@@ -29,6 +29,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from planner import buffered
 from planner.compiled import library, source_digest
 from planner.dynamics import functions
 from planner.model import Robot, Structure, parameters
@@ -56,11 +57,13 @@ class Linearisation:
 
 @lru_cache(maxsize=64)
 def _jacobians(s: Structure) -> ca.Function:
-    """(x, tau, p) -> (df/dx (2n x 2n), df/dtau (2n x na)) of the first-order dynamics."""
+    """(x, tau, p) -> (df/dx (2n x 2n), df/dtau (2n x na)) of the first-order dynamics,
+    dense (read in place, `planner.buffered`)."""
     ode = functions(s)["ode_ldl"]
     x, tau, p = ode.sx_in()
     dx = ode(x, tau, p)
-    return ca.Function("jacobians", [x, tau, p], [ca.jacobian(dx, x), ca.jacobian(dx, tau)])
+    return ca.Function("jacobians", [x, tau, p], [ca.densify(ca.jacobian(dx, x)),
+                                                  ca.densify(ca.jacobian(dx, tau))])
 
 
 @lru_cache(maxsize=64)
@@ -68,11 +71,19 @@ def _library_name(s: Structure) -> str:
     return f"jacobians_{source_digest(repr(s), sources=_SOURCES)}"
 
 
-def _compiled_jacobians(s: Structure) -> ca.Function:
-    """`_jacobians` compiled (`planner.compiled`) once it is on disk; interpreted while it
-    is built in the background."""
+def _compiled_jacobians(s: Structure) -> ca.Function | None:
+    """`_jacobians` compiled (`planner.compiled`) once it is on disk; None while it is
+    built in the background."""
     loaded = library(_library_name(s), (_jacobians(s),), background=True)
-    return _jacobians(s) if loaded is None else loaded["jacobians"]
+    return None if loaded is None else loaded["jacobians"]
+
+
+@lru_cache(maxsize=64)
+def _mapped(s: Structure, points: int, compiled: bool) -> ca.Function:
+    """`_jacobians` (compiled where `compiled`, which `linearise` asks only once it is
+    loaded) mapped over `points` columns of (x, tau), p shared."""
+    one = _compiled_jacobians(s) if compiled else None
+    return (_jacobians(s) if one is None else one).map(points)
 
 
 def linearise(robot: Robot, interp: Interpolant, compiled: bool = False) -> Linearisation | None:
@@ -85,10 +96,11 @@ def linearise(robot: Robot, interp: Interpolant, compiled: bool = False) -> Line
     fractions = np.arange(2 * SUBSTEPS + 1) / (2 * SUBSTEPS)  # substep ends and midpoints
     t = (breaks[:-1, None] + h[:, None] * fractions[None, :]).ravel()
     x = np.hstack([interp.q(t), interp.dq(t)])
-    jacobians = _compiled_jacobians(s) if compiled else _jacobians(s)
-    jac_x, jac_u = jacobians.map(t.size)(x.T, interp.tau(t).T, parameters(robot, s))
-    Ax = np.array(jac_x).reshape(n2, t.size, n2).transpose(1, 0, 2).reshape(N, -1, n2, n2)
-    Bu = np.array(jac_u).reshape(n2, t.size, na).transpose(1, 0, 2).reshape(N, -1, n2, na)
+    ready = compiled and _compiled_jacobians(s) is not None
+    jac_x, jac_u = buffered.call(_mapped(s, t.size, ready), x.T, interp.tau(t).T,
+                                 parameters(robot, s))
+    Ax = jac_x.reshape(n2, t.size, n2).transpose(1, 0, 2).reshape(N, -1, n2, n2)
+    Bu = jac_u.reshape(n2, t.size, na).transpose(1, 0, 2).reshape(N, -1, n2, na)
     phi = np.broadcast_to(np.eye(n2), (N, n2, n2)).copy()
     gamma = np.zeros((N, n2, na))
     dt = (h / SUBSTEPS)[:, None, None]
@@ -134,15 +146,22 @@ def gains(lin: Linearisation, h: np.ndarray, tau_scale: float) -> Feedback | Non
     r_weights = np.full(na, tau_scale**-2)
     S = np.diag(q_weights)
     K = np.zeros((N, na, n2))
+    states, torques = np.diag_indices(n2), np.diag_indices(na)
     with np.errstate(over="ignore", invalid="ignore"):
         for k in range(N - 1, -1, -1):
             A, B = lin.A[k], lin.B[k]
-            R, Q = np.diag(r_weights * h[k]), np.diag(q_weights * h[k])
-            K[k] = np.linalg.solve(R + B.T @ S @ B, B.T @ S @ A)
-            S = Q + A.T @ S @ (A - B @ K[k])
-            S = (S + S.T) / 2
-            if not (np.all(np.isfinite(K[k])) and np.all(np.isfinite(S))):
+            SA, SB = S @ A, S @ B
+            lhs = B.T @ SB
+            lhs[torques] += r_weights * h[k]
+            try:
+                K[k] = np.linalg.solve(lhs, B.T @ SA)
+            except np.linalg.LinAlgError:  # an overflow made it singular
                 return None
+            S = A.T @ (SA - SB @ K[k])
+            S = (S + S.T) / 2
+            S[states] += q_weights * h[k]
+    if not (np.all(np.isfinite(K)) and np.all(np.isfinite(S))):
+        return None
     return Feedback(gains=K.tolist(), state_weights=q_weights.tolist(),
                     torque_weights=r_weights.tolist())
 

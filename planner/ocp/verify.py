@@ -19,16 +19,18 @@
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from functools import lru_cache
 from time import perf_counter
 
+import casadi as ca
 import numpy as np
 from scipy.optimize import minimize_scalar
 
 from planner import buffered, coupling_block
 from planner.dynamics import functions
 from planner.model import Robot, Structure, parameters
+from planner.ocp.check_threads import pool
 from planner.ocp.feedback import (
     PERTURBATION,
     gains,
@@ -81,10 +83,16 @@ def defect(robot: Robot, interp: Interpolant) -> float:
     h = np.diff(breaks)
     t = (breaks[:-1, None] + h[:, None] * (_GAUSS_S[None, :] + 1) / 2).ravel()
     ddq = interp.dq(t, derivative=1)
-    (res,) = buffered.call(functions(s)["residual"].map(len(t)), interp.q(t).T,
+    (res,) = buffered.call(_residuals(s, len(t)), interp.q(t).T,
                            interp.dq(t).T, ddq.T, interp.tau(t).T, parameters(robot, s))
     norms = np.linalg.norm(res, axis=0).reshape(len(h), -1)
     return float(np.sum(norms * (_GAUSS_W[None, :] / 2) * h[:, None]))
+
+
+@lru_cache(maxsize=64)
+def _residuals(s: Structure, points: int) -> ca.Function:
+    """The dynamics' residual M ddq + h - B tau mapped over `points` columns, p shared."""
+    return functions(s)["residual"].map(points)
 
 
 def singular_crossings(robot: Robot, interp: Interpolant, t: np.ndarray, own_sigma: np.ndarray,
@@ -247,22 +255,22 @@ def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.nd
     are known, the closed-loop replays (CVODES, which lets go of Python's lock) run in
     threads of their own beside the other checks."""
     tolerance, compiled = settings.resimulation_tolerance, settings.jit
-    with ThreadPoolExecutor(max_workers=2, thread_name_prefix="checks") as pool:
-        replaying = pool.submit(open_loop, robot, interp, compiled, deadline)
-        fb, measured = _feedback(robot, interp, task.torque_limit, compiled)
-        closing = None if fb is None else pool.submit(
-            _closed_loop, robot, interp, fb, task.torque_limit, compiled, deadline)
-        kept = limits(robot, interp, t_dense, task.torque_limit, task.position_bounds,
-                      task.velocity_bounds)
-        sigma, det = coupling_along(robot, interp.q(t_dense))
-        if proof is None:
-            proof = prove(robot, interp, task.coupling_margin, deadline)
-        asked = requirements(robot, interp, t_dense, task, sigma, proof, tolerance)
-        crossings, waveless = singular_crossings(robot, interp, t_dense, sigma, det)
-        flaw = defect(robot, interp)
-        robust, robust_ok = _robust(robot, interp, fb, task, settings, deadline)
-        measured.update({} if closing is None else closing.result())
-        replayed = replaying.result()
+    threads = pool()
+    replaying = threads.submit(open_loop, robot, interp, compiled, deadline)
+    fb, measured = _feedback(robot, interp, task.torque_limit, compiled)
+    closing = None if fb is None else threads.submit(
+        _closed_loop, robot, interp, fb, task.torque_limit, compiled, deadline)
+    kept = limits(robot, interp, t_dense, task.torque_limit, task.position_bounds,
+                  task.velocity_bounds)
+    sigma, det = coupling_along(robot, interp.q(t_dense))
+    if proof is None:
+        proof = prove(robot, interp, task.coupling_margin, deadline)
+    asked = requirements(robot, interp, t_dense, task, sigma, proof, tolerance)
+    crossings, waveless = singular_crossings(robot, interp, t_dense, sigma, det)
+    flaw = defect(robot, interp)
+    robust, robust_ok = _robust(robot, interp, fb, task, settings, deadline)
+    measured.update({} if closing is None else closing.result())
+    replayed = replaying.result()
     accurate = errors_status == "completed" and float(errors.max()) <= tolerance
     return Verification(
         **_intervals(errors, errors_status),
