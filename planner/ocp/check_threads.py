@@ -2,9 +2,8 @@
 
 A plan's replays run beside its other checks in threads of their own
 (`planner.ocp.verify`); the threads are kept for the process's later plans rather than
-started and joined for each one, which on a busy machine cost a plan's checks a few
-milliseconds. A forked child (a plan's companion) has only the thread that forked: it
-starts threads of its own.
+started and joined for each one. A forked child (a plan's companion) has only the thread
+that forked: it starts threads of its own.
 """
 
 from __future__ import annotations
