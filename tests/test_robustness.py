@@ -161,3 +161,22 @@ def test_a_limited_plan_reports_the_largest_torque_its_feedback_commands_on_the_
     assert limited.status == "verified" and report is not None
     assert report.largest_torque >= float(np.abs(np.asarray(limited.dense.tau)).max())
     assert report.saturated == (report.largest_torque > data["task"]["torque_limit"])
+
+
+def test_the_closed_loop_and_the_models_replayed_together_answer_as_each_alone(
+        planned: tuple[Scene, Plan]):
+    """The verification replays the closed loop and the corner models as lanes of one
+    stacked replay: each lane's figures are those of its replay on its own (planted: the
+    report read from the wrong lanes, or the perturbed start left out, fails it)."""
+    scene, result = planned
+    interp, v = _interp(result), result.verification
+    K = np.asarray(result.feedback.gains)
+    start = np.concatenate([result.q[0], result.dq[0]])
+    (closed, _), (perturbed, _) = replay(scene.robot, interp,
+                                         np.stack([start, start + v.perturbation]), K)
+    assert v.closed_loop_error == pytest.approx(closed, rel=1e-3)
+    assert v.perturbed_closed_loop_error == pytest.approx(perturbed, rel=1e-3)
+    alone = robustness(scene.robot, interp, K, Uncertainty(mass=0.1), None)
+    assert v.robustness.worst_model == alone.worst_model
+    for field in ("worst_tracking_error", "worst_final_error", "open_loop_final_error"):
+        assert getattr(v.robustness, field) == pytest.approx(getattr(alone, field), rel=1e-3)

@@ -16,13 +16,14 @@ worst tracking error is within it.
 from __future__ import annotations
 
 import itertools
+from dataclasses import dataclass
 
 import numpy as np
 
 from planner.model import Robot, Structure
 from planner.ocp.feedback import REPLAY_TOL
 from planner.ocp.flow import inputs
-from planner.ocp.replays import Lane, planned_state, reference, replays
+from planner.ocp.replays import Lane, Replayed, planned_state, reference, replays
 from planner.ocp.transcription import Interpolant
 from planner.ocp.verification import Robustness
 from planner.scene import Uncertainty
@@ -59,6 +60,57 @@ def _scaled(robot: Robot, scale: dict[str, float]) -> Robot:
     return robot.model_copy(update={"links": links})
 
 
+@dataclass(frozen=True)
+class Corners:
+    """The replays of a plan on the corner models of an uncertainty: each model's label, its
+    two lanes (with the feedback, and the torque alone) one after the other, and the plan's
+    final state (2n,)."""
+
+    uncertainty: Uncertainty
+    labels: list[str]
+    lanes: list[Lane]
+    goal: np.ndarray
+
+
+def corners(robot: Robot, interp: Interpolant, K: np.ndarray, uncertainty: Uncertainty,
+            limit: np.ndarray | None = None) -> Corners:
+    """The lanes that replay the plan `interp` of `robot` with gains K (N, na, 2n), and
+    without them, on every corner model of `uncertainty` from the planned initial state,
+    the actuators saturating at `limit` (na,) [N m] where given."""
+    breaks = interp.q.breaks
+    start = planned_state(interp, breaks[0])
+    labels, lanes = [], []
+    for label, model in models(robot, uncertainty):
+        params = inputs(model, interp, limit)[1]
+        labels.append(label)
+        lanes += [Lane(start, params, K), Lane(start, params, None)]
+    return Corners(uncertainty, labels, lanes, planned_state(interp, breaks[-1]))
+
+
+def report(made: Corners, done: list[Replayed], bound: float | None,
+           limit: np.ndarray | None = None) -> Robustness:
+    """What the replays `done` of the lanes of `made` say; `bound` [rad]: the largest worst
+    tracking error the plan may have (a replay that stopped or failed counts as one that
+    diverged)."""
+    closed, alone = done[0::2], done[1::2]
+    peak = max(r.peak for r in closed)
+    tracking = [np.inf if r.error is None else r.error for r in closed]
+    final = [np.inf if r.end is None else float(np.abs(r.end - made.goal).max())
+             for r in closed]
+    drift = [np.inf if r.end is None else float(np.abs(r.end - made.goal).max())
+             for r in alone]
+    worst = int(np.argmax(tracking))
+    worst_tracking = tracking[worst]
+    return Robustness(
+        uncertainty=made.uncertainty, models=len(made.labels),
+        worst_tracking_error=worst_tracking if np.isfinite(worst_tracking) else None,
+        worst_final_error=max(final) if np.isfinite(max(final)) else None,
+        open_loop_final_error=max(drift) if np.isfinite(max(drift)) else None,
+        worst_model=made.labels[worst], bound=bound, largest_torque=peak,
+        saturated=None if limit is None else bool(np.any(peak > limit)),
+        within=None if bound is None else bool(worst_tracking <= bound))
+
+
 def robustness(robot: Robot, interp: Interpolant, K: np.ndarray, uncertainty: Uncertainty,
                bound: float | None, compiled: bool = False,
                deadline: float | None = None, limit: np.ndarray | None = None) -> Robustness:
@@ -66,28 +118,7 @@ def robustness(robot: Robot, interp: Interpolant, K: np.ndarray, uncertainty: Un
     of `uncertainty`, the actuators saturating at `limit` (na,) [N m] where given; `bound`
     [rad]: the largest worst tracking error it may have; a replay still running past
     `deadline` (time.perf_counter() seconds) stops (as one diverged)."""
-    breaks = interp.q.breaks
-    start, goal = planned_state(interp, breaks[0]), planned_state(interp, breaks[-1])
-    corners = models(robot, uncertainty)
-    lanes = []
-    for _, model in corners:  # with the feedback, and the torque alone
-        params = inputs(model, interp, limit)[1]
-        lanes += [Lane(start, params, K), Lane(start, params, None)]
-    done = replays(Structure.of(robot), reference(interp), lanes, REPLAY_TOL, compiled,
+    made = corners(robot, interp, K, uncertainty, limit)
+    done = replays(Structure.of(robot), reference(interp), made.lanes, REPLAY_TOL, compiled,
                    deadline)
-    closed, alone = done[0::2], done[1::2]
-    labels = [label for label, _ in corners]
-    peak = max(r.peak for r in closed)
-    tracking = [np.inf if r.error is None else r.error for r in closed]
-    final = [np.inf if r.end is None else float(np.abs(r.end - goal).max()) for r in closed]
-    drift = [np.inf if r.end is None else float(np.abs(r.end - goal).max()) for r in alone]
-    worst = int(np.argmax(tracking))
-    worst_tracking = tracking[worst]
-    return Robustness(
-        uncertainty=uncertainty, models=len(labels),
-        worst_tracking_error=worst_tracking if np.isfinite(worst_tracking) else None,
-        worst_final_error=max(final) if np.isfinite(max(final)) else None,
-        open_loop_final_error=max(drift) if np.isfinite(max(drift)) else None,
-        worst_model=labels[worst], bound=bound, largest_torque=peak,
-        saturated=None if limit is None else bool(np.any(peak > limit)),
-        within=None if bound is None else bool(worst_tracking <= bound))
+    return report(made, done, bound, limit)

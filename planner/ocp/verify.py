@@ -33,16 +33,18 @@ from planner.model import Robot, Structure, parameters
 from planner.ocp.check_threads import pool
 from planner.ocp.feedback import (
     PERTURBATION,
+    REPLAY_TOL,
     gains,
     growth_factor,
     linearise,
     replay,
     torque_scale,
 )
+from planner.ocp.flow import inputs
 from planner.ocp.interpolant import PiecewisePolynomial
 from planner.ocp.margin_proof import MarginProof, prove
-from planner.ocp.replays import planned_state
-from planner.ocp.robustness import robustness
+from planner.ocp.replays import Lane, planned_state, reference, replays
+from planner.ocp.robustness import corners, report
 from planner.ocp.task_checks import Requirements, requirements
 from planner.ocp.transcription import Interpolant
 from planner.ocp.verification import Crossing, Feedback, Robustness, Verification
@@ -218,22 +220,30 @@ def _feedback(robot: Robot, interp: Interpolant, torque_limit: list[float] | flo
     return fb, {"growth_factor": growth}
 
 
-def _closed_loop(robot: Robot, interp: Interpolant, fb: Feedback,
-                 torque_limit: list[float] | float | None, compiled: bool,
-                 deadline: float | None = None) -> dict:
+def _closed_loop(robot: Robot, interp: Interpolant, fb: Feedback, task: Task,
+                 settings: SolverSettings,
+                 deadline: float | None = None) -> tuple[dict, Robustness | None]:
     """What the closed-loop replays with the feedback `fb` measure, from the planned start
-    and from it perturbed; past the deadline (time.perf_counter() seconds), that they were
-    skipped."""
-    if deadline is not None and perf_counter() > deadline:
-        return {"skipped": [SKIPPED_REPLAYS]}
-    start = planned_state(interp, interp.q.breaks[0])
-    (closed, _), (perturbed, _) = replay(robot, interp,
-                                         np.stack([start, start + PERTURBATION]),
-                                         np.asarray(fb.gains), compiled=compiled,
-                                         deadline=deadline,
-                                         limit=_limit_array(torque_limit, len(robot.active)))
-    return {"closed_loop_error": closed, "perturbed_closed_loop_error": perturbed,
-            "perturbation": PERTURBATION}
+    and from it perturbed, and, with task.uncertainty, on its corner models
+    (`planner.ocp.robustness`, None without one): all of them one replay of stacked lanes,
+    which shares CVODES' start-up and steps. Past the deadline (time.perf_counter()
+    seconds), that the first two were skipped, and a corner model's replay that stopped
+    counts as one that did not stay within the bound."""
+    limit = _limit_array(task.torque_limit, len(robot.active))
+    K, start = np.asarray(fb.gains), planned_state(interp, interp.q.breaks[0])
+    params = inputs(robot, interp, limit)[1]
+    lanes = [Lane(start, params, K), Lane(start + PERTURBATION, params, K)]
+    made = None if task.uncertainty is None else corners(robot, interp, K, task.uncertainty,
+                                                          limit)
+    skipped = deadline is not None and perf_counter() > deadline
+    done = replays(Structure.of(robot), reference(interp),
+                   lanes + ([] if made is None else made.lanes), REPLAY_TOL, settings.jit,
+                   deadline)
+    measured = {"skipped": [SKIPPED_REPLAYS]} if skipped else {
+        "closed_loop_error": done[0].error, "perturbed_closed_loop_error": done[1].error,
+        "perturbation": PERTURBATION}
+    robust = None if made is None else report(made, done[2:], settings.robustness, limit)
+    return measured, robust
 
 
 def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.ndarray,
@@ -252,14 +262,15 @@ def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.nd
     failed). Past `deadline` (time.perf_counter() seconds), the closed-loop replays are
     skipped (`Verification.skipped`); a replay on a perturbed model stopped there counts
     as one that did not stay within the bound. The open-loop replay and, once the gains
-    are known, the closed-loop replays (CVODES, which lets go of Python's lock) run in
-    threads of their own beside the other checks."""
+    are known, the closed-loop replays with those on the perturbed models (`_closed_loop`;
+    CVODES, which lets go of Python's lock) run in threads of their own
+    (`planner.ocp.check_threads`) beside the other checks."""
     tolerance, compiled = settings.resimulation_tolerance, settings.jit
     threads = pool()
     replaying = threads.submit(open_loop, robot, interp, compiled, deadline)
     fb, measured = _feedback(robot, interp, task.torque_limit, compiled)
     closing = None if fb is None else threads.submit(
-        _closed_loop, robot, interp, fb, task.torque_limit, compiled, deadline)
+        _closed_loop, robot, interp, fb, task, settings, deadline)
     kept = limits(robot, interp, t_dense, task.torque_limit, task.position_bounds,
                   task.velocity_bounds)
     sigma, det = coupling_along(robot, interp.q(t_dense))
@@ -268,9 +279,11 @@ def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.nd
     asked = requirements(robot, interp, t_dense, task, sigma, proof, tolerance)
     crossings, waveless = singular_crossings(robot, interp, t_dense, sigma, det)
     flaw = defect(robot, interp)
-    robust, robust_ok = _robust(robot, interp, fb, task, settings, deadline)
-    measured.update({} if closing is None else closing.result())
+    closed, robust = ({}, None) if closing is None else closing.result()
+    measured.update(closed)
     replayed = replaying.result()
+    robust_ok = task.uncertainty is None or settings.robustness is None \
+        or robust is not None and bool(robust.within)
     accurate = errors_status == "completed" and float(errors.max()) <= tolerance
     return Verification(
         **_intervals(errors, errors_status),
@@ -308,20 +321,6 @@ def _coupling(sigma: np.ndarray, waveless: np.ndarray, crossings: list[Crossing]
     return {"min_sigma": _minimum(sigma), "waveless_min_sigma": _minimum(waveless),
             "waveless_singular_crossings": crossings, "sigma_min": _samples(sigma),
             "waveless_sigma_min": _samples(waveless)}
-
-
-def _robust(robot: Robot, interp: Interpolant, fb: Feedback | None, task: Task,
-            settings: SolverSettings, deadline: float | None) -> tuple[Robustness | None, bool]:
-    """The feedback on the models of task.uncertainty (None without one, or without
-    feedback) and whether it keeps to solver.robustness (True without a bound)."""
-    robust = None
-    if task.uncertainty is not None and fb is not None:
-        robust = robustness(robot, interp, np.asarray(fb.gains), task.uncertainty,
-                            settings.robustness, settings.jit, deadline,
-                            _limit_array(task.torque_limit, len(robot.active)))
-    ok = task.uncertainty is None or settings.robustness is None \
-        or robust is not None and bool(robust.within)
-    return robust, ok
 
 
 def _minimum(values: np.ndarray) -> float | None:
