@@ -17,6 +17,8 @@ from planner.ocp import plan
 from planner.ocp.accuracy import SAMPLES, interval_errors
 from planner.ocp.feedback import PERTURBATION, REPLAY_TOL, growth_factor, linearise, replay
 from planner.ocp.flow import Flow, flow, inputs
+from planner.ocp.replays import Lane, reference, replays
+from planner.ocp.verify import RESIM_TOL
 from planner.scene import Scene
 from testbed.suites.ordinary import tasks
 
@@ -134,7 +136,9 @@ def test_the_feedback_holds_a_perturbed_start_near_the_plan_where_open_loop_depa
 def test_replays_from_several_starts_agree_with_each_alone(seed_arm):
     """Lanes stacked into one ODE (at REPLAY_TOL / sqrt(3)) against each lane alone (at
     REPLAY_TOL): the same errors within five times the tolerance; the verification's
-    closed-loop error is the first of its own two lanes."""
+    open-loop, closed-loop and perturbed errors are the lanes of its one stacked replay
+    (the torque alone, then the feedback from the start and from it perturbed, at
+    RESIM_TOL)."""
     sc, result, interp = seed_arm
     K = np.asarray(result.feedback.gains)
     start = np.concatenate([result.q[0], result.dq[0]])
@@ -144,8 +148,14 @@ def test_replays_from_several_starts_agree_with_each_alone(seed_arm):
     assert [status for _, status in together] == ["completed"] * 3
     assert np.allclose([e for e, _ in together], [e for e, _ in alone], rtol=0.0,
                        atol=5 * REPLAY_TOL)
-    assert replay(sc.robot, interp, starts[:2], K)[0][0] == \
-        result.verification.closed_loop_error
+    v, limit = result.verification, sc.task.torque_limit
+    assert limit is None  # else the closed loop's lanes saturate at it
+    lanes = [Lane(start, inputs(sc.robot, interp)[1], None),
+             *(Lane(x, inputs(sc.robot, interp)[1], K) for x in starts[:2])]
+    alone, closed, perturbed = replays(Structure.of(sc.robot), reference(interp), lanes,
+                                       RESIM_TOL, sc.solver.jit)
+    assert (alone.error, closed.error, perturbed.error) == \
+        (v.resimulation_error, v.closed_loop_error, v.perturbed_closed_loop_error)
 
 
 def test_a_start_that_diverges_leaves_the_other_replays_whole(seed_arm):

@@ -16,8 +16,9 @@ torques), x_{k+1} = A_k x_k + B_k u_k with u_k a torque offset held over interva
   interval with CVODES from a start state, many at once (`planner.ocp.replays`); the
   open-loop replay from the planned initial state (rtol = atol = 1e-10, as
   planner.simulate.run by default) is the plan's resimulation_error; the closed-loop ones
-  (rtol = atol = REPLAY_TOL) start there and at a state perturbed by PERTURBATION on every
-  angle and rate.
+  start there and at a state perturbed by PERTURBATION on every angle and rate (a plan's
+  verification replays them with the open loop, at its tolerance, `planner.ocp.verify`;
+  `replay` alone at REPLAY_TOL by default).
 """
 
 from __future__ import annotations

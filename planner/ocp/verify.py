@@ -33,7 +33,6 @@ from planner.model import Robot, Structure, parameters
 from planner.ocp.check_threads import pool
 from planner.ocp.feedback import (
     PERTURBATION,
-    REPLAY_TOL,
     gains,
     growth_factor,
     linearise,
@@ -220,30 +219,35 @@ def _feedback(robot: Robot, interp: Interpolant, torque_limit: list[float] | flo
     return fb, {"growth_factor": growth}
 
 
-def _closed_loop(robot: Robot, interp: Interpolant, fb: Feedback, task: Task,
-                 settings: SolverSettings,
-                 deadline: float | None = None) -> tuple[dict, Robustness | None]:
-    """What the closed-loop replays with the feedback `fb` measure, from the planned start
-    and from it perturbed, and, with task.uncertainty, on its corner models
-    (`planner.ocp.robustness`, None without one): all of them one replay of stacked lanes,
-    which shares CVODES' start-up and steps. Past the deadline (time.perf_counter()
-    seconds), that the first two were skipped, and a corner model's replay that stopped
-    counts as one that did not stay within the bound."""
+def _replays(robot: Robot, interp: Interpolant, fb: Feedback | None, task: Task,
+             settings: SolverSettings, deadline: float | None = None,
+             ) -> tuple[tuple[float | None, str], dict, Robustness | None]:
+    """The plan's replays over its whole horizon as the lanes of one stacked replay, which
+    shares CVODES' start-up and steps on every interval (`planner.ocp.replays`, at
+    RESIM_TOL): the delivered torque alone from the planned start (as `open_loop`: its
+    largest error [rad] and status) and, with the feedback `fb`, the closed loop from there
+    and from it perturbed (what `Verification` reports of them) and, with task.uncertainty,
+    the corner models (`planner.ocp.robustness`; None without one or without feedback).
+    Past the deadline (time.perf_counter() seconds) they stop: the open loop says where,
+    the closed loop that it was skipped, and a corner model's replay counts as one that
+    did not stay within the bound."""
     limit = _limit_array(task.torque_limit, len(robot.active))
-    K, start = np.asarray(fb.gains), planned_state(interp, interp.q.breaks[0])
-    params = inputs(robot, interp, limit)[1]
-    lanes = [Lane(start, params, K), Lane(start + PERTURBATION, params, K)]
-    made = None if task.uncertainty is None else corners(robot, interp, K, task.uncertainty,
-                                                          limit)
+    start = planned_state(interp, interp.q.breaks[0])
+    lanes, made = [Lane(start, inputs(robot, interp)[1], None)], None
+    if fb is not None:
+        K, params = np.asarray(fb.gains), inputs(robot, interp, limit)[1]
+        lanes += [Lane(start, params, K), Lane(start + PERTURBATION, params, K)]
+        if task.uncertainty is not None:
+            made = corners(robot, interp, K, task.uncertainty, limit)
     skipped = deadline is not None and perf_counter() > deadline
     done = replays(Structure.of(robot), reference(interp),
-                   lanes + ([] if made is None else made.lanes), REPLAY_TOL, settings.jit,
+                   lanes + ([] if made is None else made.lanes), RESIM_TOL, settings.jit,
                    deadline)
-    measured = {"skipped": [SKIPPED_REPLAYS]} if skipped else {
-        "closed_loop_error": done[0].error, "perturbed_closed_loop_error": done[1].error,
+    closed = {} if fb is None else {"skipped": [SKIPPED_REPLAYS]} if skipped else {
+        "closed_loop_error": done[1].error, "perturbed_closed_loop_error": done[2].error,
         "perturbation": PERTURBATION}
-    robust = None if made is None else report(made, done[2:], settings.robustness, limit)
-    return measured, robust
+    robust = None if made is None else report(made, done[3:], settings.robustness, limit)
+    return (done[0].error, done[0].status), closed, robust
 
 
 def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.ndarray,
@@ -261,16 +265,12 @@ def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.nd
     (`planner.ocp.margin_proof`). Also the plan's feedback (None where the linearisation
     failed). Past `deadline` (time.perf_counter() seconds), the closed-loop replays are
     skipped (`Verification.skipped`); a replay on a perturbed model stopped there counts
-    as one that did not stay within the bound. The open-loop replay and, once the gains
-    are known, the closed-loop replays with those on the perturbed models (`_closed_loop`;
-    CVODES, which lets go of Python's lock) run in threads of their own
+    as one that did not stay within the bound. Once the gains are known, the replays
+    (`_replays`; CVODES, which lets go of Python's lock) run in a thread of their own
     (`planner.ocp.check_threads`) beside the other checks."""
     tolerance, compiled = settings.resimulation_tolerance, settings.jit
-    threads = pool()
-    replaying = threads.submit(open_loop, robot, interp, compiled, deadline)
     fb, measured = _feedback(robot, interp, task.torque_limit, compiled)
-    closing = None if fb is None else threads.submit(
-        _closed_loop, robot, interp, fb, task, settings, deadline)
+    replaying = pool().submit(_replays, robot, interp, fb, task, settings, deadline)
     kept = limits(robot, interp, t_dense, task.torque_limit, task.position_bounds,
                   task.velocity_bounds)
     sigma, det = coupling_along(robot, interp.q(t_dense))
@@ -279,9 +279,8 @@ def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.nd
     asked = requirements(robot, interp, t_dense, task, sigma, proof, tolerance)
     crossings, waveless = singular_crossings(robot, interp, t_dense, sigma, det)
     flaw = defect(robot, interp)
-    closed, robust = ({}, None) if closing is None else closing.result()
+    replayed, closed, robust = replaying.result()
     measured.update(closed)
-    replayed = replaying.result()
     robust_ok = task.uncertainty is None or settings.robustness is None \
         or robust is not None and bool(robust.within)
     accurate = errors_status == "completed" and float(errors.max()) <= tolerance
