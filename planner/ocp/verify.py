@@ -33,6 +33,7 @@ from planner.model import Robot, Structure, parameters
 from planner.ocp.check_threads import pool
 from planner.ocp.feedback import (
     PERTURBATION,
+    Linearisation,
     gains,
     growth_factor,
     linearise,
@@ -208,15 +209,13 @@ SKIPPED_REPLAYS = ("closed-loop replays: not run, the plan's wall-time budget "
 
 
 def _feedback(robot: Robot, interp: Interpolant, torque_limit: list[float] | float | None,
-              compiled: bool) -> tuple[Feedback | None, dict]:
+              compiled: bool) -> tuple[Feedback | None, Linearisation | None]:
     """The plan's LQR feedback (None where the linearisation or the Riccati recursion
-    fails) and the open-loop sensitivity's growth factor."""
+    fails) and the linearisation it was made from (None where that failed)."""
     lin = linearise(robot, interp, compiled)
     if lin is None:
-        return None, {}
-    growth = growth_factor(lin)
-    fb = gains(lin, np.diff(interp.q.breaks), torque_scale(interp, torque_limit))
-    return fb, {"growth_factor": growth}
+        return None, None
+    return gains(lin, np.diff(interp.q.breaks), torque_scale(interp, torque_limit)), lin
 
 
 def _replays(robot: Robot, interp: Interpolant, fb: Feedback | None, task: Task,
@@ -269,8 +268,9 @@ def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.nd
     (`_replays`; CVODES, which lets go of Python's lock) run in a thread of their own
     (`planner.ocp.check_threads`) beside the other checks."""
     tolerance, compiled = settings.resimulation_tolerance, settings.jit
-    fb, measured = _feedback(robot, interp, task.torque_limit, compiled)
+    fb, lin = _feedback(robot, interp, task.torque_limit, compiled)
     replaying = pool().submit(_replays, robot, interp, fb, task, settings, deadline)
+    measured = {} if lin is None else {"growth_factor": growth_factor(lin)}
     kept = limits(robot, interp, t_dense, task.torque_limit, task.position_bounds,
                   task.velocity_bounds)
     sigma, det = coupling_along(robot, interp.q(t_dense))
