@@ -27,7 +27,8 @@ def test_a_forked_child_runs_its_checks_on_threads_of_its_own():
     """The parent's threads are not in a forked child: were its pool copied, work submitted
     there would wait for threads that do not exist (planted: the pool kept across the fork
     leaves the child's work waiting)."""
-    parent = pool().submit(threading.get_ident).result(10)  # the parent's threads are up
+    pool().submit(int).result(10)  # the parent's threads are up
+    parents = _checking_threads()
     pid = os.fork()
     if pid == 0:  # the child: run one piece of work, say whether it ran on a thread
         try:
@@ -37,4 +38,4 @@ def test_a_forked_child_runs_its_checks_on_threads_of_its_own():
             os._exit(1)
     _, status = os.waitpid(pid, 0)
     assert os.waitstatus_to_exitcode(status) == 0
-    assert pool().submit(threading.get_ident).result(10) == parent
+    assert pool().submit(threading.get_ident).result(10) in parents  # any of them

@@ -232,9 +232,11 @@ def _replays(robot: Robot, interp: Interpolant, fb: Feedback | None, task: Task,
     did not stay within the bound."""
     limit = _limit_array(task.torque_limit, len(robot.active))
     start = planned_state(interp, interp.q.breaks[0])
-    lanes, made = [Lane(start, inputs(robot, interp)[1], None)], None
+    free = inputs(robot, interp)[1]
+    lanes, made = [Lane(start, free, None)], None
     if fb is not None:
-        K, params = np.asarray(fb.gains), inputs(robot, interp, limit)[1]
+        K = np.asarray(fb.gains)
+        params = free if limit is None else inputs(robot, interp, limit)[1]
         lanes += [Lane(start, params, K), Lane(start + PERTURBATION, params, K)]
         if task.uncertainty is not None:
             made = corners(robot, interp, K, task.uncertainty, limit)
@@ -255,11 +257,12 @@ def verify(robot: Robot, interp: Interpolant, t_dense: np.ndarray, errors: np.nd
            proof: MarginProof | None = None) -> tuple[Verification, Feedback | None]:
     """All checks of a plan of `robot` whose interpolant is `interp` and whose interval
     errors [rad] are `errors`, against its `task` and `settings` (solver.resimulation_tolerance,
-    robustness, jit), its open-loop replay (`open_loop`) among them; verified when its solve
-    `converged`, every interval error is at most the tolerance, the plan keeps the task's
-    limits (`limits`) and meets its other requirements (`planner.ocp.task_checks`)
-    everywhere and, with solver.robustness, when its feedback keeps the arm that close to
-    the plan on every model of task.uncertainty (`planner.ocp.robustness`). The coupling
+    robustness, jit), its open-loop replay among them (`_replays`; `open_loop` alone);
+    verified when its solve `converged`, every interval error is at most the tolerance,
+    the plan keeps the task's limits (`limits`) and meets its other requirements
+    (`planner.ocp.task_checks`) everywhere and, with solver.robustness, when its feedback
+    keeps the arm that close to the plan on every model of task.uncertainty
+    (`planner.ocp.robustness`). The coupling
     margin's `proof` on whole intervals is made here unless the solve made it
     (`planner.ocp.margin_proof`). Also the plan's feedback (None where the linearisation
     failed). Past `deadline` (time.perf_counter() seconds), the closed-loop replays are
