@@ -15,7 +15,9 @@ among them), its solves' time (`solver.solve_time`) and its checks after the las
 open-loop replay, the verification with the feedback, closed-loop replays and
 robustness, and assembling the plan), and their share of the plan; of the checks, the
 time this process spent re-integrating in CVODES (every `planner.ocp.flow.quiet` call
-after the last solve ended; none for a version without it).
+after the last solve ended; none for a version without it) and, of that, the one replay
+run of all lanes (`planner.ocp.replays.replays` as `planner.ocp.verify` calls it), which
+the other checks run beside: the least the checks cost while the replays stay as they are.
 """
 
 from __future__ import annotations
@@ -45,14 +47,14 @@ import importlib
 from planner import compiled
 from planner.ocp import plan
 from planner.scene import Scene
-calls = []
-def timed(call):
+calls, runs = [], []
+def timed(call, into):
     def wrapped(*args, **kwargs):
         started = time.perf_counter()
         try:
             return call(*args, **kwargs)
         finally:
-            calls.append((started, time.perf_counter() - started))
+            into.append((started, time.perf_counter() - started))
     return wrapped
 for name in ("planner.ocp.flow", "planner.ocp.replays"):  # an older version may lack either
     try:
@@ -60,7 +62,10 @@ for name in ("planner.ocp.flow", "planner.ocp.replays"):  # an older version may
     except ImportError:
         continue
     if hasattr(module, "quiet"):
-        module.quiet = timed(module.quiet)
+        module.quiet = timed(module.quiet, calls)
+checking = importlib.import_module("planner.ocp.verify")
+if hasattr(checking, "replays"):  # the one replay run of every lane, where a version has it
+    checking.replays = timed(checking.replays, runs)
 def cpu():
     child = resource.getrusage(resource.RUSAGE_CHILDREN)
     return time.process_time() + child.ru_utime + child.ru_stime
@@ -72,6 +77,7 @@ rows = []
 for _ in range({repeats}):
     for name, scene in chosen:
         calls.clear()
+        runs.clear()
         started, used = time.perf_counter(), cpu()
         result = plan(scene)
         ended = time.perf_counter()
@@ -80,12 +86,14 @@ for _ in range({repeats}):
         checks = getattr(s, "checks_time", None)
         inside = [d for t, d in calls if checks is not None and t >= ended - checks]
         again = sum(inside) if inside else None
+        replayed = [d for t, d in runs if checks is not None and t >= ended - checks]
         rows.append({{"task": name, "verified": bool(s.success and result.verification.verified),
                       "intervals": len(result.t) - 1, "solves": len(result.mesh_passes),
                       "wall": wall, "cpu": spent, "solve": s.solve_time,
                       "checks": checks,
                       "checks_cpu": getattr(s, "checks_cpu_time", None),
-                      "reintegrations": again}})
+                      "reintegrations": again,
+                      "replays": sum(replayed) if replayed else None}})
 print("RESULT " + json.dumps({{"rows": rows}}))
 """
 VARIANTS = {"plain": "as the suite generates them",
@@ -99,7 +107,8 @@ SUMMARY = [("variant", "tasks"), ("version", "version"), ("plans", "plans"),
            ("p90", "90th percentile [%]"), ("worst", "worst [%]"),
            ("total", "all checks / all plans [%]"),
            ("cpu_share", "median checks CPU / plan CPU [%]"), ("cpu_worst", "worst, CPU [%]"),
-           ("reint_share", "median re-integrations / plan [%]")]
+           ("reint_share", "median re-integrations / plan [%]"),
+           ("replay_share", "median replay run / plan [%]")]
 
 
 def columns(versions: Sequence[str]) -> list[tuple[str, str]]:
@@ -110,7 +119,8 @@ def columns(versions: Sequence[str]) -> list[tuple[str, str]]:
         out += [(f"wall {v}", f"{v}: plan [s]"), (f"checks {v}", "checks [s]"),
                 (f"share {v}", "checks / plan [%]"),
                 (f"cpu_share {v}", "checks CPU / plan CPU [%]"),
-                (f"reint_share {v}", "re-integrations / plan [%]")]
+                (f"reint_share {v}", "re-integrations / plan [%]"),
+                (f"replay_share {v}", "replay run / plan [%]")]
     return out
 
 
@@ -136,7 +146,8 @@ def measured(root: Path, chosen: list[tuple[str, dict]], repeats: int) -> list[d
         raise RuntimeError(f"{root}: {out['failure']}")
     return [{**row, "share": _ratio(row["checks"], row["wall"]),
              "cpu_share": _ratio(row["checks_cpu"], row["cpu"]),
-             "reint_share": _ratio(row["reintegrations"], row["wall"])} for row in out["rows"]]
+             "reint_share": _ratio(row["reintegrations"], row["wall"]),
+             "replay_share": _ratio(row.get("replays"), row["wall"])} for row in out["rows"]]
 
 
 def _ratio(part: float | None, whole: float) -> float | None:
@@ -150,6 +161,7 @@ def summary(variant: str, version: str, rows: Sequence[dict]) -> dict:
     cpu = [r["cpu_share"] for r in rows if r["cpu_share"] is not None]
     checks = [r["checks"] for r in rows if r["checks"] is not None]
     again = [r["reint_share"] for r in rows if r["reint_share"] is not None]
+    replayed = [r["replay_share"] for r in rows if r["replay_share"] is not None]
     return {"variant": variant, "version": version, "plans": len(rows),
             "verified": sum(r["verified"] for r in rows),
             "wall": harness.median(r["wall"] for r in rows), "checks": harness.median(checks),
@@ -158,7 +170,8 @@ def summary(variant: str, version: str, rows: Sequence[dict]) -> dict:
             "worst": max(shares, default=None),
             "total": _ratio(sum(checks), sum(r["wall"] for r in rows)) if checks else None,
             "cpu_share": harness.median(cpu), "cpu_worst": max(cpu, default=None),
-            "reint_share": harness.median(again) if again else None}
+            "reint_share": harness.median(again) if again else None,
+            "replay_share": harness.median(replayed) if replayed else None}
 
 
 def run(before: str | None, count: int, seed: int, repeats: int,
@@ -189,7 +202,8 @@ def _side_by_side(rows: Sequence[dict]) -> list[dict]:
             "task": r["task"], "variant": r["variant"], "intervals": r["intervals"],
             "solves": r["solves"]})
         row.update({f"{k} {r['version']}": r[k] for k in ("wall", "checks", "share",
-                                                           "cpu_share", "reint_share")})
+                                                           "cpu_share", "reint_share",
+                                                           "replay_share")})
     return [out[k] for k in sorted(out)]
 
 
@@ -211,7 +225,10 @@ def _text(before: str | None, count: int, seed: int, repeats: int, variants: Seq
         "last solve ended (that solve's interval errors, the open-loop, closed-loop and "
         "robustness replays: every call of `planner.ocp.flow.quiet` then), as a share of "
         "the plan's wall time; none where that process made none (the companion's plan, "
-        "checked in the companion's process)."
+        "checked in the companion's process). Replay run: of those, the one whole-horizon "
+        "run of every lane (`planner.ocp.replays.replays` as the verification calls it: "
+        "the open-loop, closed-loop and robustness replays), which the other checks run "
+        "beside; none for a version without it."
         + (f" {before}: the planner of that commit, in the same run." if before else ""),
         harness.table(table, SUMMARY),
         harness.table(tasks_table, columns([c for c in ("now", before) if c]))])
