@@ -16,8 +16,8 @@ open-loop replay, the verification with the feedback, closed-loop replays and
 robustness, and assembling the plan), and their share of the plan; of the checks, the
 time this process spent re-integrating in CVODES (every `planner.ocp.flow.quiet` call
 after the last solve ended; none for a version without it) and, of that, the one replay
-run of all lanes (`planner.ocp.replays.replays` as `planner.ocp.verify` calls it), which
-the other checks run beside: the least the checks cost while the replays stay as they are.
+run of all lanes (`planner.ocp.replays.replays` as `planner.ocp.verify` calls it), timed
+as it runs beside the other checks.
 """
 
 from __future__ import annotations
@@ -69,6 +69,9 @@ except ImportError:  # a version before the verification had a module of its own
     checking = None
 if hasattr(checking, "replays"):  # the one replay run of every lane, where a version has it
     checking.replays = timed(checking.replays, runs)
+def after_solve(records, checks, ended):  # the records begun after the last solve, summed
+    inside = [d for t, d in records if checks is not None and t >= ended - checks]
+    return sum(inside) if inside else None
 def cpu():
     child = resource.getrusage(resource.RUSAGE_CHILDREN)
     return time.process_time() + child.ru_utime + child.ru_stime
@@ -87,16 +90,13 @@ for _ in range({repeats}):
         wall, spent = ended - started, cpu() - used
         s = result.solver
         checks = getattr(s, "checks_time", None)
-        inside = [d for t, d in calls if checks is not None and t >= ended - checks]
-        again = sum(inside) if inside else None
-        replayed = [d for t, d in runs if checks is not None and t >= ended - checks]
         rows.append({{"task": name, "verified": bool(s.success and result.verification.verified),
                       "intervals": len(result.t) - 1, "solves": len(result.mesh_passes),
                       "wall": wall, "cpu": spent, "solve": s.solve_time,
                       "checks": checks,
                       "checks_cpu": getattr(s, "checks_cpu_time", None),
-                      "reintegrations": again,
-                      "replays": sum(replayed) if replayed else None}})
+                      "reintegrations": after_solve(calls, checks, ended),
+                      "replays": after_solve(runs, checks, ended)}})
 print("RESULT " + json.dumps({{"rows": rows}}))
 """
 VARIANTS = {"plain": "as the suite generates them",
