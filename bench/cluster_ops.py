@@ -20,8 +20,9 @@ progress write each), `UNDERTOW_LEASE` 20 s unless a probe says otherwise:
   time from the requeue (plus the pause) to the other node's claim, from the plan's
   history.
 - *upgrade*: two nodes of an earlier version (each of `--previous`, git revisions, run
-  from a checkout), two processes each, `UNDERTOW_DRAIN` 70 s, and 20 plans of 30 to
-  60 s; after 40 s a node of this version starts and the first old node is stopped
+  from a checkout), two processes each, `UNDERTOW_DRAIN` 70 s, running on the store
+  before the API server of this version migrates it, and 20 plans of 30 to 60 s; after
+  40 s a node of this version starts and the first old node is stopped
   (SIGTERM: draining, where that version drains), after 100 s the same for the second.
   No plan may be claimed twice, lost or a dead letter.
 
@@ -62,13 +63,16 @@ LEASE = 20.0  # [s]
 OUTAGES = (60.0, 40.0)
 """[s] how long the outage probe stops the database, by default (the issue's 60 s, and
 one that falls between two of psycopg_pool's own reconnection attempts)."""
+OLD_NODES = ("old-1", "old-2")
+"""The nodes of the earlier version in the upgrade probe."""
 ITERATION = 0.02  # [s] of the fake solver
 SETTINGS = {"UNDERTOW_SOLVE_FUNCTION": FAKE_SOLVER, "UNDERTOW_LEASE": str(LEASE),
             "UNDERTOW_MAX_QUEUED": "64", "UNDERTOW_RETRY_BACKOFF": "0.5"}
-PREVIOUS = ("8e8d5fd", "7427ca1")
-"""The earlier versions of the upgrade probe, by default: the commit before the bench's,
-whose nodes drain (`UNDERTOW_DRAIN`), and the release before it, whose nodes release
-their running plans at once when stopped."""
+PREVIOUS = ("cac7260", "7427ca1")
+"""The earlier versions of the upgrade probe, by default: the commit before nodes held
+their claims by one engine registration per node (its nodes register one per claim and
+drain, `UNDERTOW_DRAIN`), and a release whose nodes release their running plans at once
+when stopped."""
 
 
 @dataclass
@@ -130,18 +134,25 @@ class Cluster:
 
 
 @contextlib.contextmanager
-def cluster(**extra: str) -> Iterator[Cluster]:
-    """A fresh PostgreSQL server and API-only server (no nodes yet), with SETTINGS and
-    `extra` ones."""
+def cluster(old: Path | None = None, /, **extra: str) -> Iterator[Cluster]:
+    """A fresh PostgreSQL server and API-only server, with SETTINGS and `extra` ones; no
+    nodes, or with `old` two nodes of the code at `old` (`OLD_NODES`, two processes each,
+    `UNDERTOW_DRAIN` 70 s) that run on the store before the API server of this version
+    migrates it, as in a cluster being upgraded."""
     settings = {**SETTINGS, **extra}
     with tempfile.TemporaryDirectory() as folder, postgres.PostgresServer() as server, \
             contextlib.ExitStack() as stack:
         url = server.create_database("cluster")
+        nodes = {} if old is None else {name: stack.enter_context(WorkerNode(
+            Path(folder), name, 2, UNDERTOW_DB_URL=url, **settings,
+            UNDERTOW_DRAIN="70").of_version(old)) for name in OLD_NODES}
+        for node in nodes.values():
+            node.wait_up(url)
         store = PostgresJobStore(url, timeout=2.0)
         stack.callback(store.close)
         api = stack.enter_context(api_server(Path(folder), url, "api", **settings))
         http = stack.enter_context(httpx.Client(base_url=api.url, timeout=30))
-        yield Cluster(server, url, store, http, Path(folder), stack, settings)
+        yield Cluster(server, url, store, http, Path(folder), stack, settings, nodes)
 
 
 def claims(record: JobRecord) -> int:
@@ -239,9 +250,7 @@ def upgrade(previous: str) -> dict:
     """Two nodes of `previous` replaced one at a time by nodes of this version while 20
     plans of 30 to 60 s run."""
     draw = random.Random(20261127)
-    with harness.checkout(previous) as old, cluster() as c:
-        for name in ("old-1", "old-2"):
-            c.node(name, 2, old, UNDERTOW_DRAIN="70")
+    with harness.checkout(previous) as old, cluster(old) as c:
         ids = c.submit([draw.randint(1500, 3000) for _ in range(20)])
         started = time.monotonic()
         for k, (at, old_name) in enumerate(((40.0, "old-1"), (100.0, "old-2"))):
@@ -337,7 +346,8 @@ def main(argv: list[str]) -> int:
         "SIGTERM, or requeued after its solver process was killed (pause "
         f"{SETTINGS['UNDERTOW_RETRY_BACKOFF']} s), 5 of each per try; times from the "
         "plan's history. *upgrade from REV*: two nodes of two processes of the earlier "
-        f"version REV ({previous}), `UNDERTOW_DRAIN` 70 s (where it knows it), 20 plans "
+        f"version REV ({previous}), `UNDERTOW_DRAIN` 70 s (where it knows it), started "
+        "before the API server of this version migrates the store, 20 plans "
         "of 30 to 60 s; after 40 s and 100 s a node of this version starts and an old one "
         f"is stopped (SIGTERM). Load average at the end: {harness.load()}.",
         harness.table(rows, [(k, h) for k, h in COLUMNS

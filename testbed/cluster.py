@@ -13,8 +13,10 @@ import sys
 from pathlib import Path
 from typing import Self
 
+import psycopg
+
 from app.store import JobStore
-from testbed.service import ROOT, LiveServer
+from testbed.service import ROOT, LiveServer, wait_for
 
 UNDERTOW = Path(sys.executable).with_name("undertow")
 FAKE_SOLVER = "testbed.fake_solvers:fake_plan"
@@ -59,6 +61,19 @@ class WorkerNode:
         """AssertionError, with the end of its log, when the node has exited."""
         assert self.proc is not None and self.proc.poll() is None, (
             f"worker node {self.instance} exited: {self.log.read_text()[-3000:]}")
+
+    def wait_up(self, db_url: str, timeout: float = 60.0) -> None:
+        """Wait until the node's supervisor wrote its first heartbeat in the store at
+        `db_url`, read with plain SQL so that no process of this version migrates the
+        store first (a node of an earlier version refuses a schema newer than its own)."""
+        def heard() -> bool:
+            self.check()
+            with contextlib.suppress(psycopg.Error), psycopg.connect(db_url) as conn:
+                return conn.execute("SELECT 1 FROM workers WHERE name LIKE %s",
+                                    (f"{self.instance}:worker:%",)).fetchone() is not None
+            return False
+
+        wait_for(heard, timeout, f"worker node {self.instance} up")
 
     def owns(self, worker: str | None) -> bool:
         """Whether a job's `worker` is one of this node's processes."""

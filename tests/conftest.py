@@ -144,12 +144,33 @@ def open_store(kind: str, request: pytest.FixtureRequest, tmp_path) -> JobStore:
     return PostgresJobStore(request.getfixturevalue("postgres_url"), lease=ENGINE_LEASE)
 
 
+ENGINE_STATUSES = {"queued": ("todo",), "running": ("doing",), "succeeded": ("succeeded",),
+                   "failed": ("failed",), "cancelled": ("cancelled", "aborted")}
+"""A job's status -> the statuses its engine job may have on PostgreSQL."""
+
+
+def out_of_step(store: JobStore) -> list[tuple[str, str, str]]:
+    """The jobs of a PostgreSQL store whose engine job's status is not one that their own
+    status allows (`ENGINE_STATUSES`): (job id, status, engine status); [] elsewhere."""
+    from app.store.postgres import PostgresJobStore
+
+    if not isinstance(store, PostgresJobStore):
+        return []
+    rows = store._rows("SELECT j.id, j.status, q.status::text FROM jobs j JOIN undertow_queue m "
+                       "ON m.job_id = j.id JOIN procrastinate_jobs q ON q.id = m.queue_id")
+    return [row for row in rows if row[2] not in ENGINE_STATUSES[row[1]]]
+
+
 @pytest.fixture(params=["sqlite", "postgres"])
 def store(request: pytest.FixtureRequest, tmp_path) -> Iterator[JobStore]:
-    """An empty job store, once of each kind."""
+    """An empty job store, once of each kind; on PostgreSQL, each job's engine job is in
+    step with it when the test ends (`out_of_step`)."""
     s = open_store(request.param, request, tmp_path)
     yield s
-    s.close()
+    try:
+        assert out_of_step(s) == []
+    finally:
+        s.close()
 
 
 # --------------------------------------------------------------------------- kinds of test

@@ -95,12 +95,17 @@ def test_the_steps_are_numbered_one_by_one():
 
 
 def test_fresh_databases_of_both_kinds_end_alike(tmp_path, postgres_url):
+    """Alike but for the node's liveness, which PostgreSQL keeps in the queue engine's
+    registration (step 10): its `workers` rows name it and need no heartbeat of their own."""
     schemas = {}
     for dialect in DIALECTS:
         with database(dialect, tmp_path, postgres_url) as (execute, open_store):
             open_store().close()
             schemas[dialect] = (version(execute, dialect), columns(execute, dialect),
                                 indexes(execute, dialect))
+    workers = schemas["postgres"][1]["workers"]
+    assert workers[-2:] == [("seen", False), ("engine_worker", False)]
+    schemas["postgres"][1]["workers"] = workers[:-2] + [("seen", True)]
     assert schemas["sqlite"] == schemas["postgres"]
     latest, tables, names = schemas["sqlite"]
     assert latest == SCHEMA_VERSION
@@ -122,9 +127,11 @@ def upgrades_keeping_its_rows(dialect: Dialect, older: int, execute: Execute,
     if older >= 4:
         execute("INSERT INTO batches (id, owner, created, spec) "
                 "VALUES ('b', 'host', 1.0, '{\"parameters\": []}')")
-        execute("INSERT INTO jobs (id, status, scene, plan, owner, created, batch, member) "
-                "VALUES ('member', 'succeeded', '{}', '{\"objective\": 1.5, "
-                "\"verification\": {\"verified\": true}}', 'host', 1.0, 'b', 0)")
+        figures = (", verified, objective", ", (1 = 1), 1.5") if older >= 9 else ("", "")
+        execute(f"INSERT INTO jobs (id, status, scene, plan, owner, created, batch, member"
+                f"{figures[0]}) VALUES ('member', 'succeeded', '{{}}', '{{\"objective\": 1.5, "
+                f"\"verification\": {{\"verified\": true}}}}', 'host', 1.0, 'b', 0"
+                f"{figures[1]})")
     store = open_store()
     try:
         assert store.schema_version == SCHEMA_VERSION  # type: ignore[attr-defined]

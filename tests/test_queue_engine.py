@@ -1,10 +1,10 @@
 """The PostgreSQL store's queue, procrastinate's (`app.store.postgres`): every transition
-of a job moves its engine job the same way in the same transaction (the interface's own
-behaviour is tests/test_store.py's, run on this store too); claims are procrastinate
-registrations whose heartbeat is the lease; the engine's NOTIFY wakes a listener, and
-the store's own wakes an idle worker for a job queued again (released, retried by id,
-requeued after its pause); jobs queued or claimed by a version before procrastinate are
-taken over."""
+of a job moves its engine job the same way in the same transaction, so that their
+statuses agree when each test ends (the interface's own behaviour is tests/test_store.py's,
+run on this store too); a claim is held by its node's engine registration, whose heartbeat
+is the lease (tests/test_engine_nodes.py); the engine's NOTIFY wakes a listener, and the
+store's own wakes an idle worker for a job queued again (released, retried by id, requeued
+after its pause); jobs queued or claimed by a version before procrastinate are taken over."""
 
 from __future__ import annotations
 
@@ -17,6 +17,7 @@ from collections.abc import Callable, Iterator
 
 import psycopg
 import pytest
+from conftest import out_of_step
 
 from app.idle_wait import IdleWait
 from app.store import DuplicateKey, RetryPolicy
@@ -35,15 +36,19 @@ def store(postgres_url: str) -> Iterator[PostgresJobStore]:
     s = PostgresJobStore(postgres_url, lease=LEASE,
                          policy=RetryPolicy(max_retries=1, backoff=30.0))
     yield s
-    s.close()
+    try:
+        assert out_of_step(s) == []  # every transition moved the engine job alike
+    finally:
+        s.close()
 
 
 def engine(store: PostgresJobStore, job_id: str) -> dict:
     """The engine job of `job_id`: its status, queue, attempts, abort flag, seconds until
-    its retry time (None when it has none) and whether a registration holds it."""
+    its retry time (None when it has none) and whether a registration holds its claim."""
     rows = store._rows(
         "SELECT q.status, q.queue_name, q.attempts, q.abort_requested, "
-        "EXTRACT(EPOCH FROM q.scheduled_at - now()), q.worker_id IS NOT NULL "
+        "EXTRACT(EPOCH FROM q.scheduled_at - now()), "
+        "q.status = 'doing' AND q.worker_id IS NOT NULL "
         "FROM undertow_queue m JOIN procrastinate_jobs q ON q.id = m.queue_id "
         "WHERE m.job_id = %s", (job_id,))
     assert rows, f"job {job_id} has no engine job"
@@ -69,10 +74,10 @@ def test_a_job_and_its_engine_job_move_together(store):
     assert claim(store, "other") is None and registrations(store) == 0  # nothing held
     assert claim(store) == "a"
     assert engine(store, "a") == {**engine(store, "a"), "status": "doing", "held": True}
-    assert registrations(store) == 1  # the claim's own registration
+    assert registrations(store) == 1  # the node's registration, made by its first claim
     assert store.finish("a", "succeeded", {"k": 1}, None, worker="w1")
     assert engine(store, "a")["status"] == "succeeded"
-    assert registrations(store) == 0
+    assert registrations(store) == 1  # it stays the node's
 
 
 def queue_columns(store: PostgresJobStore, job_id: str) -> tuple:
@@ -98,7 +103,7 @@ def test_an_infrastructure_failure_is_a_retry_of_the_engine_job_at_its_pause(sto
     assert claim(store, None, "w2") == "a"
     assert store.requeue("a", "w2", "the worker process died again") == "failed"
     assert engine(store, "a")["status"] == "failed"  # a dead letter ends its engine job
-    assert store.get("a").dead_letter and registrations(store) == 0
+    assert store.get("a").dead_letter and registrations(store) == 2  # w1's and w2's nodes
 
 
 def test_a_release_requeues_the_engine_job_at_once(store):
@@ -109,6 +114,12 @@ def test_a_release_requeues_the_engine_job_at_once(store):
     assert (released["status"], released["held"]) == ("todo", False)
     assert released["wait"] <= 0.0
     assert claim(store, None, "w2") == "a"
+
+
+def test_a_queued_job_that_fails_ends_its_engine_job_failed(store):
+    store.create("a", SCENE, "host")
+    assert store.fail("a", "its scene cannot be read")
+    assert engine(store, "a")["status"] == "failed"  # not cancelled: the API says failed
 
 
 def test_cancels_reach_the_engine_job(store):
@@ -164,7 +175,7 @@ def test_a_claim_whose_heartbeats_stop_is_requeued_by_the_engines_stalled_jobs(s
     time.sleep(LEASE * 0.6)  # "lost" silent for more than a lease, "kept" for less
     assert store.expire(time.time()) == {"lost": "queued"}
     assert engine(store, "lost")["status"] == "todo"
-    assert registrations(store) == 1  # the stalled registration is gone
+    assert registrations(store) == 2  # the silent node's stays, for when it is heard again
     assert store.renew([("kept", "w1"), ("lost", "w2")], time.time() + LEASE) == {
         "kept": False}
 

@@ -1,8 +1,9 @@
 """A rolling upgrade on one PostgreSQL database: a worker node of the previous version
-(`PREVIOUS`, run from a checkout of it) solves plans submitted to an API server of this
-version; a node of this version starts beside it and the old node is stopped, draining
-(`UNDERTOW_DRAIN`). Every plan succeeds, each claimed once, none a dead letter, and the
-old node's running plans end on it (docs/deploy.md, "Upgrading a cluster")."""
+(`PREVIOUS`, run from a checkout of it) runs on the store before any process of this
+version opens it; then it solves plans submitted to an API server of this version (which
+migrated the store), a node of this version starts beside it and the old node is stopped,
+draining (`UNDERTOW_DRAIN`). Every plan succeeds, each claimed once, none a dead letter,
+and the old node's running plans end on it (docs/deploy.md, "Upgrading a cluster")."""
 
 from __future__ import annotations
 
@@ -21,8 +22,9 @@ from bench import harness
 from testbed.cluster import FAKE_SOLVER, WorkerNode, api_server
 from testbed.service import ROOT, wait_final, wait_for
 
-PREVIOUS = "8e8d5fde8646826b442925623ddfa60f05ae8f90"
-"""The previous version: the commit before this test's, the first whose nodes drain."""
+PREVIOUS = "cac726093098fa8591abbde1b1980f4472c7188e"
+"""The previous version: the commit before nodes held their claims by one engine
+registration per node, whose nodes register one for each claim (both drain)."""
 SETTINGS = {"UNDERTOW_SOLVE_FUNCTION": FAKE_SOLVER, "UNDERTOW_LEASE": "20",
             "UNDERTOW_MAX_QUEUED": "64", "UNDERTOW_DRAIN": "30"}
 
@@ -48,13 +50,14 @@ def _solving_two(store: PostgresJobStore, node: WorkerNode) -> list[str] | None:
 def test_a_node_of_the_previous_version_is_replaced_with_no_plan_run_twice(
         tmp_path, postgres_url, previous):
     url = postgres_url
-    store = PostgresJobStore(url, timeout=2.0)
     with contextlib.ExitStack() as stack:
+        old = stack.enter_context(WorkerNode(tmp_path, "old", 2, UNDERTOW_DB_URL=url,
+                                             **SETTINGS).of_version(previous))
+        old.wait_up(url)
+        store = PostgresJobStore(url, timeout=2.0)
         stack.callback(store.close)
         api = stack.enter_context(api_server(tmp_path, url, "api", **SETTINGS))
         http = stack.enter_context(httpx.Client(base_url=api.url, timeout=30))
-        old = stack.enter_context(WorkerNode(tmp_path, "old", 2, UNDERTOW_DB_URL=url,
-                                             **SETTINGS).of_version(previous))
         ids = [http.post("/v1/plans", json=two_link_scene(iterations=150)).json()["id"]
                for _ in range(6)]  # 3 s each
         solving = wait_for(lambda: _solving_two(store, old), 60, "the old node solving two")

@@ -141,6 +141,13 @@ STEPS: tuple[Step, ...] = (
         "objective = (plan->>'objective')::double precision "
         "WHERE batch IS NOT NULL AND plan IS NOT NULL",
     )),
+    Step(10, "on PostgreSQL a node's liveness is its queue engine registration's heartbeat "
+             "(`app.store.postgres_nodes`): its `workers` row names the registration and "
+             "no longer needs a heartbeat of its own (nodes of earlier versions still "
+             "write one)", (), postgres=(
+        "ALTER TABLE workers ADD COLUMN engine_worker bigint",
+        "ALTER TABLE workers ALTER COLUMN seen DROP NOT NULL",
+    )),
 )
 SCHEMA_VERSION = STEPS[-1].version
 """The version of a database that has had every step."""

@@ -7,19 +7,20 @@ queue. Each job has one engine job (queue: the job's owner, task `TASK`), linked
 table `undertow_queue`, and every transition changes both rows in one transaction:
 
 - claim: procrastinate's `fetch_job` (oldest by id, `FOR UPDATE SKIP LOCKED`, its retry
-  time come) for a procrastinate worker registered for that claim alone, so that the
-  registration's heartbeat is the claim's lease;
+  time come) for the claiming node's engine registration (`app.store.postgres_nodes`),
+  whose heartbeat is the node's liveness and the claim's lease;
 - pickup: procrastinate's trigger NOTIFYs its channel when a job is deferred (inserted);
   this store NOTIFYs it when it queues a job again, which the trigger does not see: at
   once (released by its worker, retried by id) with an empty payload, after a pause (an
   infrastructure failure: a dead worker, a stalled claim) with the pause
   (`app.store.postgres_listener.due_in`), so that idle solver processes, which LISTEN
   there, look for it when the pause has passed rather than at their next poll;
-- renewal: procrastinate's `update_heartbeat` of the claim's registration;
+- renewal: procrastinate's `update_heartbeat` of the node's registration;
 - stalled jobs: procrastinate's `select_stalled_jobs_by_heartbeat` rewritten (`_STALLED`)
   to time each claim out by its own lease (the one it stored) rather than one for all:
-  the claims whose supervisor went silent (their registrations are removed as the jobs
-  are requeued);
+  the claims whose node went silent (a node's registration stays for its next heartbeat;
+  one a node of an earlier version made for a single claim is removed as the job is
+  requeued);
 - retries: procrastinate's `retry_job` queues the job again at its retry time (the pause of
   undertow's `RetryPolicy`), its `finish_job` ends it (failed, a dead letter, or aborted
   when it was cancelled), its `cancel_job` cancels a queued one and flags a running one.
@@ -57,7 +58,7 @@ from procrastinate.sql import queries
 
 from app.store.base import FINAL, SILENCE, JobRecord, JobStatus, RetryPolicy
 from app.store.postgres_listener import PostgresListener, due_in
-from app.store.postgres_sql import PostgresSql
+from app.store.postgres_nodes import PostgresNodes, node_of
 from app.store.sql import COLUMNS, LEASE_RAN_OUT
 
 TASK = "undertow.plan"
@@ -65,7 +66,7 @@ TASK = "undertow.plan"
 CHANNEL = next(iter(manager.get_channel_for_queues(None)))
 """procrastinate's channel notified whenever a job of any queue is deferred."""
 ENDED: dict[str, str] = {"succeeded": "succeeded", "failed": "failed", "cancelled": "aborted"}
-"""A running job's final status -> its engine job's."""
+"""A job's final status -> its engine job's (a job cancelled while queued: `cancelled`)."""
 _LINK = ("CREATE TABLE IF NOT EXISTS undertow_queue ("
          "job_id TEXT PRIMARY KEY REFERENCES jobs (id) ON DELETE CASCADE, "
          "queue_id BIGINT NOT NULL UNIQUE REFERENCES procrastinate_jobs (id) ON DELETE CASCADE)")
@@ -101,7 +102,7 @@ def _utc(seconds: float) -> datetime.datetime:
     return datetime.datetime.fromtimestamp(seconds, datetime.UTC)
 
 
-class PostgresJobStore(PostgresSql):
+class PostgresJobStore(PostgresNodes):
     """Jobs in a PostgreSQL database at `url` ("postgresql://user:password@host:port/db")
     queued by procrastinate; `lease` [s]: how long a claim holds after its last renewal
     (the heartbeat timeout). `pool_size`, `timeout`: `PostgresSql`'s."""
@@ -169,15 +170,18 @@ class PostgresJobStore(PostgresSql):
         """Bring the engine jobs of `ids` in line with their jobs' new status: a queued one
         is retried (after the policy's pause for its failures when `pause`, else at once;
         deferred anew when it had none: claimed by a version before procrastinate), a final
-        one ended; the claim's registration is removed."""
+        one ended; a registration made for its claim alone (by a node of an earlier
+        version) is removed, a node's stays."""
         if not ids:
             return
         rows = self._rows(
-            "SELECT j.id, j.owner, j.status, j.infra_failures, q.id, q.status, q.worker_id "
+            "SELECT j.id, j.owner, j.status, j.infra_failures, q.id, q.status, "
+            "CASE WHEN NOT EXISTS (SELECT 1 FROM workers w WHERE w.engine_worker = q.worker_id) "
+            "THEN q.worker_id END "
             "FROM jobs j LEFT JOIN undertow_queue m ON m.job_id = j.id "
             "LEFT JOIN procrastinate_jobs q ON q.id = m.queue_id WHERE j.id = ANY(%s)", (ids,))
         queued: set[float] = set()
-        for job_id, owner, status, failures, queue_id, engine_status, engine_worker in rows:
+        for job_id, owner, status, failures, queue_id, engine_status, claim_worker in rows:
             delay = self.policy.delay(failures) if pause else 0.0
             if status == "queued":
                 queued.add(delay)
@@ -186,13 +190,13 @@ class PostgresJobStore(PostgresSql):
             elif status == "queued" and engine_status == "doing":
                 self._run("retry_job", job_id=queue_id, retry_at=_utc(time.time() + delay),
                           new_priority=None, new_queue_name=None, new_lock=None)
-            elif status in FINAL and engine_status == "todo":
+            elif status == "cancelled" and engine_status == "todo":
                 self._run("cancel_job", job_id=queue_id, abort=False, delete_job=False)
-            elif status in FINAL and engine_status == "doing":
+            elif status in FINAL and engine_status in ("todo", "doing"):
                 self._run("finish_job", job_id=queue_id, status=ENDED[status],
                           delete_job=False)
-            if engine_worker is not None:
-                self._run("unregister_worker", worker_id=engine_worker)
+            if claim_worker is not None:  # a registration of its claim alone
+                self._run("unregister_worker", worker_id=claim_worker)
         self._announce(queued)
 
     def _announce(self, pauses: set[float]) -> None:
@@ -223,18 +227,16 @@ class PostgresJobStore(PostgresSql):
 
     def claim(self, owner: str | None, worker: str, lease_until: float) -> JobRecord | None:
         with self._transaction():
-            [registered] = self._run("register_worker")
             [row] = self._run("fetch_job", queues=None if owner is None else [owner],
-                              worker_id=registered["worker_id"])
+                              worker_id=self._registration(node_of(worker)))
             if row["id"] is None:
-                raise psycopg.Rollback()  # no registration left behind
+                raise psycopg.Rollback()  # nothing written (nor a registration made for it)
             rows = self._write(
                 f"UPDATE jobs SET {self._claiming()} WHERE status = 'queued' AND id = "
                 f"(SELECT job_id FROM undertow_queue WHERE queue_id = :queue) RETURNING {COLUMNS}",
                 {**self._claim_params(worker, lease_until), "queue": row["id"]})
             if not rows:  # an engine job whose job is not queued: end it
                 self._run("finish_job", job_id=row["id"], status="failed", delete_job=False)
-                self._run("unregister_worker", worker_id=registered["worker_id"])
                 return None
             return self._record(rows[0])
         return None
