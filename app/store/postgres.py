@@ -70,6 +70,11 @@ ENDED: dict[str, str] = {"succeeded": "succeeded", "failed": "failed", "cancelle
 _LINK = ("CREATE TABLE IF NOT EXISTS undertow_queue ("
          "job_id TEXT PRIMARY KEY REFERENCES jobs (id) ON DELETE CASCADE, "
          "queue_id BIGINT NOT NULL UNIQUE REFERENCES procrastinate_jobs (id) ON DELETE CASCADE)")
+_UNCLAIMED = "(status = 'queued' OR (status = 'running' AND worker IS NULL))"
+"""A job the engine has just handed out: queued, or already `running` with no claim
+written yet, as its status reads once the database derives it from the engine job's (the
+next step towards one set of books, docs/deploy.md, "Where each fact is kept"), so that
+nodes of this version run beside a version that stops writing the status itself."""
 _ENGINE_LOCK = 0x756E6475  # advisory lock key held while the engine's schema is installed
 _LINKED = ("FROM jobs j JOIN undertow_queue m ON m.job_id = j.id "
            "JOIN procrastinate_jobs q ON q.id = m.queue_id")
@@ -171,7 +176,8 @@ class PostgresJobStore(PostgresNodes):
         is retried (after the policy's pause for its failures when `pause`, else at once;
         deferred anew when it had none: claimed by a version before procrastinate), a final
         one ended; a registration made for its claim alone (by a node of an earlier
-        version) is removed, a node's stays."""
+        version) is removed, a node's stays and no longer names the job (so that deleting
+        it when the node stops locks none of its former jobs, which a fetch would skip)."""
         if not ids:
             return
         rows = self._rows(
@@ -180,6 +186,8 @@ class PostgresJobStore(PostgresNodes):
             "THEN q.worker_id END "
             "FROM jobs j LEFT JOIN undertow_queue m ON m.job_id = j.id "
             "LEFT JOIN procrastinate_jobs q ON q.id = m.queue_id WHERE j.id = ANY(%s)", (ids,))
+        self._rows("UPDATE procrastinate_jobs SET worker_id = NULL WHERE status = 'doing' "
+                   "AND id = ANY(%s)", ([row[4] for row in rows if row[4] is not None],))
         queued: set[float] = set()
         for job_id, owner, status, failures, queue_id, engine_status, claim_worker in rows:
             delay = self.policy.delay(failures) if pause else 0.0
@@ -226,13 +234,14 @@ class PostgresJobStore(PostgresNodes):
             return True
 
     def claim(self, owner: str | None, worker: str, lease_until: float) -> JobRecord | None:
+        """procrastinate's fetch, then the claim written on the job (`_UNCLAIMED`)."""
         with self._transaction():
             [row] = self._run("fetch_job", queues=None if owner is None else [owner],
                               worker_id=self._registration(node_of(worker)))
             if row["id"] is None:
                 raise psycopg.Rollback()  # nothing written (nor a registration made for it)
             rows = self._write(
-                f"UPDATE jobs SET {self._claiming()} WHERE status = 'queued' AND id = "
+                f"UPDATE jobs SET {self._claiming()} WHERE {_UNCLAIMED} AND id = "
                 f"(SELECT job_id FROM undertow_queue WHERE queue_id = :queue) RETURNING {COLUMNS}",
                 {**self._claim_params(worker, lease_until), "queue": row["id"]})
             if not rows:  # an engine job whose job is not queued: end it
