@@ -68,11 +68,11 @@ OLD_NODES = ("old-1", "old-2")
 ITERATION = 0.02  # [s] of the fake solver
 SETTINGS = {"UNDERTOW_SOLVE_FUNCTION": FAKE_SOLVER, "UNDERTOW_LEASE": str(LEASE),
             "UNDERTOW_MAX_QUEUED": "64", "UNDERTOW_RETRY_BACKOFF": "0.5"}
-PREVIOUS = ("cac7260", "7427ca1")
-"""The earlier versions of the upgrade probe, by default: the commit before nodes held
-their claims by one engine registration per node (its nodes register one per claim and
-drain, `UNDERTOW_DRAIN`), and a release whose nodes release their running plans at once
-when stopped."""
+PREVIOUS = ("cc6413d",)
+"""The earlier version of the upgrade probe, by default: the commit before the database
+derived each job's status from its engine job's (its nodes write the status themselves,
+as the database derives it). Releases before da7fea7 cannot run beside this one: a store
+of this version refuses to open while their nodes are alive (`EarlierNodes`)."""
 
 
 @dataclass

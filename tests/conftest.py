@@ -183,7 +183,7 @@ SERVICE = frozenset({
     "test_admission.py", "test_api_budget.py", "test_api_compute.py", "test_api_plans.py",
     "test_api_service.py", "test_api_sessions.py", "test_progress_writes.py",
     "test_api_warm_start.py", "test_bad_input.py", "test_batches.py", "test_benches.py",
-    "test_capacity.py",
+    "test_capacity.py", "test_derived_status.py",
     "test_cli.py", "test_continuation.py", "test_delivered_torque.py", "test_distributed.py",
     "test_dockerfile.py", "test_e2e_server.py", "test_engine_nodes.py", "test_errors.py",
     "test_examples.py",

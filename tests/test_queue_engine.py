@@ -106,21 +106,7 @@ def test_an_infrastructure_failure_is_a_retry_of_the_engine_job_at_its_pause(sto
     assert store.get("a").dead_letter and registrations(store) == 2  # w1's and w2's nodes
 
 
-DERIVED = """
-CREATE FUNCTION derived_status() RETURNS trigger LANGUAGE plpgsql AS $$ BEGIN
-    UPDATE jobs SET status = CASE NEW.status WHEN 'todo' THEN 'queued'
-        WHEN 'doing' THEN 'running' WHEN 'aborted' THEN 'cancelled' ELSE NEW.status::text END
-    FROM undertow_queue m WHERE m.queue_id = NEW.id AND jobs.id = m.job_id;
-    RETURN NULL;
-END $$;
-CREATE TRIGGER derived_status AFTER UPDATE OF status ON procrastinate_jobs FOR EACH ROW
-    WHEN (OLD.status IS DISTINCT FROM NEW.status) EXECUTE FUNCTION derived_status()"""
-"""The status of each job derived by the database from its engine job's, as a version
-that stops writing it would have it."""
-
-
 def test_claims_hold_where_the_database_derives_the_status_from_the_engines(store):
-    store._rows(DERIVED)
     for job_id in ("a", "b", "c"):
         store.create(job_id, SCENE, "host")
     assert claim(store) == "a"  # its status read `running` before the claim was written

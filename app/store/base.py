@@ -91,6 +91,11 @@ class NewerSchema(StoreUnavailable):
     (a newer version of the service migrated it): the process does not start on it."""
 
 
+class EarlierNodes(StoreUnavailable):
+    """Nodes of a release too early to run beside this one are alive on the store: the
+    process does not start until they are replaced (`app.store.postgres_status`)."""
+
+
 class NameTaken(StoreUnavailable):
     """A live server of the same name already runs on the store (`JobStore.hold_name`)."""
 

@@ -148,6 +148,11 @@ STEPS: tuple[Step, ...] = (
         "ALTER TABLE workers ADD COLUMN engine_worker bigint",
         "ALTER TABLE workers ALTER COLUMN seen DROP NOT NULL",
     )),
+    Step(11, "on PostgreSQL a job's status is derived from its queue engine job's "
+             "(`app.store.postgres_status`) and no statement writes it: a new job starts "
+             "queued by the column's default", (), postgres=(
+        "ALTER TABLE jobs ALTER COLUMN status SET DEFAULT 'queued'",
+    )),
 )
 SCHEMA_VERSION = STEPS[-1].version
 """The version of a database that has had every step."""

@@ -1,10 +1,13 @@
 """The PostgreSQL job store, queued by procrastinate: one database shared by API servers
 and workers on any number of machines (UNDERTOW_DB_URL).
 
-undertow's `jobs` rows stay the record the API reads and writes (status, progress, cancel
-flag, plan, history, batches, limits); procrastinate's `procrastinate_jobs` rows are the
-queue. Each job has one engine job (queue: the job's owner, task `TASK`), linked by the
-table `undertow_queue`, and every transition changes both rows in one transaction:
+procrastinate's `procrastinate_jobs` rows are the queue, and their status is where each
+job is; undertow's `jobs` rows keep what the engine does not (progress, cancel flag, plan,
+history, batches, limits) and the API's status, which the database derives from the
+engine's (`app.store.postgres_status`) and no statement here writes. Each job has one
+engine job (queue: the job's owner, task `TASK`), linked by the table `undertow_queue`,
+and every transition writes undertow's record and moves the engine job in one
+transaction:
 
 - claim: procrastinate's `fetch_job` (oldest by id, `FOR UPDATE SKIP LOCKED`, its retry
   time come) for the claiming node's engine registration (`app.store.postgres_nodes`),
@@ -47,7 +50,7 @@ from __future__ import annotations
 import builtins
 import datetime
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from typing import Any
 
@@ -59,6 +62,7 @@ from procrastinate.sql import queries
 from app.store.base import FINAL, SILENCE, JobRecord, JobStatus, RetryPolicy
 from app.store.postgres_listener import PostgresListener, due_in
 from app.store.postgres_nodes import PostgresNodes, node_of
+from app.store.postgres_status import install, refuse_beside_earlier_nodes
 from app.store.sql import COLUMNS, LEASE_RAN_OUT
 
 TASK = "undertow.plan"
@@ -70,11 +74,9 @@ ENDED: dict[str, str] = {"succeeded": "succeeded", "failed": "failed", "cancelle
 _LINK = ("CREATE TABLE IF NOT EXISTS undertow_queue ("
          "job_id TEXT PRIMARY KEY REFERENCES jobs (id) ON DELETE CASCADE, "
          "queue_id BIGINT NOT NULL UNIQUE REFERENCES procrastinate_jobs (id) ON DELETE CASCADE)")
-_UNCLAIMED = "(status = 'queued' OR (status = 'running' AND worker IS NULL))"
-"""A job the engine has just handed out: queued, or already `running` with no claim
-written yet, as its status reads once the database derives it from the engine job's (the
-next step towards one set of books, docs/deploy.md, "Where each fact is kept"), so that
-nodes of this version run beside a version that stops writing the status itself."""
+_UNCLAIMED = "(status = 'running' AND worker IS NULL)"
+"""A job whose engine job was just fetched: its status, derived from the fetch, reads
+`running`, and no claim is written on it yet."""
 _ENGINE_LOCK = 0x756E6475  # advisory lock key held while the engine's schema is installed
 _LINKED = ("FROM jobs j JOIN undertow_queue m ON m.job_id = j.id "
            "JOIN procrastinate_jobs q ON q.id = m.queue_id")
@@ -133,8 +135,13 @@ class PostgresJobStore(PostgresNodes):
             return self._engine.execute_query_all_with_connection(conn, queries[name], **params)
 
     def _migrate(self) -> None:
-        """undertow's migrations, then the engine's schema and the link table where they
-        are missing, and an engine job for every queued job that has none."""
+        """undertow's migrations (refused beside nodes too early for a derived status:
+        `app.store.postgres_status`), then the engine's schema, the link table and the
+        status's derivation where they are missing, and an engine job for every queued
+        job that has none."""
+        with self._transaction():
+            refuse_beside_earlier_nodes(self._rows, self.lease, f"the job store "
+                                        f"({self._where()})")
         super()._migrate()
         try:
             with self._transaction() as conn:
@@ -142,6 +149,7 @@ class PostgresJobStore(PostgresNodes):
                 if self._run("check_connection")[0]["check"] is None:
                     conn.execute(schema.SchemaManager.get_schema())
                 conn.execute(_LINK)
+                install(self._rows)
                 self._adopt()
         except psycopg.Error as exc:
             raise self._unavailable(exc) from exc
@@ -154,11 +162,12 @@ class PostgresJobStore(PostgresNodes):
             "SELECT id, owner FROM jobs WHERE status = 'queued' AND NOT EXISTS "
             "(SELECT 1 FROM undertow_queue WHERE job_id = jobs.id) ORDER BY created, id")])
 
-    def _defer(self, jobs: builtins.list[tuple[str, str]], after: float = 0.0) -> None:
+    def _defer(self, jobs: builtins.list[tuple[str, str]],
+               after: float = 0.0) -> builtins.list[int]:
         """An engine job in the owner's queue for each (job id, owner), linked to it, to
-        be claimed no sooner than `after` seconds from now."""
+        be claimed no sooner than `after` seconds from now: their ids."""
         if not jobs:
-            return
+            return []
         start = _utc(time.time() + after) if after > 0.0 else None
         with self._connection() as conn, _database_errors():
             deferred = manager.JobManager(self._engine).batch_defer_jobs(
@@ -170,42 +179,52 @@ class PostgresJobStore(PostgresNodes):
                     "INSERT INTO undertow_queue (job_id, queue_id) VALUES (%s, %s) "
                     "ON CONFLICT (job_id) DO UPDATE SET queue_id = EXCLUDED.queue_id",
                     [(job_id, job.id) for (job_id, _), job in zip(jobs, deferred, strict=True)])
+        return [int(job.id) for job in deferred if job.id is not None]
 
-    def _settle(self, ids: builtins.list[str], pause: bool) -> None:
-        """Bring the engine jobs of `ids` in line with their jobs' new status: a queued one
-        is retried (after the policy's pause for its failures when `pause`, else at once;
-        deferred anew when it had none: claimed by a version before procrastinate), a final
-        one ended; a registration made for its claim alone (by a node of an earlier
-        version) is removed, a node's stays and no longer names the job (so that deleting
-        it when the node stops locks none of its former jobs, which a fetch would skip)."""
-        if not ids:
+    def _settle(self, targets: Mapping[str, JobStatus], pause: bool) -> None:
+        """Move the engine jobs of the jobs in `targets` to the status each job takes,
+        which the database then derives for the job (`app.store.postgres_status`): one
+        queued again is retried (after the policy's pause for its failures when `pause`,
+        else at once), a final one ended; a job without one (claimed by a version before
+        procrastinate) gets one first. A registration made for its claim alone (by a node
+        of an earlier version) is removed, a node's stays and no longer names the job (so
+        that deleting it when the node stops locks none of its former jobs, which a fetch
+        would skip)."""
+        if not targets:
             return
         rows = self._rows(
-            "SELECT j.id, j.owner, j.status, j.infra_failures, q.id, q.status, "
+            "SELECT j.id, j.owner, j.infra_failures, q.id, q.status, "
             "CASE WHEN NOT EXISTS (SELECT 1 FROM workers w WHERE w.engine_worker = q.worker_id) "
             "THEN q.worker_id END "
             "FROM jobs j LEFT JOIN undertow_queue m ON m.job_id = j.id "
-            "LEFT JOIN procrastinate_jobs q ON q.id = m.queue_id WHERE j.id = ANY(%s)", (ids,))
+            "LEFT JOIN procrastinate_jobs q ON q.id = m.queue_id WHERE j.id = ANY(%s)",
+            (builtins.list(targets),))
         self._rows("UPDATE procrastinate_jobs SET worker_id = NULL WHERE status = 'doing' "
-                   "AND id = ANY(%s)", ([row[4] for row in rows if row[4] is not None],))
+                   "AND id = ANY(%s)", ([row[3] for row in rows if row[3] is not None],))
         queued: set[float] = set()
-        for job_id, owner, status, failures, queue_id, engine_status, claim_worker in rows:
-            delay = self.policy.delay(failures) if pause else 0.0
+        for job_id, owner, failures, queue_id, engine_status, claim_worker in rows:
+            status = targets[job_id]
+            delay = self.policy.delay(failures) if pause and status == "queued" else 0.0
             if status == "queued":
                 queued.add(delay)
-            if queue_id is None and status == "queued":
-                self._defer([(job_id, owner)], delay)
-            elif status == "queued" and engine_status == "doing":
-                self._run("retry_job", job_id=queue_id, retry_at=_utc(time.time() + delay),
-                          new_priority=None, new_queue_name=None, new_lock=None)
-            elif status == "cancelled" and engine_status == "todo":
-                self._run("cancel_job", job_id=queue_id, abort=False, delete_job=False)
-            elif status in FINAL and engine_status in ("todo", "doing"):
-                self._run("finish_job", job_id=queue_id, status=ENDED[status],
-                          delete_job=False)
+            if queue_id is None:
+                [queue_id] = self._defer([(job_id, owner)], delay)
+                engine_status = "todo"
+            self._move(queue_id, engine_status, status, delay)
             if claim_worker is not None:  # a registration of its claim alone
                 self._run("unregister_worker", worker_id=claim_worker)
         self._announce(queued)
+
+    def _move(self, queue_id: int, engine: str, status: JobStatus, delay: float) -> None:
+        """The engine transition that takes engine job `queue_id`, now `engine`, to the
+        job's new `status` (retried after `delay` [s] when queued again)."""
+        if status == "queued" and engine == "doing":
+            self._run("retry_job", job_id=queue_id, retry_at=_utc(time.time() + delay),
+                      new_priority=None, new_queue_name=None, new_lock=None)
+        elif status == "cancelled" and engine == "todo":
+            self._run("cancel_job", job_id=queue_id, abort=False, delete_job=False)
+        elif status in FINAL and engine in ("todo", "doing"):
+            self._run("finish_job", job_id=queue_id, status=ENDED[status], delete_job=False)
 
     def _announce(self, pauses: set[float]) -> None:
         """NOTIFY idle workers (at commit) of jobs queued again, which procrastinate's
@@ -240,11 +259,12 @@ class PostgresJobStore(PostgresNodes):
                               worker_id=self._registration(node_of(worker)))
             if row["id"] is None:
                 raise psycopg.Rollback()  # nothing written (nor a registration made for it)
+            # the engine job is doing, so the job reads running (the database derives it)
             rows = self._write(
                 f"UPDATE jobs SET {self._claiming()} WHERE {_UNCLAIMED} AND id = "
                 f"(SELECT job_id FROM undertow_queue WHERE queue_id = :queue) RETURNING {COLUMNS}",
                 {**self._claim_params(worker, lease_until), "queue": row["id"]})
-            if not rows:  # an engine job whose job is not queued: end it
+            if not rows:  # a stray engine job (its job was not queued): end it alone
                 self._run("finish_job", job_id=row["id"], status="failed", delete_job=False)
                 return None
             return self._record(rows[0])
@@ -288,10 +308,10 @@ class PostgresJobStore(PostgresNodes):
                  reason: str) -> dict[str, JobStatus]:
         with self._transaction():
             done = super()._requeue(condition, params, reason)
-            self._settle(builtins.list(done), pause=True)
+            self._settle(done, pause=True)
             return done
 
-    def _release(self, condition: str, params: dict[str, Any]) -> builtins.list[str]:
+    def _release(self, condition: str, params: dict[str, Any]) -> dict[str, JobStatus]:
         with self._transaction():
             released = super()._release(condition, params)
             self._settle(released, pause=False)
@@ -303,14 +323,14 @@ class PostgresJobStore(PostgresNodes):
         with self._transaction():
             if not super().finish(job_id, status, plan, error, solution, worker):
                 return False
-            self._settle([job_id], pause=False)
+            self._settle({job_id: status}, pause=False)
             return True
 
     def fail(self, job_id: str, error: str) -> bool:
         with self._transaction():
             if not super().fail(job_id, error):
                 return False
-            self._settle([job_id], pause=False)
+            self._settle({job_id: "failed"}, pause=False)
             return True
 
     def _abort(self, condition: str, params: tuple) -> None:
@@ -322,9 +342,10 @@ class PostgresJobStore(PostgresNodes):
     def request_cancel(self, job_id: str) -> JobRecord | None:
         with self._transaction():
             record = super().request_cancel(job_id)
-            if record is not None and record.cancel_requested:
-                self._abort("j.id = %s", (job_id,))
-            return record
+            if record is None or not record.cancel_requested:
+                return record
+            self._abort("j.id = %s", (job_id,))
+            return self.get(job_id)
 
     def cancel_batch(self, batch_id: str) -> bool:
         with self._transaction():

@@ -1,7 +1,9 @@
 """The PostgreSQL job store without its queue (psycopg 3 with a connection pool): its
 connections, its dialect of the shared statements, and the statements it runs in
 transactions of its own. The queue (claims, leases, pickup) is procrastinate's, added by
-`app.store.postgres`, the store a process opens.
+`app.store.postgres`, the store a process opens, and so is a job's status: the database
+derives it from the engine job's (`app.store.postgres_status`), so no statement here
+writes it and a new job starts `queued` by the column's default.
 
 Each process opens its own pool on first use (the store pickles as its URL, so worker
 processes reopen it). Statements run in autocommit mode, or in the one transaction their
@@ -142,6 +144,11 @@ class PostgresSql(SqlJobStore):
 
     SMALLER = "LEAST"
 
+    def _status(self, value: str) -> str:
+        """Nothing: a job's status is derived from its engine job's by the database
+        (`app.store.postgres_status`), never written by a statement."""
+        return ""
+
     def __init__(self, url: str, pool_size: int = 4, timeout: float = 10.0,
                  policy: RetryPolicy | None = None):
         self.url, self.pool_size, self.timeout = url, pool_size, timeout
@@ -271,8 +278,8 @@ class PostgresSql(SqlJobStore):
     def create(self, job_id: str, scene: dict[str, Any], owner: str,
                limit: int | None = None, key: str | None = None,
                admission: dict[str, Any] | None = None) -> JobRecord | None:
-        insert = ("INSERT INTO jobs (id, status, scene, owner, created, idem_key, admission) "
-                  f"VALUES (%s, 'queued', %s, %s, %s, %s, %s) RETURNING {COLUMNS}")
+        insert = ("INSERT INTO jobs (id, scene, owner, created, idem_key, admission) "
+                  f"VALUES (%s, %s, %s, %s, %s, %s) RETURNING {COLUMNS}")
         values = (job_id, _jsonb(scene), owner, time.time(), key, _jsonb(admission))
         try:
             if limit is None:
@@ -303,7 +310,6 @@ class PostgresSql(SqlJobStore):
     def request_cancel(self, job_id: str) -> JobRecord | None:
         self._rows(
             "UPDATE jobs SET cancel_requested = true, "
-            "status = CASE WHEN status = 'queued' THEN 'cancelled' ELSE status END, "
             "finished = CASE WHEN status = 'queued' THEN %s ELSE finished END "
             "WHERE id = %s AND status IN ('queued', 'running')", (time.time(), job_id))
         return self.get(job_id)
@@ -314,7 +320,6 @@ class PostgresSql(SqlJobStore):
                 return False
             conn.execute(
                 "UPDATE jobs SET cancel_requested = true, "
-                "status = CASE WHEN status = 'queued' THEN 'cancelled' ELSE status END, "
                 "error = CASE WHEN status = 'queued' THEN %s ELSE error END, "
                 "finished = CASE WHEN status = 'queued' THEN %s ELSE finished END "
                 "WHERE batch = %s AND status IN ('queued', 'running')",
@@ -336,8 +341,8 @@ class PostgresSql(SqlJobStore):
                          "VALUES (%s, %s, %s, %s)", (batch_id, owner, now, _jsonb(spec)))
             with conn.cursor() as cursor:
                 cursor.executemany(
-                    "INSERT INTO jobs (id, status, scene, owner, created, batch, member, "
-                    "admission) VALUES (%s, 'queued', %s, %s, %s, %s, %s, %s)",
+                    "INSERT INTO jobs (id, scene, owner, created, batch, member, admission) "
+                    "VALUES (%s, %s, %s, %s, %s, %s, %s)",
                     [(job_id, _jsonb(scene), owner, now, batch_id, index, _jsonb(admission))
                      for index, ((job_id, scene), admission)
                      in enumerate(zip(members, decided, strict=True))])

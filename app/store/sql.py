@@ -45,6 +45,13 @@ LEASE_RAN_OUT = "its lease ran out: its worker or node was lost"
 """The reason of an infrastructure failure found by `JobStore.expire`."""
 _REQUEUE = "(NOT cancel_requested AND infra_failures < :max)"
 """A running job that fails for an infrastructure reason goes back to the queue."""
+_RUNNING, _QUEUED, _FAILED = "'running'", "'queued'", "'failed'"
+_RELEASED = "CASE WHEN cancel_requested THEN 'cancelled' ELSE 'queued' END"
+"""The status a released job takes: queued again, or cancelled when that was asked."""
+_REQUEUED = "CASE WHEN cancel_requested THEN 'cancelled' WHEN dead_letter THEN 'failed' " \
+    "ELSE 'queued' END"
+"""The status a job takes by an infrastructure failure, read from the row as the failure
+left it (its `dead_letter` written): queued again, a dead letter, or cancelled."""
 
 
 def event(kind: str, worker: str = "worker", reason: str | None = None) -> str:
@@ -62,6 +69,11 @@ class SqlJobStore(JobStore):
     queue engine keeps both (PostgreSQL's procrastinate), and the columns stay NULL."""
     SMALLER = "MIN"
     """The dialect's SQL function of the smaller of two values (PostgreSQL's LEAST)."""
+
+    def _status(self, value: str) -> str:
+        """The SET item that writes a job's new status, the SQL expression `value`, and its
+        separator (SQLite's; PostgreSQL derives the column from the queue engine's)."""
+        return f"status = {value}, "
 
     @abstractmethod
     def _rows(self, sql: str, params: tuple | dict = ()) -> builtins.list[tuple]:
@@ -174,7 +186,7 @@ class SqlJobStore(JobStore):
         """The SET list that turns a queued job into a claimed one (parameters :now,
         :worker, :until, :lease, :progress: `_claim_params`)."""
         until = ":until" if self.QUEUE_COLUMNS else "NULL"
-        return ("status = 'running', started = :now, worker = :worker, "
+        return (f"{self._status(_RUNNING)}started = :now, worker = :worker, "
                 f"lease_until = {until}, lease = :lease, not_before = NULL, "
                 "progress = :progress, "
                 "attempts = attempts + 1, "
@@ -186,24 +198,26 @@ class SqlJobStore(JobStore):
         return {"now": now, "worker": worker, "until": lease_until, "lease": lease_until - now,
                 "progress": self._json(BUILDING)}
 
-    def _release(self, condition: str, params: dict[str, Any]) -> builtins.list[str]:
+    def _release(self, condition: str, params: dict[str, Any]) -> dict[str, JobStatus]:
+        """Release the running jobs that meet `condition`: {job id: its new status}."""
         rows = self._write(
-            "UPDATE jobs SET status = CASE WHEN cancel_requested THEN 'cancelled' "
-            "ELSE 'queued' END, error = CASE WHEN cancel_requested THEN :cancelled END, "
+            f"UPDATE jobs SET {self._status(_RELEASED)}"
+            "error = CASE WHEN cancel_requested THEN :cancelled END, "
             "finished = CASE WHEN cancel_requested THEN :now END, "
             "started = NULL, worker = NULL, lease_until = NULL, progress = NULL, "
             "attempts = attempts - 1, "
             f"history = {self._push(event('released', reason='CAST(:reason AS TEXT)'))} "
-            f"WHERE status = 'running' AND {condition} RETURNING id",
+            f"WHERE status = 'running' AND {condition} RETURNING id, {_RELEASED}",
             {"now": time.time(), "cancelled": CANCELLED_ON_REQUEST, **params})
-        return [row[0] for row in rows]
+        return dict(rows)
 
     def release(self, job_id: str, worker: str, reason: str = "released") -> bool:
         return bool(self._release("id = :id AND worker = :worker",
                                   {"id": job_id, "worker": worker, "reason": reason}))
 
     def release_claimed(self, worker: str, reason: str) -> builtins.list[str]:
-        return self._release("worker = :worker", {"worker": worker, "reason": reason})
+        return builtins.list(self._release("worker = :worker",
+                                           {"worker": worker, "reason": reason}))
 
     def _requeue(self, condition: str, params: dict[str, Any],
                  reason: str) -> dict[str, JobStatus]:
@@ -213,8 +227,9 @@ class SqlJobStore(JobStore):
         dead = (f"{DEAD_LETTER}: {reason}; it failed for infrastructure reasons "
                 f"{policy.max_retries + 1} times (UNDERTOW_MAX_RETRIES={policy.max_retries})")
         rows = self._write(
-            "UPDATE jobs SET status = CASE WHEN cancel_requested THEN 'cancelled' "
-            "WHEN infra_failures < :max THEN 'queued' ELSE 'failed' END, "
+            "UPDATE jobs SET " + self._status(
+                "CASE WHEN cancel_requested THEN 'cancelled' "
+                "WHEN infra_failures < :max THEN 'queued' ELSE 'failed' END") +
             "error = CASE WHEN cancel_requested THEN :cancelled "
             "WHEN infra_failures < :max THEN NULL ELSE :dead END, "
             "dead_letter = (NOT cancel_requested AND infra_failures >= :max), "
@@ -226,7 +241,7 @@ class SqlJobStore(JobStore):
             "lease_until = NULL, infra_failures = infra_failures + 1, "
             "history = "
             f"{self._push(event('infrastructure-failure', reason='CAST(:reason AS TEXT)'))} "
-            f"WHERE status = 'running' AND {condition} RETURNING id, status",
+            f"WHERE status = 'running' AND {condition} RETURNING id, {_REQUEUED}",
             {"now": time.time(), "max": policy.max_retries, "cancelled": CANCELLED_ON_REQUEST,
              "dead": dead, "reason": reason, **params})
         return dict(rows)
@@ -267,7 +282,8 @@ class SqlJobStore(JobStore):
         held = ("AND (SELECT COUNT(*) FROM jobs WHERE owner = :owner AND status IN "
                 "('queued', 'running')) < :limit" if limited else "")
         return (
-            "UPDATE jobs SET status = 'queued', owner = :owner, error = NULL, plan = NULL, "
+            f"UPDATE jobs SET {self._status(_QUEUED)}owner = :owner, error = NULL, "
+            "plan = NULL, "
             "solution = NULL, verified = NULL, objective = NULL, progress = NULL, "
             "started = NULL, finished = NULL, "
             "worker = NULL, lease_until = NULL, not_before = NULL, "
@@ -291,7 +307,8 @@ class SqlJobStore(JobStore):
                error: str | None, solution: dict[str, Any] | None = None,
                worker: str | None = None) -> bool:
         rows = self._write(
-            "UPDATE jobs SET status = :status, plan = :plan, error = :error, finished = :now, "
+            f"UPDATE jobs SET {self._status(':status')}plan = :plan, error = :error, "
+            "finished = :now, "
             "solution = :solution, lease_until = NULL, verified = :verified, "
             "objective = :objective, "
             f"history = {self._push(event('finished', reason='CAST(:status AS TEXT)'))} "
@@ -307,7 +324,7 @@ class SqlJobStore(JobStore):
 
     def fail(self, job_id: str, error: str) -> bool:
         rows = self._write(
-            "UPDATE jobs SET status = 'failed', error = ?, finished = ? "
+            f"UPDATE jobs SET {self._status(_FAILED)}error = ?, finished = ? "
             "WHERE id = ? AND status IN ('queued', 'running') RETURNING id",
             (error, time.time(), job_id))
         return bool(rows)
