@@ -5,8 +5,10 @@ psycopg's `%(name)s`); a store runs them through its `_rows` (reads) and `_write
 and converts its own JSON columns and rows (`_json`, `_from_json`, `_record`), and appends
 to a job's history with its own JSON functions (`_push`). What differs between the
 databases (creating jobs within a limit, batches, integrity, and the queue: claims,
-renewals and expiry are SQLite's own statements and procrastinate's on PostgreSQL) stays
-with each store; the migrations of both are one list (`app.store.migrations`).
+renewals and expiry are SQLite's own statements and procrastinate's on PostgreSQL, where
+the database derives a job's status from the queue's, so that the statements' writes of
+it, `_status`, are SQLite's alone) stays with each store; the migrations of both are
+one list (`app.store.migrations`).
 """
 
 from __future__ import annotations
@@ -46,6 +48,7 @@ LEASE_RAN_OUT = "its lease ran out: its worker or node was lost"
 _REQUEUE = "(NOT cancel_requested AND infra_failures < :max)"
 """A running job that fails for an infrastructure reason goes back to the queue."""
 _RUNNING, _QUEUED, _FAILED = "'running'", "'queued'", "'failed'"
+"""Statuses as SQL literals, for `SqlJobStore._status`."""
 _RELEASED = "CASE WHEN cancel_requested THEN 'cancelled' ELSE 'queued' END"
 """The status a released job takes: queued again, or cancelled when that was asked."""
 _REQUEUED = "CASE WHEN cancel_requested THEN 'cancelled' WHEN dead_letter THEN 'failed' " \
