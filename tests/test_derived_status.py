@@ -13,9 +13,7 @@ import pytest
 
 from app.store.base import EarlierNodes
 from app.store.postgres import PostgresJobStore
-from app.store.postgres_sql import PostgresSql
 from app.store.postgres_status import TRIGGERS, derived
-from app.store.sql import SqlJobStore
 
 SCENE = {"robot": {"links": []}}
 LEASE = 0.5  # [s]
@@ -73,7 +71,8 @@ def test_no_statement_of_the_store_writes_a_jobs_status(store):
 
 
 def test_the_recorder_finds_a_store_that_writes_the_status(store, monkeypatch):
-    monkeypatch.setattr(PostgresSql, "_status", SqlJobStore._status)  # the planted fault
+    monkeypatch.setattr(PostgresJobStore, "_status",  # the planted fault
+                        lambda self, value: f"status = {value}, ")
     store._rows(RECORDER)
     lifecycle(store)
     assert ("b0", "succeeded") in store._rows("SELECT * FROM status_writes")

@@ -114,7 +114,7 @@ class PostgresJobStore(PostgresNodes):
     queued by procrastinate; `lease` [s]: how long a claim holds after its last renewal
     (the heartbeat timeout). `pool_size`, `timeout`: `PostgresSql`'s."""
 
-    QUEUE_COLUMNS = False  # procrastinate keeps the claims' heartbeats and retry times
+    QUEUE_COLUMNS = False  # procrastinate keeps the status, claims' heartbeats, retry times
 
     def __init__(self, url: str, pool_size: int = 4, timeout: float = 10.0,
                  policy: RetryPolicy | None = None, lease: float = 60.0):

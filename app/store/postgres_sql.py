@@ -144,11 +144,6 @@ class PostgresSql(SqlJobStore):
 
     SMALLER = "LEAST"
 
-    def _status(self, value: str) -> str:
-        """Nothing: a job's status is derived from its engine job's by the database
-        (`app.store.postgres_status`), never written by a statement."""
-        return ""
-
     def __init__(self, url: str, pool_size: int = 4, timeout: float = 10.0,
                  policy: RetryPolicy | None = None):
         self.url, self.pool_size, self.timeout = url, pool_size, timeout

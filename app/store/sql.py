@@ -7,8 +7,8 @@ to a job's history with its own JSON functions (`_push`). What differs between t
 databases (creating jobs within a limit, batches, integrity, and the queue: claims,
 renewals and expiry are SQLite's own statements and procrastinate's on PostgreSQL, where
 the database derives a job's status from the queue's, so that the statements' writes of
-it, `_status`, are SQLite's alone) stays with each store; the migrations of both are
-one list (`app.store.migrations`).
+it, `_status`, are SQLite's alone: `QUEUE_COLUMNS`) stays with each store; the
+migrations of both are one list (`app.store.migrations`).
 """
 
 from __future__ import annotations
@@ -67,16 +67,18 @@ class SqlJobStore(JobStore):
     """A job store on an SQL database: the statements its dialects share."""
 
     QUEUE_COLUMNS = True
-    """Whether the jobs rows are the queue too: a claim's end (`lease_until`, renewed) and
-    a requeued job's retry time (`not_before`) are kept in them (SQLite); False where a
-    queue engine keeps both (PostgreSQL's procrastinate), and the columns stay NULL."""
+    """Whether the jobs rows are the queue too: a job's status, a claim's end
+    (`lease_until`, renewed) and a requeued job's retry time (`not_before`) are kept in
+    them (SQLite); False where a queue engine keeps all three (PostgreSQL's procrastinate):
+    the status is then derived from the engine's by the database, and the columns stay
+    NULL."""
     SMALLER = "MIN"
     """The dialect's SQL function of the smaller of two values (PostgreSQL's LEAST)."""
 
     def _status(self, value: str) -> str:
         """The SET item that writes a job's new status, the SQL expression `value`, and its
-        separator (SQLite's; PostgreSQL derives the column from the queue engine's)."""
-        return f"status = {value}, "
+        separator; nothing where a queue engine keeps the status (`QUEUE_COLUMNS`)."""
+        return f"status = {value}, " if self.QUEUE_COLUMNS else ""
 
     @abstractmethod
     def _rows(self, sql: str, params: tuple | dict = ()) -> builtins.list[tuple]:
